@@ -1,0 +1,32 @@
+#pragma once
+// Rigid transforms. T_a_b maps points from frame b into frame a.
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+namespace stillpoint {
+
+using SE3 = Eigen::Isometry3d;
+using Vec2 = Eigen::Vector2d;
+using Vec3 = Eigen::Vector3d;
+using Mat3 = Eigen::Matrix3d;
+
+inline SE3 makeSE3(const Eigen::Quaterniond& q, const Vec3& t) {
+  SE3 T = SE3::Identity();
+  T.linear() = q.normalized().toRotationMatrix();
+  T.translation() = t;
+  return T;
+}
+
+// Exponential map of so(3): rotation vector -> rotation matrix.
+inline Mat3 expSO3(const Vec3& w) {
+  const double theta = w.norm();
+  if (theta < 1e-12) return Mat3::Identity();
+  return Eigen::AngleAxisd(theta, w / theta).toRotationMatrix();
+}
+
+// Rotation angle of R in radians.
+inline double rotationAngle(const Mat3& R) {
+  return Eigen::AngleAxisd(R).angle();
+}
+
+}  // namespace stillpoint

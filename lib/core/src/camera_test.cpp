@@ -1,0 +1,98 @@
+#include "stillpoint/core/camera.hpp"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+namespace stillpoint {
+namespace {
+
+TEST(Camera, ProjectUnprojectRoundTrip) {
+  const CameraModel cam = *cameraPreset("fr3");
+  for (double z : {0.3, 1.0, 4.5}) {
+    for (const Vec2& uv : {Vec2(10.5, 20.25), Vec2(320, 240), Vec2(630, 470)}) {
+      const Vec3 p = cam.unproject(uv, z);
+      EXPECT_NEAR(p.z(), z, 1e-12);
+      EXPECT_LT((cam.project(p) - uv).norm(), 1e-9);
+    }
+  }
+}
+
+TEST(Camera, DistortionRoundTripOverTheImage) {
+  for (const char* preset : {"fr1", "fr2"}) {
+    const CameraModel cam = *cameraPreset(preset);
+    ASSERT_TRUE(cam.hasDistortion());
+    double worst = 0;
+    for (int v = 0; v < cam.height; v += 40) {
+      for (int u = 0; u < cam.width; u += 40) {
+        const Vec2 undist(u, v);
+        const Vec2 dist = cam.distortPixel(undist);
+        worst = std::max(worst, (cam.undistortPixel(dist) - undist).norm());
+      }
+    }
+    EXPECT_LT(worst, 1e-4) << preset;
+  }
+}
+
+TEST(Camera, DistortionMovesPixelsAwayFromCentre) {
+  const CameraModel cam = *cameraPreset("fr1");
+  // fr1 has positive k1: a corner pixel moves noticeably.
+  const Vec2 corner(5, 5);
+  EXPECT_GT((cam.distortPixel(corner) - corner).norm(), 1.0);
+  const Vec2 centre(cam.cx, cam.cy);
+  EXPECT_LT((cam.distortPixel(centre) - centre).norm(), 1e-9);
+}
+
+class CameraYaml : public ::testing::Test {
+ protected:
+  std::filesystem::path dir_ = std::filesystem::temp_directory_path() /
+                               ("sp_cam_" + std::to_string(::getpid()));
+  void SetUp() override { std::filesystem::create_directories(dir_); }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+  std::string write(const std::string& text) {
+    const auto p = dir_ / "cam.yaml";
+    std::ofstream(p) << text;
+    return p.string();
+  }
+};
+
+TEST_F(CameraYaml, LoadsAllFields) {
+  const auto r = loadCameraYaml(write(
+      "width: 640\nheight: 480\nfx: 500\nfy: 501\ncx: 319.5\ncy: 239.5\n"
+      "distortion: [0.1, -0.2, 0.001, 0.002, 0.3]\ndepth_factor: 1000\n"));
+  ASSERT_TRUE(r.ok()) << r.error();
+  EXPECT_DOUBLE_EQ(r->fy, 501);
+  EXPECT_DOUBLE_EQ(r->dist[4], 0.3);
+  EXPECT_DOUBLE_EQ(r->depth_factor, 1000);
+}
+
+TEST_F(CameraYaml, NamesMissingField) {
+  const auto r = loadCameraYaml(write("width: 640\nheight: 480\nfx: 500\ncx: 1\ncy: 1\n"));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("'fy'"), std::string::npos) << r.error();
+}
+
+TEST_F(CameraYaml, NamesBadValueAndLine) {
+  const auto r = loadCameraYaml(write("width: 640\nheight: 480\nfx: banana\nfy: 1\ncx: 1\ncy: 1\n"));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("'fx'"), std::string::npos) << r.error();
+  EXPECT_NE(r.error().find("line 3"), std::string::npos) << r.error();
+}
+
+TEST_F(CameraYaml, RejectsNegativeFocalLength) {
+  const auto r = loadCameraYaml(write("width: 640\nheight: 480\nfx: -5\nfy: 1\ncx: 1\ncy: 1\n"));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("fx"), std::string::npos);
+}
+
+TEST_F(CameraYaml, ReportsSyntaxErrorsAndMissingFiles) {
+  EXPECT_FALSE(loadCameraYaml(write("width: [640\n")).ok());
+  const auto r = loadCamera((dir_ / "nope.yaml").string());
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("nope.yaml"), std::string::npos);
+  EXPECT_FALSE(loadCamera("fr9").ok());
+}
+
+}  // namespace
+}  // namespace stillpoint
