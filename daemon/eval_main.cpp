@@ -1,0 +1,117 @@
+// stillpoint-eval: ATE and RPE of an estimated trajectory against ground truth,
+// both in TUM format. Prints one machine-readable line to stdout.
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "stillpoint/eval/metrics.hpp"
+#include "stillpoint/eval/plot.hpp"
+#include "stillpoint/eval/trajectory.hpp"
+
+namespace {
+
+constexpr int kExitBadInput = 1;
+constexpr int kExitUsage = 2;
+
+constexpr const char* kUsage =
+    "usage: stillpoint-eval GROUNDTRUTH.txt TRAJ.txt [--plot OUT.png] [--max-dt S]\n"
+    "\n"
+    "Evaluates an estimated trajectory against ground truth (TUM format:\n"
+    "'timestamp tx ty tz qx qy qz qw' per line) and prints one line:\n"
+    "  ate_rmse_m=<v> rpe_trans_m_s=<v> rpe_rot_deg_s=<v> matched=<n>\n"
+    "\n"
+    "  ate_rmse_m     RMSE of position error after rigid (SE3) alignment [m]\n"
+    "  rpe_trans_m_s  RMSE of relative translation error over 1 s pose pairs,\n"
+    "                 divided by each pair's time difference [m/s]\n"
+    "  rpe_rot_deg_s  same for the relative rotation angle [deg/s]\n"
+    "  matched        estimate poses associated with a ground-truth pose\n"
+    "RPE values are nan when the matched poses span less than 1 s.\n"
+    "\n"
+    "options:\n"
+    "  --plot OUT.png  also write a top view and ATE-over-time plot\n"
+    "  --max-dt S      association window in seconds (default 0.02)\n"
+    "  --help          show this text\n"
+    "\n"
+    "exit status: 0 ok, 1 bad input or evaluation failed, 2 usage error\n";
+
+int usageError(const std::string& message) {
+  std::fprintf(stderr, "stillpoint-eval: %s\n%s", message.c_str(), kUsage);
+  return kExitUsage;
+}
+
+int inputError(const std::string& message) {
+  std::fprintf(stderr, "stillpoint-eval: %s\n", message.c_str());
+  return kExitBadInput;
+}
+
+bool parseSeconds(std::string_view text, double* out) {
+  const char* end = text.data() + text.size();
+  const auto [ptr, ec] = std::from_chars(text.data(), end, *out);
+  return ec == std::errc() && ptr == end && std::isfinite(*out);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace stillpoint::eval;
+
+  std::vector<std::string> positional;
+  std::string plot_path;
+  EvalOptions options;
+  for (int k = 1; k < argc; ++k) {
+    const std::string_view arg = argv[k];
+    if (arg == "--help" || arg == "-h") {
+      std::fputs(kUsage, stdout);
+      return 0;
+    }
+    if (arg == "--plot" || arg == "--max-dt") {
+      if (k + 1 >= argc) return usageError(std::string(arg) + " needs a value");
+      const std::string_view value = argv[++k];
+      if (arg == "--plot") {
+        plot_path = value;
+      } else if (!parseSeconds(value, &options.max_dt_s) || options.max_dt_s < 0.0) {
+        return usageError("--max-dt needs a number of seconds >= 0, got '" + std::string(value) +
+                          "'");
+      }
+      continue;
+    }
+    if (arg.size() > 1 && arg.front() == '-') {
+      return usageError("unknown option '" + std::string(arg) + "'");
+    }
+    positional.emplace_back(arg);
+  }
+  if (positional.size() != 2) {
+    return usageError("expected GROUNDTRUTH.txt and TRAJ.txt, got " +
+                      std::to_string(positional.size()) + " file arguments");
+  }
+
+  const auto gt = readTumTrajectory(positional[0]);
+  if (!gt) return inputError(gt.error());
+  const auto est = readTumTrajectory(positional[1]);
+  if (!est) return inputError(est.error());
+
+  const auto result = evaluate(*gt, *est, options);
+  if (!result) return inputError(result.error());
+
+  if (!plot_path.empty()) {
+    std::vector<double> errors;
+    errors.reserve(result->pose_errors.size());
+    for (const PoseError& e : result->pose_errors) errors.push_back(e.ate_m);
+    PlotOptions plot_options;
+    char title[160];
+    std::snprintf(title, sizeof(title), "ATE RMSE %.4f m, RPE %.4f m/s %.3f deg/s, %zu poses",
+                  result->ate_rmse_m, result->rpe_trans_m_s, result->rpe_rot_deg_s,
+                  result->matched);
+    plot_options.title = title;
+    const auto status =
+        writeTrajectoryPlot(plot_path, *gt, result->est_aligned, errors, plot_options);
+    if (!status) return inputError(status.error());
+  }
+
+  std::printf("ate_rmse_m=%.6f rpe_trans_m_s=%.6f rpe_rot_deg_s=%.6f matched=%zu\n",
+              result->ate_rmse_m, result->rpe_trans_m_s, result->rpe_rot_deg_s, result->matched);
+  return 0;
+}

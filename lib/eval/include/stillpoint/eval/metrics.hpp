@@ -1,0 +1,114 @@
+#pragma once
+// Trajectory error metrics as defined by the TUM RGB-D benchmark
+// (Sturm et al., IROS 2012): absolute trajectory error (ATE) after a
+// closed-form rigid alignment, and relative pose error (RPE) over 1 s.
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "stillpoint/core/geometry.hpp"
+#include "stillpoint/core/result.hpp"
+#include "stillpoint/core/time.hpp"
+#include "stillpoint/eval/trajectory.hpp"
+
+namespace stillpoint::eval {
+
+struct EvalOptions {
+  double max_dt_s = 0.02;      // association window: |t_est - t_gt| <= max_dt_s
+  double rpe_delta_s = 1.0;    // RPE pose distance in time
+  bool estimate_scale = false; // Umeyama similarity instead of a rigid transform
+  std::size_t min_matches = 3;
+
+  // Names the first bad field, or succeeds.
+  Status validate() const;
+};
+
+// One matched pair: indices into the estimate and the ground truth.
+struct Match {
+  std::size_t est_index = 0;
+  std::size_t gt_index = 0;
+};
+
+// One-to-one association as TUM's associate.py does it: every pair with
+// |t_est - t_gt| <= max_dt_s is a candidate; candidates are taken greedily by
+// smallest time difference (ties: earlier estimate, then earlier ground truth),
+// skipping poses already used. Returned sorted by estimate time. Both inputs
+// must be sorted by time.
+std::vector<Match> associate(const Trajectory& est, const Trajectory& gt, double max_dt_s);
+
+// Similarity transform p_gt ~ scale * (R * p_est) + t, with R and t in T_gt_est.
+struct Alignment {
+  SE3 T_gt_est = SE3::Identity();
+  double scale = 1.0;
+
+  Vec3 apply(const Vec3& p_est) const;
+  // Maps a pose of the estimate's world into the ground truth's world; the
+  // scale multiplies the position only.
+  SE3 apply(const SE3& T_w_c) const;
+};
+
+// Closed-form least-squares alignment of est onto gt positions (Horn 1987 /
+// Umeyama 1991, via SVD of the cross-covariance with the reflection fix).
+// Minimises sum |gt_k - (s R est_k + t)|^2 with s = 1 unless estimate_scale.
+// Needs equal sizes, >= 3 points, and spread points when scale is estimated.
+Result<Alignment> alignUmeyama(const std::vector<Vec3>& est_positions,
+                               const std::vector<Vec3>& gt_positions, bool estimate_scale);
+
+// Absolute error of one matched estimate pose after alignment.
+struct PoseError {
+  Timestamp stamp;  // estimate time
+  double ate_m = 0.0;
+};
+
+// One RPE pair (i, j) of matched estimate poses.
+struct RelativeError {
+  Timestamp from;  // t_i (estimate time)
+  Timestamp to;    // t_j (estimate time)
+  double dt_s = 0.0;       // t_j - t_i
+  double trans_m = 0.0;    // |translation(E)|
+  double rot_deg = 0.0;    // rotation angle of E
+};
+
+struct EvalResult {
+  std::size_t matched = 0;
+  Alignment alignment;
+  // ATE over the matched poses, metres.
+  double ate_rmse_m = 0.0;
+  double ate_mean = 0.0;
+  double ate_median = 0.0;
+  double ate_max = 0.0;
+  // RPE rates; NaN when no pair spans rpe_delta_s (trajectory too short).
+  double rpe_trans_m_s = 0.0;
+  double rpe_rot_deg_s = 0.0;
+  std::size_t rpe_pairs = 0;
+  // Per matched pose, in estimate time order; the three vectors line up.
+  std::vector<PoseError> pose_errors;
+  Trajectory est_aligned;  // matched estimate poses mapped by `alignment`
+  Trajectory gt_matched;   // their associated ground-truth poses
+  std::vector<RelativeError> relative_errors;
+};
+
+// RPE over already matched pose pairs (est[k] belongs with gt[k], both in
+// estimate time order), following the benchmark's definition for a time delta:
+//   for each i, j = the matched estimate pose whose time is closest to
+//   t_i + delta_s (pairs whose target time lies past the last pose, or with
+//   j == i, are skipped);
+//   E_ij = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j), P = estimate, Q = ground truth;
+//   trans_m = |t(E_ij)|, rot_deg = angle(R(E_ij)) in degrees.
+// The rates are RMSE over pairs of trans_m / dt and rot_deg / dt with
+// dt = t_j - t_i the actual estimate time difference (m/s and deg/s).
+// Relative motions do not change under a rigid alignment, so P may be the raw
+// or the aligned estimate.
+struct RpeSummary {
+  double trans_m_s = 0.0;
+  double rot_deg_s = 0.0;
+  std::vector<RelativeError> pairs;
+};
+RpeSummary computeRpe(const Trajectory& est, const Trajectory& gt, double delta_s);
+
+// Associates, aligns and computes ATE and RPE. Fails on invalid options or
+// fewer than options.min_matches associated poses.
+Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
+                            const EvalOptions& options = {});
+
+}  // namespace stillpoint::eval

@@ -1,0 +1,33 @@
+#pragma once
+// Camera trajectories in the TUM RGB-D benchmark text format:
+//   timestamp tx ty tz qx qy qz qw
+// one pose per line, '#' starts a comment line, blank lines are ignored.
+#include <string>
+#include <vector>
+
+#include "stillpoint/core/geometry.hpp"
+#include "stillpoint/core/result.hpp"
+#include "stillpoint/core/time.hpp"
+
+namespace stillpoint::eval {
+
+struct StampedPose {
+  Timestamp stamp;
+  SE3 T_w_c = SE3::Identity();
+};
+
+// Poses in strictly increasing time order.
+using Trajectory = std::vector<StampedPose>;
+
+// Reads a TUM trajectory. Fields may be separated by spaces, tabs or commas.
+// Quaternions within 1e-2 of unit norm are normalised; others are rejected.
+// Every error message names the file and, for content errors, the line number
+// ("path:12: ...").
+Result<Trajectory> readTumTrajectory(const std::string& path);
+
+// Writes a TUM trajectory: timestamps with Timestamp::toSecondsString()
+// (microseconds), numbers with 9 significant digits, quaternion sign chosen so
+// that qw >= 0.
+Status writeTumTrajectory(const std::string& path, const Trajectory& trajectory);
+
+}  // namespace stillpoint::eval

@@ -1,0 +1,252 @@
+#include "stillpoint/eval/metrics.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <numbers>
+#include <sstream>
+#include <tuple>
+
+#include <Eigen/SVD>
+
+namespace stillpoint::eval {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / std::numbers::pi;
+
+std::int64_t secondsToNs(double s) { return static_cast<std::int64_t>(std::llround(s * 1e9)); }
+
+bool strictlyIncreasing(const Trajectory& trajectory) {
+  for (std::size_t k = 1; k < trajectory.size(); ++k) {
+    if (!(trajectory[k - 1].stamp < trajectory[k].stamp)) return false;
+  }
+  return true;
+}
+
+double rms(const std::vector<double>& values) {
+  double sum_sq = 0.0;
+  for (double v : values) sum_sq += v * v;
+  return std::sqrt(sum_sq / static_cast<double>(values.size()));
+}
+
+double median(std::vector<double> values) {
+  const std::size_t n = values.size();
+  std::sort(values.begin(), values.end());
+  return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
+// Index among the first n poses whose stamp is closest to target (the earlier
+// one on a tie).
+std::size_t closestIndex(const Trajectory& trajectory, std::size_t n, Timestamp target) {
+  const auto end = trajectory.begin() + static_cast<std::ptrdiff_t>(n);
+  const auto it = std::lower_bound(
+      trajectory.begin(), end, target,
+      [](const StampedPose& pose, Timestamp t) { return pose.stamp < t; });
+  if (it == trajectory.begin()) return 0;
+  if (it == end) return n - 1;
+  const auto after = static_cast<std::size_t>(it - trajectory.begin());
+  const std::int64_t d_after = it->stamp.nanoseconds() - target.nanoseconds();
+  const std::int64_t d_before = target.nanoseconds() - (it - 1)->stamp.nanoseconds();
+  return d_before <= d_after ? after - 1 : after;
+}
+
+}  // namespace
+
+Status EvalOptions::validate() const {
+  if (!std::isfinite(max_dt_s) || max_dt_s < 0.0) {
+    return Error{"EvalOptions.max_dt_s must be a finite value >= 0"};
+  }
+  if (!std::isfinite(rpe_delta_s) || rpe_delta_s <= 0.0) {
+    return Error{"EvalOptions.rpe_delta_s must be a finite value > 0"};
+  }
+  if (min_matches < 3) return Error{"EvalOptions.min_matches must be >= 3"};
+  return Status::success();
+}
+
+std::vector<Match> associate(const Trajectory& est, const Trajectory& gt, double max_dt_s) {
+  const std::int64_t max_dt_ns = secondsToNs(max_dt_s);
+  // (|dt| ns, est index, gt index): sorting the tuples gives associate.py's order.
+  std::vector<std::tuple<std::int64_t, std::size_t, std::size_t>> candidates;
+  for (std::size_t i = 0; i < est.size(); ++i) {
+    const std::int64_t t = est[i].stamp.nanoseconds();
+    const auto first = std::lower_bound(
+        gt.begin(), gt.end(), t - max_dt_ns,
+        [](const StampedPose& pose, std::int64_t ns) { return pose.stamp.nanoseconds() < ns; });
+    for (auto it = first; it != gt.end() && it->stamp.nanoseconds() <= t + max_dt_ns; ++it) {
+      const std::int64_t diff = std::abs(it->stamp.nanoseconds() - t);
+      candidates.emplace_back(diff, i, static_cast<std::size_t>(it - gt.begin()));
+    }
+  }
+  std::sort(candidates.begin(), candidates.end());
+
+  std::vector<bool> est_used(est.size(), false);
+  std::vector<bool> gt_used(gt.size(), false);
+  std::vector<Match> matches;
+  for (const auto& [diff, i, j] : candidates) {
+    if (est_used[i] || gt_used[j]) continue;
+    est_used[i] = true;
+    gt_used[j] = true;
+    matches.push_back({i, j});
+  }
+  std::sort(matches.begin(), matches.end(),
+            [](const Match& a, const Match& b) { return a.est_index < b.est_index; });
+  return matches;
+}
+
+Vec3 Alignment::apply(const Vec3& p_est) const {
+  return scale * (T_gt_est.linear() * p_est) + T_gt_est.translation();
+}
+
+SE3 Alignment::apply(const SE3& T_w_c) const {
+  SE3 out = SE3::Identity();
+  out.linear() = T_gt_est.linear() * T_w_c.linear();
+  out.translation() = apply(Vec3(T_w_c.translation()));
+  return out;
+}
+
+Result<Alignment> alignUmeyama(const std::vector<Vec3>& est_positions,
+                               const std::vector<Vec3>& gt_positions, bool estimate_scale) {
+  const std::size_t n = est_positions.size();
+  if (n != gt_positions.size()) return Error{"alignUmeyama: point sets differ in size"};
+  if (n < 3) return Error{"alignUmeyama: need at least 3 point pairs"};
+
+  Vec3 mean_est = Vec3::Zero();
+  Vec3 mean_gt = Vec3::Zero();
+  for (std::size_t k = 0; k < n; ++k) {
+    if (!est_positions[k].allFinite() || !gt_positions[k].allFinite()) {
+      return Error{"alignUmeyama: non-finite position at index " + std::to_string(k)};
+    }
+    mean_est += est_positions[k];
+    mean_gt += gt_positions[k];
+  }
+  const double inv_n = 1.0 / static_cast<double>(n);
+  mean_est *= inv_n;
+  mean_gt *= inv_n;
+
+  // Cross-covariance of the centred sets, Sigma = 1/n sum (gt_c)(est_c)^T.
+  Mat3 sigma = Mat3::Zero();
+  double var_est = 0.0;
+  for (std::size_t k = 0; k < n; ++k) {
+    const Vec3 e = est_positions[k] - mean_est;
+    const Vec3 g = gt_positions[k] - mean_gt;
+    sigma += g * e.transpose();
+    var_est += e.squaredNorm();
+  }
+  sigma *= inv_n;
+  var_est *= inv_n;
+
+  const Eigen::JacobiSVD<Mat3> svd(sigma, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Mat3& U = svd.matrixU();
+  const Mat3& V = svd.matrixV();
+  // Reflection guard: force det(R) = +1 by flipping the weakest direction.
+  Vec3 s_diag(1.0, 1.0, 1.0);
+  if (U.determinant() * V.determinant() < 0.0) s_diag.z() = -1.0;
+  const Mat3 R = U * s_diag.asDiagonal() * V.transpose();
+
+  Alignment alignment;
+  if (estimate_scale) {
+    if (var_est < 1e-12) return Error{"alignUmeyama: estimate positions have no spread, scale undefined"};
+    alignment.scale = svd.singularValues().dot(s_diag) / var_est;
+    if (!(alignment.scale > 0.0)) return Error{"alignUmeyama: degenerate scale"};
+  }
+  alignment.T_gt_est.linear() = R;
+  alignment.T_gt_est.translation() = mean_gt - alignment.scale * (R * mean_est);
+  return alignment;
+}
+
+RpeSummary computeRpe(const Trajectory& est, const Trajectory& gt, double delta_s) {
+  RpeSummary summary;
+  const std::size_t n = std::min(est.size(), gt.size());
+  const std::int64_t delta_ns = secondsToNs(delta_s);
+  if (n >= 2) {
+    const Timestamp last = est[n - 1].stamp;
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto target = Timestamp::fromNanoseconds(est[i].stamp.nanoseconds() + delta_ns);
+      if (target > last) break;  // stamps increase, so every later i overshoots too
+      const std::size_t j = closestIndex(est, n, target);
+      if (j <= i) continue;
+      const SE3 delta_est = est[i].T_w_c.inverse() * est[j].T_w_c;
+      const SE3 delta_gt = gt[i].T_w_c.inverse() * gt[j].T_w_c;
+      const SE3 error = delta_gt.inverse() * delta_est;
+      RelativeError pair;
+      pair.from = est[i].stamp;
+      pair.to = est[j].stamp;
+      pair.dt_s = secondsBetween(pair.to, pair.from);
+      pair.trans_m = error.translation().norm();
+      pair.rot_deg = rotationAngle(error.linear()) * kRadToDeg;
+      summary.pairs.push_back(pair);
+    }
+  }
+  if (summary.pairs.empty()) {
+    summary.trans_m_s = std::numeric_limits<double>::quiet_NaN();
+    summary.rot_deg_s = std::numeric_limits<double>::quiet_NaN();
+    return summary;
+  }
+  std::vector<double> trans_rates;
+  std::vector<double> rot_rates;
+  for (const RelativeError& pair : summary.pairs) {
+    trans_rates.push_back(pair.trans_m / pair.dt_s);
+    rot_rates.push_back(pair.rot_deg / pair.dt_s);
+  }
+  summary.trans_m_s = rms(trans_rates);
+  summary.rot_deg_s = rms(rot_rates);
+  return summary;
+}
+
+Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
+                            const EvalOptions& options) {
+  if (Status status = options.validate(); !status) return Error{status.error()};
+  if (!strictlyIncreasing(gt)) return Error{"ground truth timestamps are not strictly increasing"};
+  if (!strictlyIncreasing(est)) return Error{"estimate timestamps are not strictly increasing"};
+
+  const std::vector<Match> matches = associate(est, gt, options.max_dt_s);
+  if (matches.size() < options.min_matches) {
+    std::ostringstream os;
+    os << "only " << matches.size() << " of " << est.size()
+       << " estimate poses have a ground-truth pose within " << options.max_dt_s
+       << " s (need at least " << options.min_matches << ")";
+    return Error{os.str()};
+  }
+
+  EvalResult result;
+  result.matched = matches.size();
+  std::vector<Vec3> est_positions;
+  std::vector<Vec3> gt_positions;
+  Trajectory est_matched;
+  for (const Match& m : matches) {
+    est_matched.push_back(est[m.est_index]);
+    result.gt_matched.push_back(gt[m.gt_index]);
+    est_positions.push_back(est[m.est_index].T_w_c.translation());
+    gt_positions.push_back(gt[m.gt_index].T_w_c.translation());
+  }
+  auto alignment = alignUmeyama(est_positions, gt_positions, options.estimate_scale);
+  if (!alignment) return Error{alignment.error()};
+  result.alignment = *alignment;
+
+  std::vector<double> errors;
+  for (std::size_t k = 0; k < matches.size(); ++k) {
+    const SE3 aligned = result.alignment.apply(est_matched[k].T_w_c);
+    result.est_aligned.push_back({est_matched[k].stamp, aligned});
+    const double e = (aligned.translation() - gt_positions[k]).norm();
+    errors.push_back(e);
+    result.pose_errors.push_back({est_matched[k].stamp, e});
+  }
+  result.ate_rmse_m = rms(errors);
+  double sum = 0.0;
+  for (double e : errors) sum += e;
+  result.ate_mean = sum / static_cast<double>(errors.size());
+  result.ate_median = median(errors);
+  result.ate_max = *std::max_element(errors.begin(), errors.end());
+
+  // Aligned poses: a no-op for a rigid alignment, and with a scale it applies
+  // the scale correction to the relative translations too.
+  RpeSummary rpe = computeRpe(result.est_aligned, result.gt_matched, options.rpe_delta_s);
+  result.rpe_trans_m_s = rpe.trans_m_s;
+  result.rpe_rot_deg_s = rpe.rot_deg_s;
+  result.rpe_pairs = rpe.pairs.size();
+  result.relative_errors = std::move(rpe.pairs);
+  return result;
+}
+
+}  // namespace stillpoint::eval

@@ -1,0 +1,244 @@
+#include "stillpoint/eval/metrics.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+#include <random>
+
+namespace stillpoint::eval {
+namespace {
+
+constexpr double kDegToRad = std::numbers::pi / 180.0;
+
+Timestamp at(double seconds) { return Timestamp::fromSeconds(1000.0 + seconds); }
+
+SE3 pose(const Mat3& R, const Vec3& t) {
+  SE3 T = SE3::Identity();
+  T.linear() = R;
+  T.translation() = t;
+  return T;
+}
+
+// A wandering, non-planar camera path at `rate_hz` for `duration_s`.
+Trajectory randomTrajectory(std::mt19937& rng, double rate_hz, double duration_s) {
+  std::normal_distribution<double> step(0.0, 0.05);
+  Trajectory trajectory;
+  Vec3 p = Vec3::Zero();
+  Vec3 w = Vec3::Zero();
+  const int n = static_cast<int>(rate_hz * duration_s);
+  for (int k = 0; k < n; ++k) {
+    p += Vec3(0.02, 0.01, 0.005) + Vec3(step(rng), step(rng), step(rng));
+    w += 0.1 * Vec3(step(rng), step(rng), step(rng));
+    trajectory.push_back({at(k / rate_hz), pose(expSO3(w), p)});
+  }
+  return trajectory;
+}
+
+SE3 knownTransform() {
+  return pose(expSO3(Vec3(0.3, -1.2, 2.0)), Vec3(4.0, -2.5, 1.25));
+}
+
+TEST(Associate, PicksNearestWithinWindowAndRejectsFarther) {
+  Trajectory gt;
+  for (int k = 0; k < 10; ++k) gt.push_back({at(0.1 * k), SE3::Identity()});
+  const Trajectory est = {
+      {at(0.105), SE3::Identity()},  // 5 ms after gt[1]
+      {at(0.215), SE3::Identity()},  // 15 ms after gt[2]
+      {at(0.3249), SE3::Identity()}, // 24.9 ms after gt[3]: too far
+      {at(0.48), SE3::Identity()},   // 20 ms before gt[5]: inside (inclusive)
+  };
+  const auto matches = associate(est, gt, 0.02);
+  ASSERT_EQ(matches.size(), 3u);
+  EXPECT_EQ(matches[0].est_index, 0u);
+  EXPECT_EQ(matches[0].gt_index, 1u);
+  EXPECT_EQ(matches[1].est_index, 1u);
+  EXPECT_EQ(matches[1].gt_index, 2u);
+  EXPECT_EQ(matches[2].est_index, 3u);
+  EXPECT_EQ(matches[2].gt_index, 5u);
+}
+
+TEST(Associate, IsOneToOneGreedyBySmallestDifference) {
+  // gt at 0 and 10 ms; estimates at 4 ms and 6 ms. 4 ms takes gt 0 (diff 4),
+  // 6 ms then takes gt 10 (diff 4) — not gt 0 again.
+  const Trajectory gt = {{at(0.0), SE3::Identity()}, {at(0.010), SE3::Identity()}};
+  const Trajectory est = {{at(0.004), SE3::Identity()}, {at(0.006), SE3::Identity()}};
+  const auto matches = associate(est, gt, 0.02);
+  ASSERT_EQ(matches.size(), 2u);
+  EXPECT_EQ(matches[0].gt_index, 0u);
+  EXPECT_EQ(matches[1].gt_index, 1u);
+
+  // A third estimate near gt 0 stays unmatched once both gt poses are used.
+  const Trajectory est3 = {{at(-0.001), SE3::Identity()},
+                           {at(0.004), SE3::Identity()},
+                           {at(0.009), SE3::Identity()}};
+  const auto matches3 = associate(est3, gt, 0.02);
+  ASSERT_EQ(matches3.size(), 2u);
+  EXPECT_EQ(matches3[0].est_index, 0u);  // |-1 ms| beats |4 ms| for gt 0
+  EXPECT_EQ(matches3[1].est_index, 2u);  // 1 ms beats 6 ms for gt 10 ms
+}
+
+TEST(Align, RecoversKnownRigidTransformExactly) {
+  std::mt19937 rng(1);
+  for (int trial = 0; trial < 5; ++trial) {
+    const Trajectory gt = randomTrajectory(rng, 30.0, 5.0);
+    const SE3 T_est_gt = knownTransform();
+    Trajectory est;
+    for (const StampedPose& p : gt) est.push_back({p.stamp, T_est_gt * p.T_w_c});
+
+    const auto result = evaluate(gt, est);
+    ASSERT_TRUE(result.ok()) << result.error();
+    EXPECT_EQ(result->matched, gt.size());
+    EXPECT_LT(result->ate_rmse_m, 1e-9);
+    EXPECT_LT(result->ate_max, 1e-9);
+    EXPECT_LT(result->rpe_trans_m_s, 1e-9);
+    EXPECT_LT(result->rpe_rot_deg_s, 1e-6);
+    EXPECT_TRUE(result->alignment.T_gt_est.isApprox(T_est_gt.inverse(), 1e-9));
+    EXPECT_DOUBLE_EQ(result->alignment.scale, 1.0);
+  }
+}
+
+TEST(Align, RecoversScaleWhenAsked) {
+  std::mt19937 rng(2);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 4.0);
+  std::vector<Vec3> gt_positions;
+  std::vector<Vec3> est_positions;
+  const SE3 T_est_gt = knownTransform();
+  for (const StampedPose& p : gt) {
+    gt_positions.push_back(p.T_w_c.translation());
+    est_positions.push_back(0.4 * (T_est_gt * p.T_w_c.translation()));
+  }
+  const auto with_scale = alignUmeyama(est_positions, gt_positions, true);
+  ASSERT_TRUE(with_scale.ok()) << with_scale.error();
+  EXPECT_NEAR(with_scale->scale, 2.5, 1e-9);
+  for (std::size_t k = 0; k < gt_positions.size(); ++k) {
+    EXPECT_LT((with_scale->apply(est_positions[k]) - gt_positions[k]).norm(), 1e-9);
+  }
+  const auto rigid = alignUmeyama(est_positions, gt_positions, false);
+  ASSERT_TRUE(rigid.ok());
+  EXPECT_EQ(rigid->scale, 1.0);
+  EXPECT_TRUE(rigid->T_gt_est.linear().isApprox(T_est_gt.linear().transpose(), 1e-9));
+}
+
+TEST(Align, NeverReturnsAReflection) {
+  // Mirror-image point sets: the best proper rotation, not the mirror.
+  const std::vector<Vec3> gt = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}};
+  std::vector<Vec3> est;
+  for (const Vec3& p : gt) est.emplace_back(p.x(), p.y(), -p.z());
+  const auto alignment = alignUmeyama(est, gt, false);
+  ASSERT_TRUE(alignment.ok());
+  EXPECT_NEAR(alignment->T_gt_est.linear().determinant(), 1.0, 1e-12);
+}
+
+TEST(Ate, AlternatingOffsetGivesThatOffset) {
+  // Each position appears twice; the estimate is +d then -d along x. The
+  // offsets cancel in the cross-covariance, so the alignment is the identity
+  // (after undoing a known transform) and every error is exactly d.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> uniform(-2.0, 2.0);
+  const double d = 0.037;
+  const SE3 T_est_gt = knownTransform();
+  Trajectory gt;
+  Trajectory est;
+  for (int k = 0; k < 40; ++k) {
+    const Vec3 p(uniform(rng), uniform(rng), uniform(rng));
+    for (int s : {+1, -1}) {
+      const Timestamp t = at(0.01 * static_cast<double>(gt.size()));
+      gt.push_back({t, pose(Mat3::Identity(), p)});
+      est.push_back({t, T_est_gt * pose(Mat3::Identity(), p + Vec3(s * d, 0, 0))});
+    }
+  }
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+  EXPECT_NEAR(result->ate_rmse_m, d, 1e-12);
+  EXPECT_NEAR(result->ate_mean, d, 1e-12);
+  EXPECT_NEAR(result->ate_median, d, 1e-12);
+  EXPECT_NEAR(result->ate_max, d, 1e-12);
+  ASSERT_EQ(result->pose_errors.size(), gt.size());
+  EXPECT_NEAR(result->pose_errors[5].ate_m, d, 1e-12);
+}
+
+TEST(Rpe, ConstantVelocityErrorGivesThatRate) {
+  // Ground truth moves at v_gt, the estimate at v_gt + dv, both with the same
+  // fixed (non-identity) orientation; every 1 s pair is off by |dv| * dt.
+  const Vec3 v_gt(0.3, -0.1, 0.05);
+  const Vec3 dv(0.04, 0.0, -0.03);  // |dv| = 0.05 m/s
+  const Mat3 R = expSO3(Vec3(0.2, 0.4, -0.7));
+  Trajectory gt;
+  Trajectory est;
+  for (int k = 0; k < 300; ++k) {
+    const double t = k / 30.0;
+    gt.push_back({at(t), pose(R, v_gt * t)});
+    est.push_back({at(t), knownTransform() * pose(R, (v_gt + dv) * t)});
+  }
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+  EXPECT_NEAR(result->rpe_trans_m_s, 0.05, 1e-9);
+  EXPECT_NEAR(result->rpe_rot_deg_s, 0.0, 1e-6);
+  // Pairs start at every pose up to 1 s before the end.
+  EXPECT_EQ(result->rpe_pairs, 300u - 30u);
+  for (const RelativeError& pair : result->relative_errors) {
+    EXPECT_NEAR(pair.dt_s, 1.0, 1e-6);
+  }
+}
+
+TEST(Rpe, RotationDriftGivesDegreesPerSecond) {
+  // Same positions; the estimate's orientation drifts at 2 deg/s about a
+  // fixed world axis on top of a rotating ground truth. With the drift D on the
+  // world side, E_ij = R_j^T D(t_j - t_i) R_j, whose angle is exactly the drift.
+  const double drift_deg_s = 2.0;
+  const Vec3 axis = Vec3(1.0, 2.0, 2.0) / 3.0;
+  Trajectory gt;
+  Trajectory est;
+  for (int k = 0; k < 300; ++k) {
+    const double t = k / 30.0;
+    const Vec3 p(std::cos(t), std::sin(t), 0.2 * t);  // non-planar helix
+    const Mat3 R_gt = expSO3(Vec3(0.0, 0.0, 0.3 * t));
+    gt.push_back({at(t), pose(R_gt, p)});
+    est.push_back({at(t), pose(expSO3(axis * drift_deg_s * kDegToRad * t) * R_gt, p)});
+  }
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+  EXPECT_LT(result->ate_rmse_m, 1e-9);
+  EXPECT_NEAR(result->rpe_rot_deg_s, drift_deg_s, 1e-6);
+}
+
+TEST(Rpe, IsNanWhenShorterThanDelta) {
+  std::mt19937 rng(4);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 0.5);
+  const auto result = evaluate(gt, gt);
+  ASSERT_TRUE(result.ok()) << result.error();
+  EXPECT_EQ(result->rpe_pairs, 0u);
+  EXPECT_TRUE(std::isnan(result->rpe_trans_m_s));
+}
+
+TEST(Evaluate, FailsWithFewerThanThreeMatches) {
+  std::mt19937 rng(5);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 2.0);
+  Trajectory est;
+  for (std::size_t k = 0; k < 2; ++k) est.push_back(gt[k]);
+  for (std::size_t k = 0; k < 5; ++k) {
+    est.push_back({Timestamp::fromNanoseconds(gt.back().stamp.nanoseconds() + 1'000'000'000 +
+                                              static_cast<std::int64_t>(k)),
+                   SE3::Identity()});
+  }
+  const auto result = evaluate(gt, est);
+  ASSERT_FALSE(result.ok());
+  EXPECT_NE(result.error().find("only 2 of 7"), std::string::npos) << result.error();
+}
+
+TEST(Evaluate, RejectsBadOptions) {
+  EvalOptions options;
+  options.max_dt_s = -1.0;
+  EXPECT_NE(options.validate().error().find("max_dt_s"), std::string::npos);
+  options = EvalOptions{};
+  options.rpe_delta_s = 0.0;
+  EXPECT_NE(options.validate().error().find("rpe_delta_s"), std::string::npos);
+  options = EvalOptions{};
+  options.min_matches = 2;
+  EXPECT_FALSE(options.validate().ok());
+  EXPECT_TRUE(EvalOptions{}.validate().ok());
+}
+
+}  // namespace
+}  // namespace stillpoint::eval

@@ -1,0 +1,137 @@
+#include "stillpoint/eval/trajectory.hpp"
+
+#include <array>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <string_view>
+
+namespace stillpoint::eval {
+namespace {
+
+constexpr double kUnitQuaternionTolerance = 1e-2;
+constexpr std::size_t kFieldCount = 8;
+
+Error lineError(const std::string& path, std::size_t line, const std::string& what) {
+  return Error{path + ":" + std::to_string(line) + ": " + what};
+}
+
+// Splits on spaces, tabs and commas (the TUM tools accept all three).
+std::vector<std::string_view> splitFields(std::string_view line) {
+  std::vector<std::string_view> fields;
+  std::size_t i = 0;
+  const auto is_sep = [](char c) { return c == ' ' || c == '\t' || c == ',' || c == '\r'; };
+  while (i < line.size()) {
+    while (i < line.size() && is_sep(line[i])) ++i;
+    const std::size_t start = i;
+    while (i < line.size() && !is_sep(line[i])) ++i;
+    if (i > start) fields.push_back(line.substr(start, i - start));
+  }
+  return fields;
+}
+
+bool parseFiniteDouble(std::string_view text, double* out) {
+  if (!text.empty() && text.front() == '+') text.remove_prefix(1);
+  double value = 0.0;
+  const char* end = text.data() + text.size();
+  const auto [ptr, ec] = std::from_chars(text.data(), end, value);
+  if (ec != std::errc() || ptr != end || !std::isfinite(value)) return false;
+  *out = value;
+  return true;
+}
+
+// Exact decimal parse first; scientific notation falls back to double, which
+// is as exact as the file itself.
+std::optional<Timestamp> parseStamp(std::string_view text) {
+  if (auto exact = Timestamp::parseSeconds(text)) return exact;
+  double seconds = 0.0;
+  if (parseFiniteDouble(text, &seconds) && std::abs(seconds) < 9e9) {
+    return Timestamp::fromSeconds(seconds);
+  }
+  return std::nullopt;
+}
+
+bool isBlankOrComment(std::string_view line) {
+  for (char c : line) {
+    if (c == '#') return true;
+    if (c != ' ' && c != '\t' && c != '\r') return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+Result<Trajectory> readTumTrajectory(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return Error{path + ": cannot open trajectory file"};
+
+  Trajectory trajectory;
+  std::string line;
+  std::size_t line_number = 0;
+  while (std::getline(in, line)) {
+    ++line_number;
+    if (isBlankOrComment(line)) continue;
+
+    const auto fields = splitFields(line);
+    if (fields.size() != kFieldCount) {
+      return lineError(path, line_number,
+                       "expected 8 fields (timestamp tx ty tz qx qy qz qw), found " +
+                           std::to_string(fields.size()));
+    }
+    const auto stamp = parseStamp(fields[0]);
+    if (!stamp) {
+      return lineError(path, line_number, "bad timestamp '" + std::string(fields[0]) + "'");
+    }
+    std::array<double, 7> v{};
+    for (std::size_t k = 0; k < v.size(); ++k) {
+      if (!parseFiniteDouble(fields[k + 1], &v[k])) {
+        return lineError(path, line_number,
+                         "field " + std::to_string(k + 2) + " is not a finite number: '" +
+                             std::string(fields[k + 1]) + "'");
+      }
+    }
+    // Eigen's constructor order is (w, x, y, z); the file order is x y z w.
+    Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+    const double norm = q.norm();
+    if (!(norm > 1e-12)) return lineError(path, line_number, "zero quaternion");
+    if (std::abs(norm - 1.0) > kUnitQuaternionTolerance) {
+      std::ostringstream os;
+      os << "quaternion is not unit length (norm " << norm << ")";
+      return lineError(path, line_number, os.str());
+    }
+    if (!trajectory.empty() && !(trajectory.back().stamp < *stamp)) {
+      return lineError(path, line_number,
+                       "timestamp " + std::string(fields[0]) +
+                           " is not after the previous one (" +
+                           trajectory.back().stamp.toSecondsString() + ")");
+    }
+    trajectory.push_back({*stamp, makeSE3(q, Vec3(v[0], v[1], v[2]))});
+  }
+  if (in.bad()) return Error{path + ": read error after line " + std::to_string(line_number)};
+  return trajectory;
+}
+
+Status writeTumTrajectory(const std::string& path, const Trajectory& trajectory) {
+  std::FILE* file = std::fopen(path.c_str(), "w");
+  if (file == nullptr) return Error{path + ": cannot open for writing"};
+
+  bool ok = std::fputs("# timestamp tx ty tz qx qy qz qw\n", file) >= 0;
+  for (const StampedPose& pose : trajectory) {
+    if (!ok) break;
+    Eigen::Quaterniond q(pose.T_w_c.linear());
+    q.normalize();
+    // q and -q are the same rotation; the positive-w half keeps files diffable.
+    if (q.w() < 0.0) q.coeffs() = -q.coeffs();
+    const Vec3 t = pose.T_w_c.translation();
+    ok = std::fprintf(file, "%s %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n",
+                      pose.stamp.toSecondsString().c_str(), t.x(), t.y(), t.z(), q.x(), q.y(),
+                      q.z(), q.w()) > 0;
+  }
+  const bool closed = std::fclose(file) == 0;
+  if (!ok || !closed) return Error{path + ": write failed"};
+  return Status::success();
+}
+
+}  // namespace stillpoint::eval
