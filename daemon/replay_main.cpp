@@ -1,0 +1,236 @@
+// stillpoint-replay: runs the SLAM pipeline over a recorded TUM-layout
+// sequence, writes the trajectory and prints a summary whose last line is
+// machine-readable.
+#include <opencv2/core.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/log.hpp"
+#include "stillpoint/dataset/tum_dataset.hpp"
+#include "stillpoint/eval/metrics.hpp"
+#include "stillpoint/eval/trajectory.hpp"
+#include "stillpoint/slam/options.hpp"
+#include "stillpoint/slam/system.hpp"
+
+namespace {
+
+using namespace stillpoint;
+
+constexpr const char* kUsage =
+    "usage: stillpoint-replay DATASET_DIR --camera fr1|fr2|fr3|CAMERA.yaml --output TRAJ.txt\n"
+    "                         [--config SLAM.yaml] [--sequential] [--paced]\n"
+    "                         [--modules none] [--max-frames N] [--log-level debug|info|warn|error]\n"
+    "\n"
+    "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
+    "as it can (--paced: at the recorded rate), writes the camera trajectory in TUM format and\n"
+    "prints a summary. When the folder has groundtruth.txt, ATE/RPE are printed too.\n"
+    "--sequential runs local mapping inline on one thread (deterministic).\n"
+    "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n";
+
+struct Args {
+  std::string dataset, camera, output, config, modules = "none", log_level = "warn";
+  bool sequential = false, paced = false;
+  long max_frames = -1;
+};
+
+bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&](std::string* out) {
+      if (i + 1 >= argc) {
+        *error = "option " + a + " needs a value";
+        return false;
+      }
+      *out = argv[++i];
+      return true;
+    };
+    if (a == "--camera") {
+      if (!value(&args->camera)) return false;
+    } else if (a == "--output") {
+      if (!value(&args->output)) return false;
+    } else if (a == "--config") {
+      if (!value(&args->config)) return false;
+    } else if (a == "--modules") {
+      if (!value(&args->modules)) return false;
+    } else if (a == "--log-level") {
+      if (!value(&args->log_level)) return false;
+    } else if (a == "--max-frames") {
+      std::string v;
+      if (!value(&v)) return false;
+      char* end = nullptr;
+      args->max_frames = std::strtol(v.c_str(), &end, 10);
+      if (*end || args->max_frames <= 0) {
+        *error = "--max-frames needs a positive integer";
+        return false;
+      }
+    } else if (a == "--sequential") {
+      args->sequential = true;
+    } else if (a == "--paced") {
+      args->paced = true;
+    } else if (!a.empty() && a[0] == '-') {
+      *error = "unknown option " + a;
+      return false;
+    } else if (args->dataset.empty()) {
+      args->dataset = a;
+    } else {
+      *error = "unexpected argument " + a;
+      return false;
+    }
+  }
+  if (args->dataset.empty()) *error = "missing DATASET_DIR";
+  else if (args->camera.empty()) *error = "missing --camera";
+  else if (args->output.empty()) *error = "missing --output";
+  else if (args->modules != "none") *error = "--modules: only 'none' is available in this build";
+  return error->empty();
+}
+
+struct Stats {
+  double mean = 0, median = 0, p95 = 0, max = 0;
+};
+
+Stats stats(std::vector<double> v) {
+  Stats s;
+  if (v.empty()) return s;
+  std::sort(v.begin(), v.end());
+  double sum = 0;
+  for (double x : v) sum += x;
+  s.mean = sum / v.size();
+  s.median = v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+  s.p95 = v[std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(0.95 * v.size())) - 1)];
+  s.max = v.back();
+  return s;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
+      std::fputs(kUsage, stdout);
+      return 0;
+    }
+  }
+  Args args;
+  std::string error;
+  if (!parseArgs(argc, argv, &args, &error)) {
+    std::fprintf(stderr, "stillpoint-replay: %s\n\n%s", error.c_str(), kUsage);
+    return 2;
+  }
+  log::Level level;
+  if (!log::parseLevel(args.log_level, &level)) {
+    std::fprintf(stderr, "stillpoint-replay: bad --log-level '%s'\n", args.log_level.c_str());
+    return 2;
+  }
+  log::setLevel(level);
+  // OpenCV's own thread pool would compete with local mapping for the cores.
+  cv::setNumThreads(1);
+
+  auto camera = loadCamera(args.camera);
+  if (!camera) {
+    std::fprintf(stderr, "stillpoint-replay: %s\n", camera.error().c_str());
+    return 1;
+  }
+  slam::SlamOptions options;
+  if (!args.config.empty()) {
+    auto loaded = slam::loadSlamOptions(args.config);
+    if (!loaded) {
+      std::fprintf(stderr, "stillpoint-replay: %s\n", loaded.error().c_str());
+      return 1;
+    }
+    options = *loaded;
+  }
+  if (args.sequential) options.sequential = true;
+
+  dataset::DatasetOptions dataset_options;
+  dataset_options.expected_width = camera->width;
+  dataset_options.expected_height = camera->height;
+  dataset_options.depth_factor = camera->depth_factor;
+  auto data = dataset::TumDataset::open(args.dataset, dataset_options);
+  if (!data) {
+    std::fprintf(stderr, "stillpoint-replay: %s\n", data.error().c_str());
+    return 1;
+  }
+  auto system = slam::SlamSystem::create(*camera, options);
+  if (!system) {
+    std::fprintf(stderr, "stillpoint-replay: %s\n", system.error().c_str());
+    return 1;
+  }
+
+  std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0;
+  std::vector<double> extract_ms, track_ms;
+  const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
+  const auto start = std::chrono::steady_clock::now();
+  Timestamp first_stamp;
+  for (std::size_t i = 0; i < n; ++i) {
+    auto frame = data->load(i);
+    if (!frame) {
+      std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, frame.error().c_str());
+      ++skipped;
+      continue;
+    }
+    if (frames == 0) first_stamp = frame->stamp;
+    if (args.paced) {
+      const auto due = start + std::chrono::nanoseconds(frame->stamp.nanoseconds() - first_stamp.nanoseconds());
+      std::this_thread::sleep_until(due);
+    }
+    auto out = (*system)->track({frame->stamp, frame->gray, frame->depth_m});
+    if (!out) {
+      std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, out.error().c_str());
+      ++skipped;
+      continue;
+    }
+    ++frames;
+    extract_ms.push_back(out->extract_ms);
+    track_ms.push_back(out->track_ms);
+    switch (out->state) {
+      case slam::TrackingState::kOk:
+      case slam::TrackingState::kRelocalised: ++tracked; break;
+      case slam::TrackingState::kLost: ++lost; break;
+      case slam::TrackingState::kInitialising: ++initialising; break;
+    }
+  }
+  (*system)->finish();
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  eval::Trajectory trajectory;
+  for (const auto& p : (*system)->trajectory()) trajectory.push_back({p.stamp, p.T_w_c});
+  if (Status s = eval::writeTumTrajectory(args.output, trajectory); !s) {
+    std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
+    return 1;
+  }
+  const slam::MapStats map = (*system)->mapStats();
+  const Stats ex = stats(extract_ms), tr = stats(track_ms);
+  std::printf("sequence:     %s (%zu associated frames, %zu colour frames without depth)\n", args.dataset.c_str(),
+              data->size(), data->unassociatedColourFrames());
+  std::printf("frames:       %zu processed, %zu tracked, %zu lost, %zu initialising, %zu skipped (bad input)\n",
+              frames, tracked, lost, initialising, skipped);
+  std::printf("map:          %zu keyframes, %zu points, %d local BA runs, local mapping %.1f ms total\n",
+              map.keyframes, map.points, map.local_ba_runs, map.local_mapping_ms_total);
+  std::printf("timing [ms]:  %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "ORB extraction", ex.mean,
+              ex.median, ex.p95, ex.max);
+  std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "tracking (incl. ORB)",
+              tr.mean, tr.median, tr.p95, tr.max);
+  std::printf("              %-24s %.1f fps over %.2f s wall\n", "throughput", frames / wall_s, wall_s);
+  std::printf("trajectory:   %zu poses -> %s\n", trajectory.size(), args.output.c_str());
+  if (data->hasGroundTruth()) {
+    auto gt = eval::readTumTrajectory(data->groundTruthPath());
+    if (!gt) {
+      std::fprintf(stderr, "stillpoint-replay: ground truth unusable: %s\n", gt.error().c_str());
+    } else if (auto ev = eval::evaluate(*gt, trajectory); ev) {
+      std::printf("accuracy:     ate_rmse_m=%.6f rpe_trans_m_s=%.6f rpe_rot_deg_s=%.6f matched=%zu\n",
+                  ev->ate_rmse_m, ev->rpe_trans_m_s, ev->rpe_rot_deg_s, ev->matched);
+    } else {
+      std::fprintf(stderr, "stillpoint-replay: evaluation failed: %s\n", ev.error().c_str());
+    }
+  }
+  std::printf("frames=%zu tracked=%zu lost=%zu keyframes=%zu track_ms_median=%.3f track_ms_p95=%.3f\n", frames,
+              tracked, lost, map.keyframes, tr.median, tr.p95);
+  return frames > 0 ? 0 : 1;
+}

@@ -1,0 +1,56 @@
+#pragma once
+// Options of the SLAM core, one plain struct per module, loaded from one YAML
+// file (see config/slam.yaml). validate() names the offending field.
+#include <string>
+
+#include "stillpoint/core/result.hpp"
+#include "stillpoint/features/orb_extractor.hpp"
+
+namespace stillpoint::slam {
+
+struct TrackingOptions {
+  int min_init_features = 300;     // keypoints with depth needed to start a map
+  int min_inliers_local_map = 30;  // inliers to accept a tracked pose
+  int min_inliers_after_reloc = 50;
+  double close_depth_baselines = 40.0;  // "close" points: depth < this x baseline
+  int local_keyframes_max = 60;
+  int relocalisation_candidates = 30;  // most recent keyframes tried when lost
+  Status validate() const;
+};
+
+struct KeyframeOptions {
+  double max_interval_s = 1.0;      // insert at least this often while tracking degrades
+  int min_interval_frames = 0;
+  double tracked_ratio = 0.75;      // insert when tracked/ref-keyframe points falls below
+  int close_tracked_min = 100;      // ...or too few close points are tracked
+  int close_untracked_min = 70;     // ...while this many close points could be added
+  int min_new_points = 100;         // new keyframe creates at least this many points
+  Status validate() const;
+};
+
+struct MappingOptions {
+  bool local_ba = true;
+  int ba_iterations = 10;
+  int ba_max_keyframes = 20;          // optimised window (best covisible)
+  double redundant_ratio = 0.9;       // keyframe culling
+  int redundant_min_observers = 3;
+  double point_found_ratio = 0.25;    // recent point culling
+  int fuse_neighbours = 10;
+  Status validate() const;
+};
+
+struct SlamOptions {
+  features::OrbOptions orb;
+  TrackingOptions tracking;
+  KeyframeOptions keyframes;
+  MappingOptions mapping;
+  bool sequential = false;  // one thread, deterministic (tests, evaluation)
+  Status validate() const;
+};
+
+// Reads options from a YAML file; unknown keys are errors (they are typos).
+Result<SlamOptions> loadSlamOptions(const std::string& path);
+// Writes options back as YAML (round trip; --print-config).
+std::string toYaml(const SlamOptions& options);
+
+}  // namespace stillpoint::slam

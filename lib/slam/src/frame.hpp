@@ -1,0 +1,70 @@
+#pragma once
+// A camera frame with its ORB features, per-feature depth and map matches.
+#include <opencv2/core.hpp>
+
+#include <memory>
+#include <vector>
+
+#include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/time.hpp"
+#include "stillpoint/features/orb_extractor.hpp"
+
+namespace stillpoint::slam {
+
+class MapPoint;
+
+// Pyramid constants shared by all frames of one extractor.
+struct LevelInfo {
+  int levels = 8;
+  double scale_factor = 1.2;
+  double log_scale_factor = 0;
+  std::vector<double> scales, sigma2, inv_sigma2;
+  static LevelInfo from(const features::OrbExtractor& orb);
+};
+
+// Keypoint indices bucketed by undistorted position for window searches.
+class FeatureGrid {
+ public:
+  static constexpr int kCols = 64, kRows = 48;
+  void build(const std::vector<cv::Point2f>& points, int width, int height);
+  // Indices of features within radius r of (x, y) whose level is in
+  // [min_level, max_level] (max_level < 0: any).
+  std::vector<int> query(const std::vector<cv::KeyPoint>& keys, const std::vector<cv::Point2f>& un,
+                         float x, float y, float r, int min_level, int max_level) const;
+
+ private:
+  float inv_cell_w_ = 0, inv_cell_h_ = 0;
+  std::vector<std::vector<int>> cells_;
+};
+
+struct Frame {
+  std::int64_t id = -1;
+  Timestamp stamp;
+  const CameraModel* camera = nullptr;
+  const LevelInfo* levels = nullptr;
+
+  std::vector<cv::KeyPoint> keys;     // as detected (distorted image)
+  std::vector<cv::Point2f> un;        // undistorted pixel positions
+  std::vector<float> depth;           // metres, <= 0 when unknown
+  std::vector<float> u_right;         // virtual right-image u, < 0 when unknown
+  cv::Mat descriptors;                // one 32-byte row per keypoint
+  FeatureGrid grid;
+
+  std::vector<std::shared_ptr<MapPoint>> points;  // matched map point or null
+  std::vector<char> outlier;
+
+  SE3 T_c_w = SE3::Identity();
+
+  int size() const { return static_cast<int>(keys.size()); }
+  const std::uint8_t* descriptor(int i) const { return descriptors.ptr<std::uint8_t>(i); }
+  Vec3 cameraCentre() const { return T_c_w.inverse().translation(); }
+  // World point of keypoint i from its depth (requires depth[i] > 0).
+  Vec3 unprojectToWorld(int i) const;
+  void clearMatches();
+};
+
+// Extracts features from an 8-bit grey image and samples depth (metres,
+// CV_32F, 0 = none) at each keypoint. `depth_m` may be empty (no depth).
+void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb);
+
+}  // namespace stillpoint::slam

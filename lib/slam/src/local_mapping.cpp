@@ -1,0 +1,161 @@
+#include "local_mapping.hpp"
+
+#include <chrono>
+#include <set>
+
+#include "matcher.hpp"
+#include "optimizer.hpp"
+#include "stillpoint/core/log.hpp"
+
+namespace stillpoint::slam {
+namespace {
+log::Logger logger("mapping");
+}
+
+LocalMapper::LocalMapper(const SlamOptions& options, double close_depth, Map* map)
+    : options_(options), close_depth_(close_depth), map_(map) {}
+
+LocalMapper::~LocalMapper() { finish(); }
+
+void LocalMapper::process(KeyFrame* kf) {
+  const auto t0 = std::chrono::steady_clock::now();
+  {
+    std::unique_lock lock(map_->mutex());
+    for (const auto& p : kf->frame.points)
+      if (p && !p->bad && p->first_keyframe_id == kf->id) recent_points_.push_back(p);
+    cullRecentPoints(kf);
+    fuseWithNeighbours(kf);
+  }
+  abort_ba_ = false;
+  if (options_.mapping.local_ba && map_->keyframes().size() > 2) {
+    const LocalBaStats s = localBundleAdjustment(map_, kf, options_.mapping.ba_max_keyframes,
+                                                 options_.mapping.ba_iterations, &abort_ba_);
+    ++ba_runs_;
+    SP_DEBUG(logger, "keyframe " << kf->id << ": local BA over " << s.keyframes << "+" << s.fixed_keyframes
+                                 << " keyframes, " << s.points << " points, cost " << s.initial_cost << " -> "
+                                 << s.final_cost << ", " << s.outliers_removed << " outliers");
+  }
+  {
+    std::unique_lock lock(map_->mutex());
+    cullKeyFrames(kf);
+  }
+  total_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void LocalMapper::cullRecentPoints(KeyFrame* kf) {
+  const int min_observers = 3;
+  for (auto it = recent_points_.begin(); it != recent_points_.end();) {
+    const auto& p = *it;
+    const std::int64_t age = kf->id - p->first_keyframe_id;
+    if (p->bad) {
+      it = recent_points_.erase(it);
+    } else if (p->foundRatio() < options_.mapping.point_found_ratio ||
+               (age >= 2 && static_cast<int>(p->observations.size()) < min_observers)) {
+      map_->erasePoint(p);
+      it = recent_points_.erase(it);
+    } else if (age >= 3) {
+      it = recent_points_.erase(it);  // survived its probation
+    } else {
+      ++it;
+    }
+  }
+}
+
+void LocalMapper::fuseWithNeighbours(KeyFrame* kf) {
+  std::vector<KeyFrame*> targets;
+  std::set<KeyFrame*> seen{kf};
+  for (KeyFrame* n : kf->bestNeighbours(options_.mapping.fuse_neighbours)) {
+    if (seen.insert(n).second) targets.push_back(n);
+    for (KeyFrame* n2 : n->bestNeighbours(5))
+      if (seen.insert(n2).second) targets.push_back(n2);
+  }
+  std::vector<std::shared_ptr<MapPoint>> own;
+  for (const auto& p : kf->frame.points)
+    if (p && !p->bad) own.push_back(p);
+  for (KeyFrame* t : targets) fuse(map_, t, own, 3.0f);
+  std::vector<std::shared_ptr<MapPoint>> theirs;
+  std::set<MapPoint*> unique;
+  for (KeyFrame* t : targets)
+    for (const auto& p : t->frame.points)
+      if (p && !p->bad && unique.insert(p.get()).second) theirs.push_back(p);
+  fuse(map_, kf, theirs, 3.0f);
+  for (const auto& p : kf->frame.points)
+    if (p && !p->bad) p->updateFromObservations();
+  kf->updateConnections();
+}
+
+void LocalMapper::cullKeyFrames(KeyFrame* kf) {
+  // A keyframe is redundant when most of its close points are seen by enough
+  // other keyframes at the same or a finer scale.
+  for (KeyFrame* n : kf->bestNeighbours(1000)) {
+    if (n->id == 0 || n->bad || n == kf) continue;
+    int total = 0, redundant = 0;
+    for (int i = 0; i < n->frame.size(); ++i) {
+      const auto& p = n->frame.points[i];
+      if (!p || p->bad) continue;
+      if (n->frame.depth[i] > close_depth_ || n->frame.depth[i] < 0) continue;
+      ++total;
+      if (static_cast<int>(p->observations.size()) <= options_.mapping.redundant_min_observers) continue;
+      const int level = n->frame.keys[i].octave;
+      int observers = 0;
+      for (const auto& [other, idx] : p->observations) {
+        if (other == n || other->bad) continue;
+        if (other->frame.keys[idx].octave <= level + 1) ++observers;
+        if (observers >= options_.mapping.redundant_min_observers) break;
+      }
+      if (observers >= options_.mapping.redundant_min_observers) ++redundant;
+    }
+    if (total > 0 && redundant > options_.mapping.redundant_ratio * total) {
+      SP_DEBUG(logger, "keyframe " << n->id << " is redundant (" << redundant << "/" << total << ")");
+      map_->setKeyFrameBad(n);
+    }
+  }
+}
+
+void LocalMapper::start() {
+  worker_ = std::jthread([this](std::stop_token stop) { run(stop); });
+}
+
+void LocalMapper::enqueue(KeyFrame* kf) {
+  std::unique_lock lock(queue_mutex_);
+  // Blocking when full: keyframes are never dropped (tracking slows instead).
+  queue_cv_.wait(lock, [&] { return queue_.size() < kQueueCapacity || closed_; });
+  if (closed_) return;
+  queue_.push_back(kf);
+  idle_ = false;
+  abort_ba_ = true;  // a newer keyframe makes the running BA less useful
+  queue_cv_.notify_all();
+}
+
+std::size_t LocalMapper::pending() const {
+  std::lock_guard lock(queue_mutex_);
+  return queue_.size();
+}
+
+void LocalMapper::run(std::stop_token stop) {
+  while (true) {
+    KeyFrame* kf = nullptr;
+    {
+      std::unique_lock lock(queue_mutex_);
+      queue_cv_.wait(lock, [&] { return !queue_.empty() || closed_ || stop.stop_requested(); });
+      if (queue_.empty()) return;  // closed and drained
+      kf = queue_.front();
+      queue_.pop_front();
+      queue_cv_.notify_all();
+    }
+    process(kf);
+    std::lock_guard lock(queue_mutex_);
+    if (queue_.empty()) idle_ = true;
+  }
+}
+
+void LocalMapper::finish() {
+  {
+    std::lock_guard lock(queue_mutex_);
+    closed_ = true;
+  }
+  queue_cv_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+}  // namespace stillpoint::slam

@@ -1,0 +1,100 @@
+#pragma once
+// Keyframes, map points and the covisibility graph. All mutation happens with
+// Map::mutex() held exclusively; tracking reads under a shared lock.
+#include <array>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <shared_mutex>
+#include <vector>
+
+#include "frame.hpp"
+
+namespace stillpoint::slam {
+
+class KeyFrame;
+
+class MapPoint {
+ public:
+  MapPoint(std::int64_t id, const Vec3& position, KeyFrame* reference) : id(id), position(position), reference(reference) {}
+
+  const std::int64_t id;
+  Vec3 position;
+  Vec3 normal = Vec3::Zero();  // mean viewing direction (unit)
+  double min_distance = 0, max_distance = 0;  // scale-invariance range
+  std::array<std::uint8_t, 32> descriptor{};
+  std::map<KeyFrame*, int> observations;  // keyframe -> keypoint index
+  KeyFrame* reference;
+  std::int64_t first_keyframe_id = 0;
+  int visible = 1;  // times it was inside a tracked frame's view
+  int found = 1;    // times it was matched there
+  bool bad = false;
+  std::shared_ptr<MapPoint> replaced_by;
+  std::int64_t local_for_frame = -1;  // tracking's local-map bookkeeping
+  bool isTemporary() const { return id < 0; }
+
+  double foundRatio() const { return static_cast<double>(found) / visible; }
+  // Level at which a feature of this point is expected at distance d.
+  int predictLevel(double distance, const LevelInfo& levels) const;
+  // Recomputes descriptor, normal and distance range from the observations.
+  void updateFromObservations();
+};
+
+class KeyFrame {
+ public:
+  KeyFrame(std::int64_t id, const Frame& frame);
+
+  const std::int64_t id;
+  Frame frame;  // features, matches (frame.points) and pose (frame.T_c_w)
+
+  SE3& T_c_w() { return frame.T_c_w; }
+  const SE3& T_c_w() const { return frame.T_c_w; }
+
+  // Covisibility: keyframes sharing at least kMinWeight points, by weight.
+  static constexpr int kMinWeight = 15;
+  std::map<KeyFrame*, int> connections;
+  std::vector<KeyFrame*> ordered_neighbours;
+  void updateConnections();
+  std::vector<KeyFrame*> bestNeighbours(int n) const;
+
+  // Spanning tree; a culled keyframe keeps its pose relative to its parent.
+  KeyFrame* parent = nullptr;
+  std::vector<KeyFrame*> children;
+  SE3 T_self_parent = SE3::Identity();
+  bool bad = false;
+  SE3 resolvedT_c_w() const;
+
+  // Bookkeeping of the local-map search.
+  std::int64_t local_for_frame = -1;
+  std::int64_t ba_local_for = -1, ba_fixed_for = -1;
+
+  int trackedPoints(int min_observations) const;
+  void addObservation(const std::shared_ptr<MapPoint>& point, int index);
+  void eraseObservation(int index);
+};
+
+class Map {
+ public:
+  std::shared_mutex& mutex() const { return mutex_; }
+
+  KeyFrame* addKeyFrame(std::unique_ptr<KeyFrame> kf);
+  std::shared_ptr<MapPoint> createPoint(const Vec3& position, KeyFrame* reference);
+  void erasePoint(const std::shared_ptr<MapPoint>& point);  // marks bad, drops observations
+  void setKeyFrameBad(KeyFrame* kf);
+  // Replaces `a` by `b` everywhere (fusion of duplicates).
+  void replacePoint(const std::shared_ptr<MapPoint>& a, const std::shared_ptr<MapPoint>& b);
+
+  const std::vector<std::unique_ptr<KeyFrame>>& keyframes() const { return keyframes_; }
+  std::size_t goodKeyFrameCount() const;
+  std::size_t pointCount() const;  // live (not bad) points
+  std::int64_t nextFrameId() { return next_frame_id_++; }
+
+ private:
+  mutable std::shared_mutex mutex_;
+  std::vector<std::unique_ptr<KeyFrame>> keyframes_;
+  std::vector<std::weak_ptr<MapPoint>> points_;  // for statistics only
+  std::int64_t next_point_id_ = 0;
+  std::int64_t next_frame_id_ = 0;
+};
+
+}  // namespace stillpoint::slam

@@ -1,0 +1,33 @@
+#pragma once
+// Descriptor matching between frames, keyframes and map points.
+#include <memory>
+#include <vector>
+
+#include "map.hpp"
+
+namespace stillpoint::slam {
+
+constexpr int kMatchThresholdHigh = 100;
+constexpr int kMatchThresholdLow = 50;
+
+// Projects the matched points of `last` into `current` (pose already
+// predicted) and matches in a window of `radius` x scale pixels.
+int searchByProjection(Frame* current, const Frame& last, float radius);
+
+// Projects local map points into `current`; `radius_factor` widens windows.
+int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint>>& points,
+                      float radius_factor, std::vector<char>* in_view_out = nullptr);
+
+// Matches the keyframe's map points to `current` by descriptor only (no pose
+// needed): nearest neighbour with ratio test and orientation consistency.
+// Returns matches as pairs (frame keypoint, map point) written into current->points.
+int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio);
+
+// Projects `points` into `kf` and fuses: adds observations for unmatched
+// keypoints, merges duplicates. Returns the number fused or added.
+int fuse(Map* map, KeyFrame* kf, const std::vector<std::shared_ptr<MapPoint>>& points, float radius);
+
+// Keeps only matches whose rotation change agrees with the dominant ones.
+void filterByOrientation(const std::vector<float>& rotation_deg, std::vector<int>* match_indices);
+
+}  // namespace stillpoint::slam

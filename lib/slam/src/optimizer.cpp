@@ -1,0 +1,295 @@
+#include "optimizer.hpp"
+
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
+#include <mutex>
+#include <set>
+#include <unordered_map>
+
+namespace stillpoint::slam {
+namespace {
+
+// Pose block: [angle-axis (3), translation (3)] of T_c_w.
+void toParameters(const SE3& T, double* p) {
+  Eigen::AngleAxisd aa(T.linear());
+  const Vec3 w = aa.angle() * aa.axis();
+  for (int i = 0; i < 3; ++i) {
+    p[i] = w[i];
+    p[3 + i] = T.translation()[i];
+  }
+}
+
+SE3 fromParameters(const double* p) {
+  SE3 T = SE3::Identity();
+  T.linear() = expSO3(Vec3(p[0], p[1], p[2]));
+  T.translation() = Vec3(p[3], p[4], p[5]);
+  return T;
+}
+
+// Residual of one observation; depth enters as the virtual right u.
+struct ReprojectionError {
+  ReprojectionError(const CameraModel& cam, const Observation& o)
+      : fx(cam.fx), fy(cam.fy), cx(cam.cx), cy(cam.cy), bf(cam.bf()), obs(o) {}
+
+  template <typename T>
+  bool project(const T* pose, const T* point, T* residual) const {
+    T p[3];
+    ceres::AngleAxisRotatePoint(pose, point, p);
+    p[0] += pose[3];
+    p[1] += pose[4];
+    p[2] += pose[5];
+    if (p[2] < T(1e-6)) p[2] = T(1e-6);
+    const T inv_z = T(1.0) / p[2];
+    const T u = T(fx) * p[0] * inv_z + T(cx);
+    residual[0] = (u - T(obs.u)) * T(obs.inv_sigma);
+    residual[1] = (T(fy) * p[1] * inv_z + T(cy) - T(obs.v)) * T(obs.inv_sigma);
+    if (obs.u_right >= 0) residual[2] = (u - T(bf) * inv_z - T(obs.u_right)) * T(obs.inv_sigma);
+    return true;
+  }
+  double fx, fy, cx, cy, bf;
+  Observation obs;
+};
+
+struct PoseOnlyError : ReprojectionError {
+  PoseOnlyError(const CameraModel& cam, const Observation& o, const Vec3& p) : ReprojectionError(cam, o), p_w(p) {}
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const {
+    const T point[3] = {T(p_w.x()), T(p_w.y()), T(p_w.z())};
+    return project(pose, point, residual);
+  }
+  Vec3 p_w;
+};
+
+struct FullError : ReprojectionError {
+  using ReprojectionError::ReprojectionError;
+  template <typename T>
+  bool operator()(const T* pose, const T* point, T* residual) const {
+    return project(pose, point, residual);
+  }
+};
+
+ceres::CostFunction* makePoseOnlyCost(const CameraModel& cam, const Observation& o, const Vec3& p) {
+  if (o.u_right >= 0)
+    return new ceres::AutoDiffCostFunction<PoseOnlyError, 3, 6>(new PoseOnlyError(cam, o, p));
+  return new ceres::AutoDiffCostFunction<PoseOnlyError, 2, 6>(new PoseOnlyError(cam, o, p));
+}
+
+ceres::CostFunction* makeFullCost(const CameraModel& cam, const Observation& o) {
+  if (o.u_right >= 0) return new ceres::AutoDiffCostFunction<FullError, 3, 6, 3>(new FullError(cam, o));
+  return new ceres::AutoDiffCostFunction<FullError, 2, 6, 3>(new FullError(cam, o));
+}
+
+Observation observationOf(const Frame& f, int i) {
+  Observation o;
+  o.u = f.un[i].x;
+  o.v = f.un[i].y;
+  o.u_right = f.u_right[i];
+  o.inv_sigma = 1.0 / f.levels->scales[f.keys[i].octave];
+  return o;
+}
+
+}  // namespace
+
+double reprojectionChi2(const CameraModel& cam, const SE3& T_c_w, const Vec3& p_w, const Observation& obs,
+                        bool* behind) {
+  const Vec3 p = T_c_w * p_w;
+  if (behind) *behind = p.z() <= 0;
+  if (p.z() <= 1e-6) return 1e9;
+  const double u = cam.fx * p.x() / p.z() + cam.cx, v = cam.fy * p.y() / p.z() + cam.cy;
+  double e2 = (u - obs.u) * (u - obs.u) + (v - obs.v) * (v - obs.v);
+  if (obs.u_right >= 0) {
+    const double ur = u - cam.bf() / p.z();
+    e2 += (ur - obs.u_right) * (ur - obs.u_right);
+  }
+  return e2 * obs.inv_sigma * obs.inv_sigma;
+}
+
+PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds) {
+  const std::size_t n = problem.points_w.size();
+  PoseResult result;
+  result.T_c_w = initial;
+  result.inlier.assign(n, 1);
+  if (n < 3) {
+    result.inliers = 0;
+    result.inlier.assign(n, 0);
+    return result;
+  }
+  double pose[6];
+  toParameters(initial, pose);
+  for (int round = 0; round < rounds; ++round) {
+    ceres::Problem::Options problem_options;
+    ceres::Problem ceres_problem(problem_options);
+    ceres_problem.AddParameterBlock(pose, 6);
+    int active = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!result.inlier[i]) continue;
+      const Observation& o = problem.observations[i];
+      const double delta = std::sqrt(o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+      // The robust kernel matters while outliers may still be in; the last
+      // rounds refine on the accepted set with a plain quadratic cost.
+      ceres::LossFunction* loss = round < 2 ? new ceres::HuberLoss(delta) : nullptr;
+      ceres_problem.AddResidualBlock(makePoseOnlyCost(*problem.camera, o, problem.points_w[i]), loss, pose);
+      ++active;
+    }
+    if (active < 3) break;
+    ceres::Solver::Options options;
+    options.linear_solver_type = ceres::DENSE_QR;
+    options.max_num_iterations = 10;
+    options.num_threads = 1;
+    options.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(options, &ceres_problem, &summary);
+    const SE3 T = fromParameters(pose);
+    result.inliers = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const Observation& o = problem.observations[i];
+      const double chi2 = reprojectionChi2(*problem.camera, T, problem.points_w[i], o);
+      result.inlier[i] = chi2 <= (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+      result.inliers += result.inlier[i];
+    }
+    if (result.inliers < 10) break;
+  }
+  result.T_c_w = fromParameters(pose);
+  return result;
+}
+
+int optimizeFramePose(Frame* frame) {
+  PoseProblem problem;
+  problem.camera = frame->camera;
+  std::vector<int> index;
+  for (int i = 0; i < frame->size(); ++i) {
+    const auto& p = frame->points[i];
+    if (!p || p->bad) continue;
+    problem.points_w.push_back(p->position);
+    problem.observations.push_back(observationOf(*frame, i));
+    index.push_back(i);
+  }
+  const PoseResult r = optimizePose(problem, frame->T_c_w);
+  if (r.inliers < 10) return r.inliers;
+  frame->T_c_w = r.T_c_w;
+  for (std::size_t k = 0; k < index.size(); ++k) frame->outlier[index[k]] = !r.inlier[k];
+  return r.inliers;
+}
+
+LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
+                                   const std::atomic<bool>* abort) {
+  LocalBaStats stats;
+  struct Obs {
+    int camera;  // index into poses
+    int point;   // index into points
+    Observation o;
+    KeyFrame* kf;
+    int feature;
+  };
+  std::vector<KeyFrame*> cameras;
+  std::vector<std::array<double, 6>> poses;
+  std::vector<char> fixed;
+  std::vector<std::shared_ptr<MapPoint>> points;
+  std::vector<std::array<double, 3>> positions;
+  std::vector<Obs> observations;
+  const CameraModel* camera = kf->frame.camera;
+
+  {  // Snapshot under a shared lock.
+    std::shared_lock lock(map->mutex());
+    if (kf->bad) return stats;
+    std::vector<KeyFrame*> local{kf};
+    for (KeyFrame* n : kf->bestNeighbours(max_keyframes - 1)) local.push_back(n);
+    std::unordered_map<KeyFrame*, int> camera_index;
+    for (KeyFrame* k : local) {
+      camera_index[k] = static_cast<int>(cameras.size());
+      cameras.push_back(k);
+      fixed.push_back(k->id == 0);
+    }
+    std::unordered_map<MapPoint*, int> point_index;
+    for (KeyFrame* k : local) {
+      for (const auto& p : k->frame.points) {
+        if (!p || p->bad || point_index.count(p.get())) continue;
+        point_index[p.get()] = static_cast<int>(points.size());
+        points.push_back(p);
+        positions.push_back({p->position.x(), p->position.y(), p->position.z()});
+      }
+    }
+    for (std::size_t pi = 0; pi < points.size(); ++pi) {
+      for (const auto& [obs_kf, idx] : points[pi]->observations) {
+        if (obs_kf->bad) continue;
+        auto it = camera_index.find(obs_kf);
+        if (it == camera_index.end()) {
+          it = camera_index.emplace(obs_kf, static_cast<int>(cameras.size())).first;
+          cameras.push_back(obs_kf);
+          fixed.push_back(1);
+        }
+        observations.push_back({it->second, static_cast<int>(pi), observationOf(obs_kf->frame, idx), obs_kf, idx});
+      }
+    }
+    poses.resize(cameras.size());
+    for (std::size_t c = 0; c < cameras.size(); ++c) toParameters(cameras[c]->T_c_w(), poses[c].data());
+  }
+  stats.points = static_cast<int>(points.size());
+  stats.observations = static_cast<int>(observations.size());
+  for (char f : fixed) (f ? stats.fixed_keyframes : stats.keyframes)++;
+  if (stats.keyframes == 0 || points.empty()) return stats;
+  // With only keyframe 0 free-less windows, hold at least one camera fixed.
+  if (stats.fixed_keyframes == 0) {
+    fixed[cameras.size() - 1] = 1;
+    stats.fixed_keyframes = 1;
+    stats.keyframes--;
+  }
+
+  std::vector<char> is_outlier(observations.size(), 0);
+  for (int pass = 0; pass < 2; ++pass) {
+    if (abort && abort->load()) break;
+    ceres::Problem problem;
+    for (std::size_t i = 0; i < observations.size(); ++i) {
+      if (is_outlier[i]) continue;
+      const Obs& ob = observations[i];
+      const double delta = std::sqrt(ob.o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+      problem.AddResidualBlock(makeFullCost(*camera, ob.o), new ceres::HuberLoss(delta), poses[ob.camera].data(),
+                               positions[ob.point].data());
+    }
+    for (std::size_t c = 0; c < cameras.size(); ++c)
+      if (fixed[c] && problem.HasParameterBlock(poses[c].data())) problem.SetParameterBlockConstant(poses[c].data());
+    ceres::Solver::Options options;
+    options.linear_solver_type = ceres::SPARSE_SCHUR;
+    options.max_num_iterations = pass == 0 ? std::max(1, iterations / 2) : iterations;
+    options.num_threads = 1;
+    options.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(options, &problem, &summary);
+    if (pass == 0) stats.initial_cost = summary.initial_cost;
+    stats.final_cost = summary.final_cost;
+    // Set aside observations that fail the chi-square test, then refine.
+    for (std::size_t i = 0; i < observations.size(); ++i) {
+      const Obs& ob = observations[i];
+      const Vec3 pw(positions[ob.point][0], positions[ob.point][1], positions[ob.point][2]);
+      bool behind = false;
+      const double chi2 = reprojectionChi2(*camera, fromParameters(poses[ob.camera].data()), pw, ob.o, &behind);
+      is_outlier[i] = behind || chi2 > (ob.o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+    }
+  }
+
+  {  // Write back under the exclusive lock.
+    std::unique_lock lock(map->mutex());
+    for (std::size_t i = 0; i < observations.size(); ++i) {
+      if (!is_outlier[i]) continue;
+      const Obs& ob = observations[i];
+      const auto& p = points[ob.point];
+      if (p->bad || ob.kf->bad || ob.kf->frame.points[ob.feature] != p) continue;
+      ob.kf->eraseObservation(ob.feature);
+      ++stats.outliers_removed;
+      if (p->observations.empty())
+        map->erasePoint(p);
+    }
+    for (std::size_t c = 0; c < cameras.size(); ++c)
+      if (!fixed[c] && !cameras[c]->bad) cameras[c]->T_c_w() = fromParameters(poses[c].data());
+    for (std::size_t pi = 0; pi < points.size(); ++pi) {
+      const auto& p = points[pi];
+      if (p->bad) continue;
+      p->position = Vec3(positions[pi][0], positions[pi][1], positions[pi][2]);
+      p->updateFromObservations();
+    }
+  }
+  return stats;
+}
+
+}  // namespace stillpoint::slam

@@ -1,0 +1,57 @@
+#pragma once
+// Pose-only optimisation and local bundle adjustment with Ceres.
+#include <atomic>
+#include <vector>
+
+#include "map.hpp"
+
+namespace stillpoint::slam {
+
+// Observation of a 3D point by a camera: undistorted pixel, virtual right u
+// (< 0 when the keypoint has no depth), and its pyramid-level information.
+struct Observation {
+  double u = 0, v = 0, u_right = -1;
+  double inv_sigma = 1;  // 1 / (scale^level)
+};
+
+// Thresholds of the chi-square test at 95 %, 2 and 3 degrees of freedom.
+constexpr double kChi2Mono = 5.991;
+constexpr double kChi2Stereo = 7.815;
+
+struct PoseProblem {
+  const CameraModel* camera = nullptr;
+  std::vector<Vec3> points_w;
+  std::vector<Observation> observations;
+};
+
+struct PoseResult {
+  SE3 T_c_w;
+  std::vector<char> inlier;
+  int inliers = 0;
+};
+
+// Robust (Huber) pose-only optimisation in rounds; after each round matches
+// failing the chi-square test are set aside (and may return in a later
+// round). Recovers from `initial`.
+PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds = 4);
+
+// Convenience: optimises frame->T_c_w against its matched points, sets
+// frame->outlier; returns the number of inliers.
+int optimizeFramePose(Frame* frame);
+
+// Squared, sigma-normalised reprojection error of a point seen in a camera.
+double reprojectionChi2(const CameraModel& camera, const SE3& T_c_w, const Vec3& p_w, const Observation& obs,
+                        bool* behind = nullptr);
+
+struct LocalBaStats {
+  int keyframes = 0, fixed_keyframes = 0, points = 0, observations = 0, outliers_removed = 0;
+  double initial_cost = 0, final_cost = 0;
+};
+
+// Local BA around `kf`: it and its best covisible keyframes are optimised
+// together with every point they see; other keyframes seeing those points are
+// held fixed. Runs without the map lock between a snapshot and a write-back.
+LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
+                                   const std::atomic<bool>* abort = nullptr);
+
+}  // namespace stillpoint::slam

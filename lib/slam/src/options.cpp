@@ -1,0 +1,143 @@
+#include "stillpoint/slam/options.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <functional>
+#include <map>
+#include <sstream>
+
+namespace stillpoint::slam {
+
+Status TrackingOptions::validate() const {
+  if (min_init_features < 20) return Error{"tracking.min_init_features must be >= 20"};
+  if (min_inliers_local_map < 6) return Error{"tracking.min_inliers_local_map must be >= 6"};
+  if (min_inliers_after_reloc < min_inliers_local_map)
+    return Error{"tracking.min_inliers_after_reloc must be >= tracking.min_inliers_local_map"};
+  if (!(close_depth_baselines > 0)) return Error{"tracking.close_depth_baselines must be > 0"};
+  if (local_keyframes_max < 1) return Error{"tracking.local_keyframes_max must be >= 1"};
+  if (relocalisation_candidates < 1) return Error{"tracking.relocalisation_candidates must be >= 1"};
+  return Status::success();
+}
+
+Status KeyframeOptions::validate() const {
+  if (!(max_interval_s > 0)) return Error{"keyframes.max_interval_s must be > 0"};
+  if (min_interval_frames < 0) return Error{"keyframes.min_interval_frames must be >= 0"};
+  if (!(tracked_ratio > 0 && tracked_ratio < 1)) return Error{"keyframes.tracked_ratio must be in (0, 1)"};
+  if (close_tracked_min < 0) return Error{"keyframes.close_tracked_min must be >= 0"};
+  if (close_untracked_min < 0) return Error{"keyframes.close_untracked_min must be >= 0"};
+  if (min_new_points < 0) return Error{"keyframes.min_new_points must be >= 0"};
+  return Status::success();
+}
+
+Status MappingOptions::validate() const {
+  if (ba_iterations < 1 || ba_iterations > 100) return Error{"mapping.ba_iterations must be in 1..100"};
+  if (ba_max_keyframes < 2) return Error{"mapping.ba_max_keyframes must be >= 2"};
+  if (!(redundant_ratio > 0 && redundant_ratio <= 1)) return Error{"mapping.redundant_ratio must be in (0, 1]"};
+  if (redundant_min_observers < 1) return Error{"mapping.redundant_min_observers must be >= 1"};
+  if (!(point_found_ratio >= 0 && point_found_ratio < 1)) return Error{"mapping.point_found_ratio must be in [0, 1)"};
+  if (fuse_neighbours < 1) return Error{"mapping.fuse_neighbours must be >= 1"};
+  return Status::success();
+}
+
+Status SlamOptions::validate() const {
+  for (const Status& s : {orb.validate(), tracking.validate(), keyframes.validate(), mapping.validate()})
+    if (!s) return s;
+  return Status::success();
+}
+
+namespace {
+
+// One table drives both reading and writing, so the two cannot drift apart.
+template <typename Visitor>
+void visitFields(SlamOptions& o, Visitor&& v) {
+  v("orb", "num_features", o.orb.num_features);
+  v("orb", "num_levels", o.orb.num_levels);
+  v("orb", "scale_factor", o.orb.scale_factor);
+  v("orb", "fast_threshold", o.orb.fast_threshold);
+  v("orb", "min_fast_threshold", o.orb.min_fast_threshold);
+  v("orb", "cell_size", o.orb.cell_size);
+  v("tracking", "min_init_features", o.tracking.min_init_features);
+  v("tracking", "min_inliers_local_map", o.tracking.min_inliers_local_map);
+  v("tracking", "min_inliers_after_reloc", o.tracking.min_inliers_after_reloc);
+  v("tracking", "close_depth_baselines", o.tracking.close_depth_baselines);
+  v("tracking", "local_keyframes_max", o.tracking.local_keyframes_max);
+  v("tracking", "relocalisation_candidates", o.tracking.relocalisation_candidates);
+  v("keyframes", "max_interval_s", o.keyframes.max_interval_s);
+  v("keyframes", "min_interval_frames", o.keyframes.min_interval_frames);
+  v("keyframes", "tracked_ratio", o.keyframes.tracked_ratio);
+  v("keyframes", "close_tracked_min", o.keyframes.close_tracked_min);
+  v("keyframes", "close_untracked_min", o.keyframes.close_untracked_min);
+  v("keyframes", "min_new_points", o.keyframes.min_new_points);
+  v("mapping", "local_ba", o.mapping.local_ba);
+  v("mapping", "ba_iterations", o.mapping.ba_iterations);
+  v("mapping", "ba_max_keyframes", o.mapping.ba_max_keyframes);
+  v("mapping", "redundant_ratio", o.mapping.redundant_ratio);
+  v("mapping", "redundant_min_observers", o.mapping.redundant_min_observers);
+  v("mapping", "point_found_ratio", o.mapping.point_found_ratio);
+  v("mapping", "fuse_neighbours", o.mapping.fuse_neighbours);
+  v("", "sequential", o.sequential);
+}
+
+}  // namespace
+
+Result<SlamOptions> loadSlamOptions(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    return Error{"config '" + path + "': cannot be opened"};
+  } catch (const YAML::Exception& e) {
+    return Error{"config '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+  }
+  SlamOptions options;
+  if (root.IsNull()) return options;
+  if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};
+  std::map<std::string, bool> known;
+  std::string error;
+  visitFields(options, [&](const std::string& section, const std::string& key, auto& field) {
+    known[section.empty() ? key : section + "." + key] = true;
+    if (!error.empty()) return;
+    YAML::Node node = section.empty() ? root[key] : (root[section] ? root[section][key] : YAML::Node());
+    if (!node) return;
+    try {
+      field = node.as<std::decay_t<decltype(field)>>();
+    } catch (const YAML::Exception&) {
+      error = "config '" + path + "': line " + std::to_string(node.Mark().line + 1) + ": field '" +
+              (section.empty() ? key : section + "." + key) + "' has the wrong type";
+    }
+  });
+  if (!error.empty()) return Error{error};
+  for (const auto& top : root) {
+    const std::string name = top.first.as<std::string>();
+    if (top.second.IsMap()) {
+      for (const auto& sub : top.second) {
+        const std::string full = name + "." + sub.first.as<std::string>();
+        if (!known.count(full))
+          return Error{"config '" + path + "': line " + std::to_string(sub.first.Mark().line + 1) +
+                       ": unknown field '" + full + "'"};
+      }
+    } else if (!known.count(name)) {
+      return Error{"config '" + path + "': line " + std::to_string(top.first.Mark().line + 1) +
+                   ": unknown field '" + name + "'"};
+    }
+  }
+  if (Status s = options.validate(); !s) return Error{"config '" + path + "': " + s.error()};
+  return options;
+}
+
+std::string toYaml(const SlamOptions& options) {
+  SlamOptions copy = options;
+  YAML::Node root;
+  visitFields(copy, [&](const std::string& section, const std::string& key, auto& field) {
+    if (section.empty())
+      root[key] = field;
+    else
+      root[section][key] = field;
+  });
+  YAML::Emitter out;
+  out.SetDoublePrecision(10);
+  out << root;
+  return std::string(out.c_str()) + "\n";
+}
+
+}  // namespace stillpoint::slam

@@ -1,0 +1,367 @@
+#include "tracking.hpp"
+
+#include <opencv2/calib3d.hpp>
+
+#include <algorithm>
+#include <mutex>
+#include <numeric>
+#include <unordered_map>
+
+#include "matcher.hpp"
+#include "optimizer.hpp"
+#include "stillpoint/core/log.hpp"
+
+namespace stillpoint::slam {
+namespace {
+log::Logger logger("tracking");
+}
+
+Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map)
+    : camera_(camera),
+      options_(options),
+      levels_(levels),
+      map_(map),
+      close_depth_(options.tracking.close_depth_baselines * camera.baseline) {}
+
+KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
+  current_ = std::move(frame);
+  KeyFrame* new_keyframe = nullptr;
+  bool ok = false;
+  if (state_ == TrackingState::kInitialising) {
+    std::unique_lock lock(map_->mutex());
+    ok = initialise();
+    if (ok) new_keyframe = reference_;
+  } else {
+    std::shared_lock lock(map_->mutex());
+    const bool was_lost = state_ == TrackingState::kLost;
+    if (!was_lost) {
+      refreshLastFrame();
+      if (has_velocity_ && current_.id > last_reloc_frame_id_ + 2) ok = trackWithMotionModel();
+      if (!ok) ok = trackReferenceKeyFrame();
+      if (ok) ok = trackLocalMap(options_.tracking.min_inliers_local_map);
+    } else {
+      ok = relocalise();
+    }
+    if (ok) {
+      state_ = was_lost ? TrackingState::kRelocalised : TrackingState::kOk;
+    } else {
+      state_ = TrackingState::kLost;
+      has_velocity_ = false;
+    }
+    if (ok && needNewKeyFrame(mapping_idle)) {
+      lock.unlock();
+      std::unique_lock write(map_->mutex());
+      new_keyframe = createKeyFrame();
+    }
+  }
+
+  if (ok) {
+    if (has_last_ && current_.id == last_.id + 1 && state_ == TrackingState::kOk)
+      velocity_ = current_.T_c_w * last_.T_c_w.inverse(), has_velocity_ = true;
+    else if (state_ != TrackingState::kOk)
+      has_velocity_ = false;
+    // Temporary odometry points never outlive the frame they helped track.
+    for (int i = 0; i < current_.size(); ++i)
+      if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
+        current_.points[i] = nullptr;
+    records_.push_back({current_.stamp, reference_, current_.T_c_w * reference_->T_c_w().inverse()});
+    out->T_w_c = current_.T_c_w.inverse();
+  }
+  out->state = state_;
+  out->features = current_.size();
+  out->tracked = ok ? inliers_ : 0;
+  out->new_keyframe = new_keyframe != nullptr;
+  last_ = std::move(current_);
+  has_last_ = true;
+  return new_keyframe;
+}
+
+bool Tracker::initialise() {
+  int with_depth = 0;
+  for (float d : current_.depth) with_depth += d > 0;
+  if (with_depth < options_.tracking.min_init_features) {
+    SP_INFO(logger, "frame " << current_.id << ": " << with_depth << " features with depth, need "
+                             << options_.tracking.min_init_features << " to initialise");
+    return false;
+  }
+  current_.T_c_w = SE3::Identity();
+  auto kf = std::make_unique<KeyFrame>(0, current_);
+  KeyFrame* k = map_->addKeyFrame(std::move(kf));
+  for (int i = 0; i < k->frame.size(); ++i) {
+    if (k->frame.depth[i] <= 0) continue;
+    auto p = map_->createPoint(k->frame.unprojectToWorld(i), k);
+    k->addObservation(p, i);
+    p->updateFromObservations();
+    current_.points[i] = p;
+  }
+  reference_ = last_keyframe_ = k;
+  last_keyframe_frame_id_ = current_.id;
+  local_keyframes_ = {k};
+  inliers_ = k->trackedPoints(1);
+  state_ = TrackingState::kOk;
+  SP_INFO(logger, "map initialised with " << inliers_ << " points");
+  return true;
+}
+
+void Tracker::refreshLastFrame() {
+  // The last frame's pose follows its reference keyframe (bundle adjustment
+  // may have moved it); then give it temporary points from depth so the
+  // motion model has enough to match against.
+  if (!records_.empty()) {
+    const TrajectoryRecord& r = records_.back();
+    last_.T_c_w = r.T_c_ref * r.reference->resolvedT_c_w();
+  }
+  std::vector<std::pair<float, int>> by_depth;
+  for (int i = 0; i < last_.size(); ++i)
+    if (last_.depth[i] > 0) by_depth.emplace_back(last_.depth[i], i);
+  std::sort(by_depth.begin(), by_depth.end());
+  int added = 0;
+  for (const auto& [z, i] : by_depth) {
+    const bool has_point = last_.points[i] && !last_.points[i]->bad;
+    if (!has_point) {
+      auto p = std::make_shared<MapPoint>(-1, last_.unprojectToWorld(i), nullptr);
+      std::copy(last_.descriptor(i), last_.descriptor(i) + 32, p->descriptor.begin());
+      last_.points[i] = std::move(p);
+      last_.outlier[i] = 0;
+      ++added;
+    }
+    if (z > close_depth_ && added > 100) break;
+  }
+}
+
+int Tracker::discardOutliers() {
+  int map_matches = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    if (!current_.points[i]) continue;
+    if (current_.outlier[i]) {
+      current_.points[i] = nullptr;
+      current_.outlier[i] = 0;
+    } else if (!current_.points[i]->isTemporary() && !current_.points[i]->observations.empty()) {
+      ++map_matches;
+    }
+  }
+  return map_matches;
+}
+
+bool Tracker::trackWithMotionModel() {
+  current_.T_c_w = velocity_ * last_.T_c_w;
+  current_.clearMatches();
+  int matches = searchByProjection(&current_, last_, 7.0f);
+  if (matches < 20) {
+    current_.clearMatches();
+    matches = searchByProjection(&current_, last_, 14.0f);
+  }
+  if (matches < 20) return false;
+  optimizeFramePose(&current_);
+  return discardOutliers() >= 10;
+}
+
+bool Tracker::trackReferenceKeyFrame() {
+  if (!reference_ || reference_->bad) return false;
+  current_.clearMatches();
+  const int matches = searchByDescriptor(&current_, *reference_, 0.7f);
+  if (matches < 15) return false;
+  current_.T_c_w = last_.T_c_w;
+  optimizeFramePose(&current_);
+  return discardOutliers() >= 10;
+}
+
+bool Tracker::relocalise() {
+  // Most recent keyframes first: after a short loss the camera is usually
+  // still near where it was.
+  std::vector<KeyFrame*> candidates;
+  for (auto it = map_->keyframes().rbegin(); it != map_->keyframes().rend(); ++it) {
+    if ((*it)->bad) continue;
+    candidates.push_back(it->get());
+    if (static_cast<int>(candidates.size()) >= options_.tracking.relocalisation_candidates) break;
+  }
+  const cv::Mat K = (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
+  for (KeyFrame* kf : candidates) {
+    current_.clearMatches();
+    if (searchByDescriptor(&current_, *kf, 0.75f) < 15) continue;
+    std::vector<cv::Point3f> object;
+    std::vector<cv::Point2f> image;
+    for (int i = 0; i < current_.size(); ++i) {
+      if (!current_.points[i]) continue;
+      const Vec3& p = current_.points[i]->position;
+      object.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+      image.push_back(current_.un[i]);
+    }
+    cv::Mat rvec, tvec;
+    std::vector<int> inliers;
+    if (!cv::solvePnPRansac(object, image, K, cv::noArray(), rvec, tvec, false, 300, 4.0f, 0.99, inliers,
+                            cv::SOLVEPNP_EPNP) ||
+        inliers.size() < 12)
+      continue;
+    cv::Mat R;
+    cv::Rodrigues(rvec, R);
+    SE3 T = SE3::Identity();
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) T.linear()(r, c) = R.at<double>(r, c);
+      T.translation()[r] = tvec.at<double>(r);
+    }
+    current_.T_c_w = T;
+    if (optimizeFramePose(&current_) < 10) continue;
+    discardOutliers();
+    // Widen to the local map around the candidate.
+    reference_ = kf;
+    if (trackLocalMap(options_.tracking.min_inliers_after_reloc)) {
+      last_reloc_frame_id_ = current_.id;
+      SP_INFO(logger, "frame " << current_.id << ": relocalised against keyframe " << kf->id << " with "
+                               << inliers_ << " inliers");
+      return true;
+    }
+  }
+  return false;
+}
+
+void Tracker::updateLocalMap() {
+  std::unordered_map<KeyFrame*, int> votes;
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    if (!p || p->bad || p->isTemporary()) continue;
+    for (const auto& [kf, idx] : p->observations)
+      if (!kf->bad) votes[kf]++;
+  }
+  local_keyframes_.clear();
+  KeyFrame* best = nullptr;
+  int best_votes = 0;
+  for (const auto& [kf, n] : votes) {
+    kf->local_for_frame = current_.id;
+    local_keyframes_.push_back(kf);
+    if (n > best_votes || (n == best_votes && best && kf->id > best->id)) {
+      best = kf;
+      best_votes = n;
+    }
+  }
+  std::sort(local_keyframes_.begin(), local_keyframes_.end(),
+            [&](KeyFrame* a, KeyFrame* b) { return votes[a] != votes[b] ? votes[a] > votes[b] : a->id > b->id; });
+  const std::size_t max_kfs = static_cast<std::size_t>(options_.tracking.local_keyframes_max);
+  const std::size_t direct = local_keyframes_.size();
+  for (std::size_t k = 0; k < direct && local_keyframes_.size() < max_kfs; ++k) {
+    auto add = [&](KeyFrame* n) {
+      if (!n || n->bad || n->local_for_frame == current_.id || local_keyframes_.size() >= max_kfs) return;
+      n->local_for_frame = current_.id;
+      local_keyframes_.push_back(n);
+    };
+    for (KeyFrame* n : local_keyframes_[k]->bestNeighbours(10)) add(n);
+    for (KeyFrame* c : local_keyframes_[k]->children) add(c);
+    add(local_keyframes_[k]->parent);
+  }
+  if (best) reference_ = best;
+
+  local_points_.clear();
+  for (KeyFrame* kf : local_keyframes_) {
+    for (const auto& p : kf->frame.points) {
+      if (!p || p->bad || p->local_for_frame == current_.id) continue;
+      p->local_for_frame = current_.id;
+      local_points_.push_back(p);
+    }
+  }
+}
+
+bool Tracker::trackLocalMap(int min_inliers) {
+  updateLocalMap();
+  // Points already matched are seen; don't search them again.
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    if (!p || p->isTemporary()) continue;
+    p->visible++;
+  }
+  std::vector<std::shared_ptr<MapPoint>> candidates;
+  candidates.reserve(local_points_.size());
+  std::vector<char> already(local_points_.size(), 0);
+  std::unordered_map<MapPoint*, int> matched;
+  for (int i = 0; i < current_.size(); ++i)
+    if (current_.points[i]) matched[current_.points[i].get()] = i;
+  for (const auto& p : local_points_)
+    if (!matched.count(p.get())) candidates.push_back(p);
+  std::vector<char> in_view;
+  const float radius = current_.id < last_reloc_frame_id_ + 2 ? 5.0f : 1.0f;
+  searchLocalPoints(&current_, candidates, radius, &in_view);
+  for (std::size_t k = 0; k < candidates.size(); ++k)
+    if (in_view[k]) candidates[k]->visible++;
+
+  optimizeFramePose(&current_);
+  inliers_ = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    if (!p) continue;
+    if (current_.outlier[i]) continue;
+    if (p->isTemporary()) continue;
+    p->found++;
+    if (!p->observations.empty()) ++inliers_;
+  }
+  return inliers_ >= min_inliers;
+}
+
+bool Tracker::needNewKeyFrame(bool mapping_idle) const {
+  const KeyframeOptions& o = options_.keyframes;
+  if (!reference_) return false;
+  const std::size_t keyframes = map_->goodKeyFrameCount();
+  if (current_.id < last_reloc_frame_id_ + 30 && keyframes > 30) return false;
+  const int min_obs = keyframes <= 2 ? 2 : 3;
+  const int ref_matches = reference_->trackedPoints(min_obs);
+  int close_tracked = 0, close_untracked = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    if (current_.depth[i] <= 0 || current_.depth[i] >= close_depth_) continue;
+    const auto& p = current_.points[i];
+    if (p && !current_.outlier[i] && !p->isTemporary())
+      ++close_tracked;
+    else
+      ++close_untracked;
+  }
+  const bool need_close = close_tracked < o.close_tracked_min && close_untracked > o.close_untracked_min;
+  const double ratio = keyframes < 2 ? 0.4 : o.tracked_ratio;
+  const double since_s = secondsBetween(current_.stamp, last_keyframe_->frame.stamp);
+  const bool c1a = since_s >= o.max_interval_s;
+  const bool c1b = current_.id >= last_keyframe_frame_id_ + o.min_interval_frames && mapping_idle;
+  const bool c1c = inliers_ < 0.25 * ref_matches || need_close;
+  const bool c2 = (inliers_ < ratio * ref_matches || need_close) && inliers_ > 15;
+  return (c1a || c1b || c1c) && c2;
+}
+
+KeyFrame* Tracker::createKeyFrame() {
+  const std::int64_t id = static_cast<std::int64_t>(map_->keyframes().size());
+  Frame copy = current_;
+  for (int i = 0; i < copy.size(); ++i) {
+    const auto& p = copy.points[i];
+    if (!p || p->bad || p->isTemporary() || copy.outlier[i]) {
+      copy.points[i] = nullptr;
+      copy.outlier[i] = 0;
+    }
+  }
+  KeyFrame* kf = map_->addKeyFrame(std::make_unique<KeyFrame>(id, copy));
+  for (int i = 0; i < kf->frame.size(); ++i) {
+    const auto p = kf->frame.points[i];
+    if (!p) continue;
+    if (p->observations.count(kf)) {
+      // The same point matched twice in one frame keeps only its first match.
+      kf->frame.points[i] = nullptr;
+      continue;
+    }
+    kf->addObservation(p, i);
+    p->updateFromObservations();
+  }
+  // New points from depth: all close ones, and at least the nearest N.
+  std::vector<std::pair<float, int>> by_depth;
+  for (int i = 0; i < kf->frame.size(); ++i)
+    if (kf->frame.depth[i] > 0 && !kf->frame.points[i]) by_depth.emplace_back(kf->frame.depth[i], i);
+  std::sort(by_depth.begin(), by_depth.end());
+  int created = 0;
+  for (const auto& [z, i] : by_depth) {
+    if (z > close_depth_ && created >= options_.keyframes.min_new_points) break;
+    auto p = map_->createPoint(kf->frame.unprojectToWorld(i), kf);
+    kf->addObservation(p, i);
+    p->updateFromObservations();
+    current_.points[i] = p;
+    current_.outlier[i] = 0;
+    ++created;
+  }
+  kf->updateConnections();
+  reference_ = last_keyframe_ = kf;
+  last_keyframe_frame_id_ = current_.id;
+  return kf;
+}
+
+}  // namespace stillpoint::slam

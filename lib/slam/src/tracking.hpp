@@ -1,0 +1,63 @@
+#pragma once
+// Frame-to-map tracking: motion model, reference keyframe, local map,
+// relocalisation, and the keyframe decision.
+#include <memory>
+#include <vector>
+
+#include "map.hpp"
+#include "stillpoint/slam/options.hpp"
+#include "stillpoint/slam/system.hpp"
+
+namespace stillpoint::slam {
+
+struct TrajectoryRecord {
+  Timestamp stamp;
+  KeyFrame* reference;
+  SE3 T_c_ref;
+};
+
+class Tracker {
+ public:
+  Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map);
+
+  // Tracks `frame` (features built, pose unset). `mapping_idle` tells whether
+  // local mapping can take a keyframe now. Returns the new keyframe or null.
+  KeyFrame* track(Frame frame, bool mapping_idle, TrackOutput* out);
+
+  const std::vector<TrajectoryRecord>& records() const { return records_; }
+  TrackingState state() const { return state_; }
+
+ private:
+  bool initialise();
+  bool trackWithMotionModel();
+  bool trackReferenceKeyFrame();
+  bool relocalise();
+  bool trackLocalMap(int min_inliers);
+  void updateLocalMap();
+  void refreshLastFrame();
+  int discardOutliers();
+  bool needNewKeyFrame(bool mapping_idle) const;
+  KeyFrame* createKeyFrame();
+
+  const CameraModel& camera_;
+  SlamOptions options_;
+  const LevelInfo& levels_;
+  Map* map_;
+  double close_depth_;
+
+  TrackingState state_ = TrackingState::kInitialising;
+  Frame current_, last_;
+  bool has_last_ = false;
+  KeyFrame* reference_ = nullptr;
+  KeyFrame* last_keyframe_ = nullptr;
+  std::int64_t last_keyframe_frame_id_ = 0;
+  std::int64_t last_reloc_frame_id_ = -100;
+  SE3 velocity_ = SE3::Identity();
+  bool has_velocity_ = false;
+  int inliers_ = 0;
+  std::vector<KeyFrame*> local_keyframes_;
+  std::vector<std::shared_ptr<MapPoint>> local_points_;
+  std::vector<TrajectoryRecord> records_;
+};
+
+}  // namespace stillpoint::slam
