@@ -164,7 +164,7 @@ int main(int argc, char** argv) {
   }
 
   std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0;
-  std::vector<double> extract_ms, track_ms;
+  std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
   const auto start = std::chrono::steady_clock::now();
   Timestamp first_stamp;
@@ -189,6 +189,10 @@ int main(int argc, char** argv) {
     ++frames;
     extract_ms.push_back(out->extract_ms);
     track_ms.push_back(out->track_ms);
+    initial_ms.push_back(out->stages.initial_pose);
+    local_map_ms.push_back(out->stages.local_map);
+    pose_opt_ms.push_back(out->stages.pose_optimisation);
+    keyframe_ms.push_back(out->stages.keyframe);
     switch (out->state) {
       case slam::TrackingState::kOk:
       case slam::TrackingState::kRelocalised: ++tracked; break;
@@ -215,6 +219,16 @@ int main(int argc, char** argv) {
               map.keyframes, map.points, map.local_ba_runs, map.local_mapping_ms_total);
   std::printf("timing [ms]:  %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "ORB extraction", ex.mean,
               ex.median, ex.p95, ex.max);
+  const std::pair<const char*, const std::vector<double>*> stages[] = {
+      {"initial pose matching", &initial_ms},
+      {"local map search", &local_map_ms},
+      {"pose optimisation", &pose_opt_ms},
+      {"keyframe decision", &keyframe_ms}};
+  for (const auto& [name, values] : stages) {
+    const Stats st = stats(*values);
+    std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", name, st.mean, st.median,
+                st.p95, st.max);
+  }
   std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "tracking (incl. ORB)",
               tr.mean, tr.median, tr.p95, tr.max);
   std::printf("              %-24s %.1f fps over %.2f s wall\n", "throughput", frames / wall_s, wall_s);

@@ -1,6 +1,7 @@
 #include "local_mapping.hpp"
 
 #include <chrono>
+#include <cstdlib>
 #include <set>
 
 #include "matcher.hpp"
@@ -24,7 +25,7 @@ void LocalMapper::process(KeyFrame* kf) {
     for (const auto& p : kf->frame.points)
       if (p && !p->bad && p->first_keyframe_id == kf->id) recent_points_.push_back(p);
     cullRecentPoints(kf);
-    fuseWithNeighbours(kf);
+    if (!std::getenv("SP_NO_FUSE")) fuseWithNeighbours(kf); else kf->updateConnections();
   }
   abort_ba_ = false;
   if (options_.mapping.local_ba && map_->keyframes().size() > 2) {
@@ -37,7 +38,7 @@ void LocalMapper::process(KeyFrame* kf) {
   }
   {
     std::unique_lock lock(map_->mutex());
-    cullKeyFrames(kf);
+    if (!std::getenv("SP_NO_KFCULL")) cullKeyFrames(kf);
   }
   total_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }

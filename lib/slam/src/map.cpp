@@ -7,6 +7,8 @@
 
 namespace stillpoint::slam {
 
+bool KeyFrameIdLess::operator()(const KeyFrame* a, const KeyFrame* b) const { return a->id < b->id; }
+
 int MapPoint::predictLevel(double distance, const LevelInfo& levels) const {
   if (distance <= 0 || max_distance <= 0) return 0;
   const int level = static_cast<int>(std::ceil(std::log(max_distance / distance) / levels.log_scale_factor));
@@ -56,7 +58,7 @@ int KeyFrame::trackedPoints(int min_observations) const {
 }
 
 void KeyFrame::updateConnections() {
-  std::map<KeyFrame*, int> counts;
+  KeyFrameIndexMap counts;
   for (const auto& p : frame.points) {
     if (!p || p->bad) continue;
     for (const auto& [kf, idx] : p->observations)

@@ -14,6 +14,13 @@ namespace stillpoint::slam {
 
 class KeyFrame;
 
+// Containers keyed by keyframe iterate in keyframe-id order, never in
+// pointer order, so runs are reproducible.
+struct KeyFrameIdLess {
+  bool operator()(const KeyFrame* a, const KeyFrame* b) const;
+};
+using KeyFrameIndexMap = std::map<KeyFrame*, int, KeyFrameIdLess>;
+
 class MapPoint {
  public:
   MapPoint(std::int64_t id, const Vec3& position, KeyFrame* reference) : id(id), position(position), reference(reference) {}
@@ -23,7 +30,7 @@ class MapPoint {
   Vec3 normal = Vec3::Zero();  // mean viewing direction (unit)
   double min_distance = 0, max_distance = 0;  // scale-invariance range
   std::array<std::uint8_t, 32> descriptor{};
-  std::map<KeyFrame*, int> observations;  // keyframe -> keypoint index
+  KeyFrameIndexMap observations;  // keyframe -> keypoint index
   KeyFrame* reference;
   std::int64_t first_keyframe_id = 0;
   int visible = 1;  // times it was inside a tracked frame's view
@@ -52,7 +59,7 @@ class KeyFrame {
 
   // Covisibility: keyframes sharing at least kMinWeight points, by weight.
   static constexpr int kMinWeight = 15;
-  std::map<KeyFrame*, int> connections;
+  KeyFrameIndexMap connections;
   std::vector<KeyFrame*> ordered_neighbours;
   void updateConnections();
   std::vector<KeyFrame*> bestNeighbours(int n) const;

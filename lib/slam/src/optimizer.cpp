@@ -3,6 +3,8 @@
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
 
+#include <cstdio>
+#include <cstdlib>
 #include <mutex>
 #include <set>
 #include <unordered_map>
@@ -69,12 +71,6 @@ struct FullError : ReprojectionError {
   }
 };
 
-ceres::CostFunction* makePoseOnlyCost(const CameraModel& cam, const Observation& o, const Vec3& p) {
-  if (o.u_right >= 0)
-    return new ceres::AutoDiffCostFunction<PoseOnlyError, 3, 6>(new PoseOnlyError(cam, o, p));
-  return new ceres::AutoDiffCostFunction<PoseOnlyError, 2, 6>(new PoseOnlyError(cam, o, p));
-}
-
 ceres::CostFunction* makeFullCost(const CameraModel& cam, const Observation& o) {
   if (o.u_right >= 0) return new ceres::AutoDiffCostFunction<FullError, 3, 6, 3>(new FullError(cam, o));
   return new ceres::AutoDiffCostFunction<FullError, 2, 6, 3>(new FullError(cam, o));
@@ -105,7 +101,23 @@ double reprojectionChi2(const CameraModel& cam, const SE3& T_c_w, const Vec3& p_
   return e2 * obs.inv_sigma * obs.inv_sigma;
 }
 
-PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds) {
+// Pose-only residual whose observation can be switched off between rounds
+// without rebuilding the problem (an inactive residual is zero).
+struct SwitchablePoseError : PoseOnlyError {
+  SwitchablePoseError(const CameraModel& cam, const Observation& o, const Vec3& p, const char* active)
+      : PoseOnlyError(cam, o, p), active(active) {}
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const {
+    if (!*active) {
+      for (int i = 0; i < (obs.u_right >= 0 ? 3 : 2); ++i) residual[i] = T(0.0);
+      return true;
+    }
+    return PoseOnlyError::operator()(pose, residual);
+  }
+  const char* active;
+};
+
+PoseResult optimizePoseCeres(const PoseProblem& problem, const SE3& initial, int rounds) {
   const std::size_t n = problem.points_w.size();
   PoseResult result;
   result.T_c_w = initial;
@@ -117,27 +129,33 @@ PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int roun
   }
   double pose[6];
   toParameters(initial, pose);
+  // One problem for all rounds; between rounds observations failing the
+  // chi-square test are switched off (and may come back in a later round).
+  // The robust kernel matters while outliers may still be in; the last rounds
+  // refine on the accepted set, where Huber and quadratic agree.
+  std::vector<char> active(n, 1);
+  ceres::Problem::Options problem_options;
+  problem_options.enable_fast_removal = false;
+  ceres::Problem ceres_problem(problem_options);
+  ceres_problem.AddParameterBlock(pose, 6);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Observation& o = problem.observations[i];
+    const double delta = std::sqrt(o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+    auto* functor = new SwitchablePoseError(*problem.camera, o, problem.points_w[i], &active[i]);
+    ceres::CostFunction* cost =
+        o.u_right >= 0
+            ? static_cast<ceres::CostFunction*>(new ceres::AutoDiffCostFunction<SwitchablePoseError, 3, 6>(functor))
+            : new ceres::AutoDiffCostFunction<SwitchablePoseError, 2, 6>(functor);
+    ceres_problem.AddResidualBlock(cost, new ceres::HuberLoss(delta), pose);
+  }
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  options.max_num_iterations = 10;
+  options.num_threads = 1;
+  options.logging_type = ceres::SILENT;
+  options.function_tolerance = 1e-7;
+  options.parameter_tolerance = 1e-9;
   for (int round = 0; round < rounds; ++round) {
-    ceres::Problem::Options problem_options;
-    ceres::Problem ceres_problem(problem_options);
-    ceres_problem.AddParameterBlock(pose, 6);
-    int active = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (!result.inlier[i]) continue;
-      const Observation& o = problem.observations[i];
-      const double delta = std::sqrt(o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
-      // The robust kernel matters while outliers may still be in; the last
-      // rounds refine on the accepted set with a plain quadratic cost.
-      ceres::LossFunction* loss = round < 2 ? new ceres::HuberLoss(delta) : nullptr;
-      ceres_problem.AddResidualBlock(makePoseOnlyCost(*problem.camera, o, problem.points_w[i]), loss, pose);
-      ++active;
-    }
-    if (active < 3) break;
-    ceres::Solver::Options options;
-    options.linear_solver_type = ceres::DENSE_QR;
-    options.max_num_iterations = 10;
-    options.num_threads = 1;
-    options.logging_type = ceres::SILENT;
     ceres::Solver::Summary summary;
     ceres::Solve(options, &ceres_problem, &summary);
     const SE3 T = fromParameters(pose);
@@ -146,11 +164,138 @@ PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int roun
       const Observation& o = problem.observations[i];
       const double chi2 = reprojectionChi2(*problem.camera, T, problem.points_w[i], o);
       result.inlier[i] = chi2 <= (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+      active[i] = result.inlier[i];
       result.inliers += result.inlier[i];
     }
     if (result.inliers < 10) break;
   }
   result.T_c_w = fromParameters(pose);
+  return result;
+}
+
+namespace {
+
+// Robust cost of one observation at pose T and, optionally, its weighted
+// normal-equation contribution for a left perturbation exp([w, v]) * T.
+struct PoseLinearisation {
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+  double cost = 0;
+};
+
+double huberCost(double chi2, double delta) {
+  const double e = std::sqrt(chi2);
+  return e <= delta ? chi2 : 2 * delta * e - delta * delta;
+}
+
+void linearisePose(const PoseProblem& problem, const std::vector<char>& active, const SE3& T, bool robust,
+                   bool with_jacobians, PoseLinearisation* out) {
+  const CameraModel& cam = *problem.camera;
+  *out = PoseLinearisation{};
+  for (std::size_t i = 0; i < problem.points_w.size(); ++i) {
+    if (!active[i]) continue;
+    const Observation& o = problem.observations[i];
+    const Vec3 p = T * problem.points_w[i];
+    const bool stereo = o.u_right >= 0;
+    if (p.z() <= 1e-3) {
+      // Behind the camera: a large constant cost, so a step can never gain
+      // by moving points out of view.
+      out->cost += robust ? huberCost(1e6, std::sqrt(stereo ? kChi2Stereo : kChi2Mono)) : 1e6;
+      continue;
+    }
+    const double inv_z = 1.0 / p.z();
+    const double u = cam.fx * p.x() * inv_z + cam.cx, v = cam.fy * p.y() * inv_z + cam.cy;
+    Eigen::Vector3d r(u - o.u, v - o.v, stereo ? u - cam.bf() * inv_z - o.u_right : 0.0);
+    r *= o.inv_sigma;
+    const double chi2 = r.squaredNorm();
+    const double delta = std::sqrt(stereo ? kChi2Stereo : kChi2Mono);
+    const double e = std::sqrt(chi2);
+    const double weight = (!robust || e <= delta) ? 1.0 : delta / e;  // IRLS weight of Huber
+    out->cost += robust ? huberCost(chi2, delta) : chi2;
+    if (!with_jacobians) continue;
+    // d(residual)/d(p_c), then d(p_c)/d([w, v]) = [-[p]x, I].
+    Eigen::Matrix<double, 3, 3> J_p = Eigen::Matrix<double, 3, 3>::Zero();
+    const double inv_z2 = inv_z * inv_z;
+    J_p.row(0) << cam.fx * inv_z, 0, -cam.fx * p.x() * inv_z2;
+    J_p.row(1) << 0, cam.fy * inv_z, -cam.fy * p.y() * inv_z2;
+    if (stereo) J_p.row(2) << cam.fx * inv_z, 0, -(cam.fx * p.x() - cam.bf()) * inv_z2;
+    J_p *= o.inv_sigma;
+    Eigen::Matrix3d skew;
+    skew << 0, -p.z(), p.y(), p.z(), 0, -p.x(), -p.y(), p.x(), 0;
+    Eigen::Matrix<double, 3, 6> J;
+    J.leftCols<3>() = -J_p * skew;
+    J.rightCols<3>() = J_p;
+    const int rows = stereo ? 3 : 2;
+    out->H.noalias() += weight * J.topRows(rows).transpose() * J.topRows(rows);
+    out->b.noalias() += weight * J.topRows(rows).transpose() * r.head(rows);
+  }
+}
+
+SE3 retract(const Eigen::Matrix<double, 6, 1>& dx, const SE3& T) {
+  SE3 update = SE3::Identity();
+  update.linear() = expSO3(dx.head<3>());
+  update.translation() = dx.tail<3>();
+  return update * T;
+}
+
+// Levenberg-Marquardt on the 6-DoF pose with Huber IRLS weights.
+SE3 minimisePose(const PoseProblem& problem, const std::vector<char>& active, const SE3& initial, bool robust,
+                 int max_iterations) {
+  SE3 T = initial;
+  PoseLinearisation lin;
+  linearisePose(problem, active, T, robust, true, &lin);
+  double lambda = 1e-4;
+  for (int it = 0; it < max_iterations; ++it) {
+    Eigen::Matrix<double, 6, 6> H = lin.H;
+    H.diagonal() *= 1.0 + lambda;
+    const Eigen::Matrix<double, 6, 1> dx = H.ldlt().solve(-lin.b);
+    if (!dx.allFinite()) break;
+    const SE3 candidate = retract(dx, T);
+    PoseLinearisation next;
+    linearisePose(problem, active, candidate, robust, false, &next);
+    if (std::getenv("SP_TRACE_LM")) std::fprintf(stderr, "  it %d lambda %g cost %.2f -> %.2f |dx| %g\n", it, lambda, lin.cost, next.cost, dx.norm());
+    if (next.cost <= lin.cost) {
+      T = candidate;
+      lambda = std::max(1e-7, lambda * 0.1);
+      const bool converged = dx.squaredNorm() < 1e-14 || lin.cost - next.cost < 1e-9 * lin.cost;
+      if (converged) break;
+      linearisePose(problem, active, T, robust, true, &lin);
+    } else {
+      lambda *= 10;
+      if (lambda > 1e6) break;
+    }
+  }
+  return T;
+}
+
+}  // namespace
+
+PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds) {
+  const std::size_t n = problem.points_w.size();
+  PoseResult result;
+  result.T_c_w = initial;
+  result.inlier.assign(n, 1);
+  if (n < 3) {
+    result.inliers = 0;
+    result.inlier.assign(n, 0);
+    return result;
+  }
+  std::vector<char> active(n, 1);
+  SE3 T = initial;
+  for (int round = 0; round < rounds; ++round) {
+    // Huber while outliers may still be in; the last rounds refine the
+    // accepted set with the plain quadratic cost.
+    T = minimisePose(problem, active, T, round < 2, 30);
+    result.inliers = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const Observation& o = problem.observations[i];
+      const double chi2 = reprojectionChi2(*problem.camera, T, problem.points_w[i], o);
+      active[i] = result.inlier[i] = chi2 <= (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+      result.inliers += result.inlier[i];
+    }
+    if (result.inliers < 10) break;
+  }
+  result.T_c_w = T;
   return result;
 }
 
@@ -165,8 +310,27 @@ int optimizeFramePose(Frame* frame) {
     problem.observations.push_back(observationOf(*frame, i));
     index.push_back(i);
   }
-  const PoseResult r = optimizePose(problem, frame->T_c_w);
-  if (r.inliers < 10) return r.inliers;
+  const PoseResult r = std::getenv("SP_POSE_CERES") ? optimizePoseCeres(problem, frame->T_c_w) : optimizePose(problem, frame->T_c_w);
+  if (std::getenv("SP_DEBUG_POSE")) {
+    const PoseResult c = optimizePoseCeres(problem, frame->T_c_w);
+    {
+      const PoseResult a1 = optimizePose(problem, frame->T_c_w, 1), c1 = optimizePoseCeres(problem, frame->T_c_w, 1);
+      std::vector<char> all(index.size(), 1);
+      PoseLinearisation la, lc, l0;
+      linearisePose(problem, all, a1.T_c_w, true, false, &la);
+      linearisePose(problem, all, c1.T_c_w, true, false, &lc);
+      linearisePose(problem, all, frame->T_c_w, true, false, &l0);
+      if (lc.cost < 0.95 * la.cost) { setenv("SP_TRACE_LM", "1", 1); optimizePose(problem, frame->T_c_w, 1); unsetenv("SP_TRACE_LM"); }
+      std::fprintf(stderr, "round0: start cost %.1f ours %.1f ceres %.1f\n", l0.cost, la.cost, lc.cost);
+    }
+    std::fprintf(stderr, "n=%zu ours inl=%d ceres inl=%d dt=%g\n", index.size(), r.inliers, c.inliers,
+                 (r.T_c_w.translation() - c.T_c_w.translation()).norm());
+  }
+  if (r.inliers < 10) {
+    // No trustworthy pose: every match counts as an outlier, the pose stays.
+    for (int i : index) frame->outlier[i] = 1;
+    return r.inliers;
+  }
   frame->T_c_w = r.T_c_w;
   for (std::size_t k = 0; k < index.size(); ++k) frame->outlier[index[k]] = !r.inlier[k];
   return r.inliers;

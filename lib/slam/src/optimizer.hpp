@@ -32,8 +32,14 @@ struct PoseResult {
 
 // Robust (Huber) pose-only optimisation in rounds; after each round matches
 // failing the chi-square test are set aside (and may return in a later
-// round). Recovers from `initial`.
+// round). Recovers from `initial`. A dedicated 6-DoF Levenberg-Marquardt with
+// analytic Jacobians: it runs on every frame, where a general solver's set-up
+// cost dominates (see optimizePoseCeres, the reference it is tested against).
 PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds = 4);
+
+// The same optimisation through Ceres (auto-diff, Huber loss); slower, kept
+// as the reference implementation for tests and benchmarks.
+PoseResult optimizePoseCeres(const PoseProblem& problem, const SE3& initial, int rounds = 4);
 
 // Convenience: optimises frame->T_c_w against its matched points, sets
 // frame->outlier; returns the number of inliers.

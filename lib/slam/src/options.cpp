@@ -97,8 +97,15 @@ Result<SlamOptions> loadSlamOptions(const std::string& path) {
   visitFields(options, [&](const std::string& section, const std::string& key, auto& field) {
     known[section.empty() ? key : section + "." + key] = true;
     if (!error.empty()) return;
-    YAML::Node node = section.empty() ? root[key] : (root[section] ? root[section][key] : YAML::Node());
-    if (!node) return;
+    const YAML::Node& croot = root;
+    auto lookup = [&]() -> YAML::Node {
+      if (section.empty()) return croot[key];
+      const YAML::Node sub = croot[section];
+      if (!sub.IsDefined() || !sub.IsMap()) return YAML::Node(YAML::NodeType::Undefined);
+      return sub[key];
+    };
+    const YAML::Node node = lookup();
+    if (!node.IsDefined() || node.IsNull()) return;
     try {
       field = node.as<std::decay_t<decltype(field)>>();
     } catch (const YAML::Exception&) {

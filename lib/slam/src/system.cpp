@@ -81,6 +81,7 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   KeyFrame* kf = s.tracker.track(std::move(frame), idle, &out);
   const auto t2 = std::chrono::steady_clock::now();
   out.extract_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+  out.stages.extract = out.extract_ms;
   out.track_ms = std::chrono::duration<double, std::milli>(t2 - t0).count();
   if (kf) {
     if (s.options.sequential)

@@ -3,6 +3,7 @@
 #include <opencv2/calib3d.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <mutex>
 #include <numeric>
 #include <unordered_map>
@@ -14,7 +15,20 @@
 namespace stillpoint::slam {
 namespace {
 log::Logger logger("tracking");
-}
+
+// Adds the lifetime of the scope to a stage's milliseconds.
+class ScopedStageTimer {
+ public:
+  explicit ScopedStageTimer(double* ms) : ms_(ms), start_(std::chrono::steady_clock::now()) {}
+  ~ScopedStageTimer() {
+    *ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start_).count();
+  }
+
+ private:
+  double* ms_;
+  std::chrono::steady_clock::time_point start_;
+};
+}  // namespace
 
 Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map)
     : camera_(camera),
@@ -25,6 +39,7 @@ Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const Le
 
 KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
   current_ = std::move(frame);
+  times_ = StageTimes{};
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
   if (state_ == TrackingState::kInitialising) {
@@ -35,11 +50,15 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
     std::shared_lock lock(map_->mutex());
     const bool was_lost = state_ == TrackingState::kLost;
     if (!was_lost) {
+      ScopedStageTimer timer(&times_.initial_pose);
       refreshLastFrame();
       if (has_velocity_ && current_.id > last_reloc_frame_id_ + 2) ok = trackWithMotionModel();
       if (!ok) ok = trackReferenceKeyFrame();
+    }
+    if (!was_lost) {
       if (ok) ok = trackLocalMap(options_.tracking.min_inliers_local_map);
     } else {
+      ScopedStageTimer timer(&times_.initial_pose);
       ok = relocalise();
     }
     if (ok) {
@@ -48,6 +67,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
       state_ = TrackingState::kLost;
       has_velocity_ = false;
     }
+    ScopedStageTimer keyframe_timer(&times_.keyframe);
     if (ok && needNewKeyFrame(mapping_idle)) {
       lock.unlock();
       std::unique_lock write(map_->mutex());
@@ -67,6 +87,10 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
     records_.push_back({current_.stamp, reference_, current_.T_c_w * reference_->T_c_w().inverse()});
     out->T_w_c = current_.T_c_w.inverse();
   }
+  SP_DEBUG(logger, "frame " << current_.id << " state " << toString(state_) << " inliers " << inliers_
+                              << " local kfs " << local_keyframes_.size() << " local points " << local_points_.size()
+                              << (new_keyframe ? " NEW KF" : ""));
+  out->stages = times_;
   out->state = state_;
   out->features = current_.size();
   out->tracked = ok ? inliers_ : 0;
@@ -74,6 +98,11 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
+}
+
+int Tracker::timedOptimizePose() {
+  ScopedStageTimer timer(&times_.pose_optimisation);
+  return optimizeFramePose(&current_);
 }
 
 bool Tracker::initialise() {
@@ -151,18 +180,25 @@ bool Tracker::trackWithMotionModel() {
     current_.clearMatches();
     matches = searchByProjection(&current_, last_, 14.0f);
   }
-  if (matches < 20) return false;
-  optimizeFramePose(&current_);
-  return discardOutliers() >= 10;
+  if (matches < 20) {
+    SP_DEBUG(logger, "frame " << current_.id << ": motion model found " << matches << " matches");
+    return false;
+  }
+  timedOptimizePose();
+  const int kept = discardOutliers();
+  SP_DEBUG(logger, "frame " << current_.id << ": motion model " << matches << " matches, " << kept << " map inliers");
+  return kept >= 10;
 }
 
 bool Tracker::trackReferenceKeyFrame() {
   if (!reference_ || reference_->bad) return false;
   current_.clearMatches();
   const int matches = searchByDescriptor(&current_, *reference_, 0.7f);
+  SP_DEBUG(logger, "frame " << current_.id << ": reference keyframe " << reference_->id << " gave " << matches
+                            << " matches");
   if (matches < 15) return false;
   current_.T_c_w = last_.T_c_w;
-  optimizeFramePose(&current_);
+  timedOptimizePose();
   return discardOutliers() >= 10;
 }
 
@@ -201,7 +237,7 @@ bool Tracker::relocalise() {
       T.translation()[r] = tvec.at<double>(r);
     }
     current_.T_c_w = T;
-    if (optimizeFramePose(&current_) < 10) continue;
+    if (timedOptimizePose() < 10) continue;
     discardOutliers();
     // Widen to the local map around the candidate.
     reference_ = kf;
@@ -216,6 +252,7 @@ bool Tracker::relocalise() {
 }
 
 void Tracker::updateLocalMap() {
+  ScopedStageTimer timer(&times_.local_map);
   std::unordered_map<KeyFrame*, int> votes;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
@@ -276,13 +313,18 @@ bool Tracker::trackLocalMap(int min_inliers) {
     if (current_.points[i]) matched[current_.points[i].get()] = i;
   for (const auto& p : local_points_)
     if (!matched.count(p.get())) candidates.push_back(p);
-  std::vector<char> in_view;
-  const float radius = current_.id < last_reloc_frame_id_ + 2 ? 5.0f : 1.0f;
-  searchLocalPoints(&current_, candidates, radius, &in_view);
-  for (std::size_t k = 0; k < candidates.size(); ++k)
-    if (in_view[k]) candidates[k]->visible++;
+  {
+    ScopedStageTimer search_timer(&times_.local_map);
+    std::vector<char> in_view;
+    // Depth-sensor keypoints jitter more between frames than the pose error
+    // suggests (depth-edge corners), so the window is wider than for stereo.
+    const float radius = current_.id < last_reloc_frame_id_ + 2 ? 5.0f : 3.0f;
+    searchLocalPoints(&current_, candidates, radius, &in_view);
+    for (std::size_t k = 0; k < candidates.size(); ++k)
+      if (in_view[k]) candidates[k]->visible++;
+  }
 
-  optimizeFramePose(&current_);
+  timedOptimizePose();
   inliers_ = 0;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
@@ -300,7 +342,7 @@ bool Tracker::needNewKeyFrame(bool mapping_idle) const {
   if (!reference_) return false;
   const std::size_t keyframes = map_->goodKeyFrameCount();
   if (current_.id < last_reloc_frame_id_ + 30 && keyframes > 30) return false;
-  const int min_obs = keyframes <= 2 ? 2 : 3;
+  const int min_obs = keyframes == 1 ? 1 : (keyframes == 2 ? 2 : 3);
   const int ref_matches = reference_->trackedPoints(min_obs);
   int close_tracked = 0, close_untracked = 0;
   for (int i = 0; i < current_.size(); ++i) {

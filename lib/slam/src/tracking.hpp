@@ -36,6 +36,7 @@ class Tracker {
   void updateLocalMap();
   void refreshLastFrame();
   int discardOutliers();
+  int timedOptimizePose();
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
 
@@ -58,6 +59,7 @@ class Tracker {
   std::vector<KeyFrame*> local_keyframes_;
   std::vector<std::shared_ptr<MapPoint>> local_points_;
   std::vector<TrajectoryRecord> records_;
+  StageTimes times_;
 };
 
 }  // namespace stillpoint::slam

@@ -22,6 +22,15 @@ struct RgbdInput {
   cv::Mat depth_m;  // CV_32FC1 metres, 0 = no measurement, camera size
 };
 
+// Where one frame's tracking time went (milliseconds).
+struct StageTimes {
+  double extract = 0;         // ORB extraction and depth lookup
+  double initial_pose = 0;    // motion model / reference keyframe / relocalisation matching
+  double local_map = 0;       // local map update and projection search
+  double pose_optimisation = 0;  // every pose-only optimisation of the frame
+  double keyframe = 0;        // keyframe decision and creation
+};
+
 struct TrackOutput {
   TrackingState state = TrackingState::kInitialising;
   SE3 T_w_c = SE3::Identity();  // valid when state is kOk or kRelocalised
@@ -31,6 +40,7 @@ struct TrackOutput {
   std::size_t keyframes = 0;
   double extract_ms = 0;  // ORB extraction
   double track_ms = 0;    // whole tracking step, extraction included
+  StageTimes stages;
 };
 
 struct TrajectoryPose {

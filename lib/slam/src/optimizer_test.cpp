@@ -1,0 +1,174 @@
+#include "optimizer.hpp"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+namespace stillpoint::slam {
+namespace {
+
+CameraModel testCamera() { return *cameraPreset("fr3"); }
+
+LevelInfo testLevels() {
+  LevelInfo lv;
+  lv.levels = 8;
+  lv.scale_factor = 1.2;
+  lv.log_scale_factor = std::log(1.2);
+  for (int l = 0; l < 8; ++l) {
+    lv.scales.push_back(std::pow(1.2, l));
+    lv.sigma2.push_back(lv.scales.back() * lv.scales.back());
+    lv.inv_sigma2.push_back(1.0 / lv.sigma2.back());
+  }
+  return lv;
+}
+
+// Points spread in front of the camera at 1-4 m.
+std::vector<Vec3> randomPoints(int n, std::mt19937* rng) {
+  std::uniform_real_distribution<double> xy(-1.5, 1.5), z(1.0, 4.0);
+  std::vector<Vec3> pts;
+  for (int i = 0; i < n; ++i) pts.emplace_back(xy(*rng), xy(*rng), z(*rng));
+  return pts;
+}
+
+SE3 pose(double rx, double ry, double rz, double tx, double ty, double tz) {
+  SE3 T = SE3::Identity();
+  T.linear() = expSO3(Vec3(rx, ry, rz));
+  T.translation() = Vec3(tx, ty, tz);
+  return T;
+}
+
+TEST(PoseOptimisation, RecoversKnownPoseWith30PercentOutliers) {
+  std::mt19937 rng(7);
+  const CameraModel cam = testCamera();
+  const SE3 T_true = pose(0.05, -0.1, 0.02, 0.1, -0.05, 0.2);
+  PoseProblem problem;
+  problem.camera = &cam;
+  std::normal_distribution<double> noise(0.0, 0.5);
+  std::uniform_real_distribution<double> anywhere_u(0, cam.width), anywhere_v(0, cam.height);
+  std::vector<char> is_outlier;
+  for (const Vec3& p_w : randomPoints(300, &rng)) {
+    const Vec3 p_c = T_true * p_w;
+    if (p_c.z() <= 0.2) continue;
+    Observation o;
+    const Vec2 uv = cam.project(p_c);
+    const bool outlier = std::uniform_real_distribution<double>(0, 1)(rng) < 0.3;
+    o.u = outlier ? anywhere_u(rng) : uv.x() + noise(rng);
+    o.v = outlier ? anywhere_v(rng) : uv.y() + noise(rng);
+    // Half the points carry depth (as the virtual right coordinate).
+    if (problem.points_w.size() % 2 == 0) o.u_right = o.u - cam.bf() / p_c.z() + (outlier ? 0 : noise(rng) * 0.5);
+    problem.points_w.push_back(p_w);
+    problem.observations.push_back(o);
+    is_outlier.push_back(outlier);
+  }
+  const SE3 initial = pose(0.0, -0.05, 0.0, 0.0, 0.0, 0.1);  // ~3 deg and 15 cm off
+  for (const PoseResult& r : {optimizePose(problem, initial), optimizePoseCeres(problem, initial)}) {
+  EXPECT_LT((r.T_c_w.translation() - T_true.translation()).norm(), 0.01);
+  EXPECT_LT(rotationAngle(r.T_c_w.linear() * T_true.linear().transpose()), 0.2 * M_PI / 180);
+  int correctly_classified = 0;
+  for (std::size_t i = 0; i < is_outlier.size(); ++i) correctly_classified += (r.inlier[i] != is_outlier[i]);
+  EXPECT_GT(correctly_classified, static_cast<int>(0.95 * is_outlier.size()));
+  }
+}
+
+TEST(PoseOptimisation, AgreesWithCeresReference) {
+  std::mt19937 rng(3);
+  const CameraModel cam = testCamera();
+  const SE3 T_true = pose(-0.03, 0.08, 0.01, -0.2, 0.05, 0.1);
+  PoseProblem problem;
+  problem.camera = &cam;
+  std::normal_distribution<double> noise(0.0, 1.0);
+  for (const Vec3& p_w : randomPoints(200, &rng)) {
+    const Vec3 p_c = T_true * p_w;
+    if (p_c.z() <= 0.2) continue;
+    const Vec2 uv = cam.project(p_c);
+    Observation o{uv.x() + noise(rng), uv.y() + noise(rng), -1, 1.0};
+    if (problem.points_w.size() % 3 != 0) o.u_right = o.u - cam.bf() / p_c.z() + noise(rng);
+    problem.points_w.push_back(p_w);
+    problem.observations.push_back(o);
+  }
+  const SE3 initial = pose(0, 0, 0, 0, 0, 0);
+  const PoseResult ours = optimizePose(problem, initial);
+  const PoseResult ceres = optimizePoseCeres(problem, initial);
+  EXPECT_LT((ours.T_c_w.translation() - ceres.T_c_w.translation()).norm(), 1e-4);
+  EXPECT_LT(rotationAngle(ours.T_c_w.linear() * ceres.T_c_w.linear().transpose()), 1e-4);
+  EXPECT_EQ(ours.inliers, ceres.inliers);
+}
+
+TEST(PoseOptimisation, FewPointsAreReportedNotInvented) {
+  const CameraModel cam = testCamera();
+  PoseProblem problem;
+  problem.camera = &cam;
+  problem.points_w = {Vec3(0, 0, 2), Vec3(0.1, 0, 2)};
+  problem.observations.resize(2);
+  const PoseResult r = optimizePose(problem, SE3::Identity());
+  EXPECT_EQ(r.inliers, 0);
+}
+
+// A small map of keyframes observing shared points; BA must pull perturbed
+// keyframes and points back towards consistency.
+TEST(LocalBundleAdjustment, ReducesReprojectionErrorAndRecoversPoses) {
+  std::mt19937 rng(11);
+  const CameraModel cam = testCamera();
+  const LevelInfo levels = testLevels();
+  const std::vector<Vec3> truth = randomPoints(400, &rng);
+  std::vector<SE3> true_poses;
+  for (int k = 0; k < 5; ++k) true_poses.push_back(pose(0.0, 0.03 * k, 0.0, -0.1 * k, 0.02 * k, 0.0));
+
+  Map map;
+  std::normal_distribution<double> pixel_noise(0.0, 0.3), perturb(0.0, 0.01);
+  std::vector<KeyFrame*> kfs;
+  for (int k = 0; k < 5; ++k) {
+    Frame f;
+    f.camera = &cam;
+    f.levels = &levels;
+    f.T_c_w = true_poses[k];
+    for (std::size_t i = 0; i < truth.size(); ++i) {
+      const Vec3 p_c = true_poses[k] * truth[i];
+      const Vec2 uv = cam.project(p_c);
+      cv::KeyPoint kp(static_cast<float>(uv.x() + pixel_noise(rng)), static_cast<float>(uv.y() + pixel_noise(rng)), 31);
+      kp.octave = 0;
+      f.keys.push_back(kp);
+      f.un.push_back(kp.pt);
+      f.depth.push_back(static_cast<float>(p_c.z()));
+      f.u_right.push_back(static_cast<float>(kp.pt.x - cam.bf() / p_c.z() + pixel_noise(rng)));
+    }
+    f.descriptors = cv::Mat::zeros(static_cast<int>(truth.size()), 32, CV_8U);
+    f.grid.build(f.un, cam.width, cam.height);
+    f.clearMatches();
+    kfs.push_back(map.addKeyFrame(std::make_unique<KeyFrame>(k, f)));
+  }
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    auto p = map.createPoint(truth[i] + Vec3(perturb(rng), perturb(rng), perturb(rng)), kfs[0]);
+    for (KeyFrame* kf : kfs) kf->addObservation(p, static_cast<int>(i));
+    p->updateFromObservations();
+  }
+  // Perturb every keyframe but the first (the gauge).
+  for (int k = 1; k < 5; ++k) kfs[k]->T_c_w() = pose(0.01, -0.01, 0.005, 0.02, -0.01, 0.015) * kfs[k]->T_c_w();
+  for (KeyFrame* kf : kfs) kf->updateConnections();
+
+  auto totalChi2 = [&] {
+    double sum = 0;
+    for (KeyFrame* kf : kfs)
+      for (int i = 0; i < kf->frame.size(); ++i) {
+        const auto& p = kf->frame.points[i];
+        if (!p) continue;
+        Observation o{kf->frame.un[i].x, kf->frame.un[i].y, kf->frame.u_right[i], 1.0};
+        sum += reprojectionChi2(cam, kf->T_c_w(), p->position, o);
+      }
+    return sum;
+  };
+  const double before = totalChi2();
+  const LocalBaStats stats = localBundleAdjustment(&map, kfs[4], 10, 10);
+  const double after = totalChi2();
+  EXPECT_EQ(stats.keyframes + stats.fixed_keyframes, 5);
+  EXPECT_LT(after, 0.05 * before) << before << " -> " << after;
+  for (int k = 1; k < 5; ++k) {
+    // Errors relative to keyframe 0, which BA held fixed.
+    const SE3 rel_est = kfs[k]->T_c_w() * kfs[0]->T_c_w().inverse();
+    const SE3 rel_true = true_poses[k] * true_poses[0].inverse();
+    EXPECT_LT((rel_est.translation() - rel_true.translation()).norm(), 0.005) << "keyframe " << k;
+  }
+}
+
+}  // namespace
+}  // namespace stillpoint::slam
