@@ -1,0 +1,167 @@
+// stillpoint-eval's command-line contract: one machine-readable line on good
+// input, exit 1 naming file (and line) on bad input, exit 2 on usage errors.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <regex>
+#include <string>
+#include <vector>
+
+#include "cli_runner.hpp"
+
+namespace stillpoint {
+namespace {
+
+namespace fs = std::filesystem;
+using test::RunResult;
+using test::writeFile;
+
+std::string describe(const RunResult& r) {
+  return "exit " + std::to_string(r.exit_code) + "\n--- stdout ---\n" + r.out + "--- stderr ---\n" + r.err;
+}
+
+::testing::AssertionResult contains(const std::string& text, const std::string& part) {
+  if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << "\"" << part << "\" not found in:\n" << text;
+}
+
+// A planar loop with yaw, 20 Hz for 3 s, in TUM format. `yaw0`, `x0`, `y0`
+// move the whole trajectory rigidly (about and along the world axes).
+std::string trajectoryText(double yaw0, double x0, double y0) {
+  std::string text = "# timestamp tx ty tz qx qy qz qw\n";
+  for (int k = 0; k < 60; ++k) {
+    const double t = 1000.0 + 0.05 * k;
+    const double px = 0.5 * std::cos(0.6 * k * 0.05), py = 0.3 * std::sin(0.6 * k * 0.05);
+    const double pz = 0.1 * k * 0.05, yaw = 0.4 * k * 0.05;
+    const double x = std::cos(yaw0) * px - std::sin(yaw0) * py + x0;
+    const double y = std::sin(yaw0) * px + std::cos(yaw0) * py + y0;
+    char line[200];
+    std::snprintf(line, sizeof(line), "%.6f %.9f %.9f %.9f 0 0 %.9f %.9f\n", t, x, y, pz,
+                  std::sin(0.5 * (yaw + yaw0)), std::cos(0.5 * (yaw + yaw0)));
+    text += line;
+  }
+  return text;
+}
+
+class EvalCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    scratch_ = fs::temp_directory_path() /
+               ("stillpoint_eval_cli_" + std::to_string(::getpid()) + "_" + info->name());
+    fs::remove_all(scratch_);
+    fs::create_directories(scratch_);
+    gt_ = (scratch_ / "groundtruth.txt").string();
+    est_ = (scratch_ / "estimate.txt").string();
+    writeFile(gt_, trajectoryText(0, 0, 0));
+    writeFile(est_, trajectoryText(0.7, 1.5, -2.0));
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(scratch_);
+  }
+  RunResult eval(std::vector<std::string> args) {
+    args.insert(args.begin(), STILLPOINT_EVAL);
+    return test::run(args, scratch_);
+  }
+
+  fs::path scratch_;
+  std::string gt_, est_;
+};
+
+TEST_F(EvalCli, GoodInputPrintsExactlyOneMetricsLine) {
+  const RunResult r = eval({gt_, est_});
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  const std::string number = "([-+0-9.eE]+|nan|inf)";
+  const std::regex line("ate_rmse_m=" + number + " rpe_trans_m_s=" + number + " rpe_rot_deg_s=" + number +
+                        " matched=([0-9]+)\n");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_match(r.out, m, line)) << describe(r);
+  // The estimate is the ground truth moved rigidly: alignment undoes that exactly.
+  EXPECT_LT(std::stod(m[1]), 1e-5) << r.out;
+  EXPECT_LT(std::stod(m[2]), 1e-5) << r.out;
+  EXPECT_LT(std::stod(m[3]), 1e-3) << r.out;
+  EXPECT_EQ(m[4], "60");
+}
+
+TEST_F(EvalCli, DisplacedEstimateGivesMatchingError) {
+  // Every other pose 2 cm off along z: ATE RMSE is about 1 cm, not zero.
+  const std::string gt = trajectoryText(0, 0, 0);
+  std::string text;
+  int k = 0;
+  for (std::size_t start = 0, end; (end = gt.find('\n', start)) != std::string::npos; start = end + 1) {
+    std::string row = gt.substr(start, end - start);
+    if (row[0] != '#' && k++ % 2 == 0) {
+      double v[8];
+      ASSERT_EQ(std::sscanf(row.c_str(), "%lf %lf %lf %lf %lf %lf %lf %lf", &v[0], &v[1], &v[2], &v[3], &v[4],
+                            &v[5], &v[6], &v[7]),
+                8);
+      char line[200];
+      std::snprintf(line, sizeof(line), "%.6f %.9f %.9f %.9f %.9f %.9f %.9f %.9f", v[0], v[1], v[2], v[3] + 0.02,
+                    v[4], v[5], v[6], v[7]);
+      row = line;
+    }
+    text += row + "\n";
+  }
+  writeFile(est_, text);
+  const RunResult r = eval({gt_, est_});
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(r.out, m, std::regex("^ate_rmse_m=([0-9.]+) "))) << describe(r);
+  EXPECT_NEAR(std::stod(m[1]), 0.01, 0.002) << r.out;
+}
+
+TEST_F(EvalCli, MissingGroundTruthFileIsNamed) {
+  const std::string missing = (scratch_ / "no_groundtruth.txt").string();
+  const RunResult r = eval({missing, est_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, missing + ": cannot open"));
+  EXPECT_TRUE(r.out.empty()) << describe(r);
+}
+
+TEST_F(EvalCli, MalformedGroundTruthLineNamesFileAndLine) {
+  writeFile(gt_, "# header\n1000.0 0 0 0 0 0 0 1\n1000.1 0 0 zero 0 0 0 1\n");
+  const RunResult r = eval({gt_, est_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, gt_ + ":3:"));
+  EXPECT_TRUE(r.out.empty()) << describe(r);
+}
+
+TEST_F(EvalCli, MalformedEstimateLineNamesFileAndLine) {
+  writeFile(est_, "1000.0 0 0 0 0 0 0 1\n1000.1 0 0 0 0 0 1\n");
+  const RunResult r = eval({gt_, est_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, est_ + ":2:"));
+}
+
+TEST_F(EvalCli, NoOverlapInTimeFailsWithExitOne) {
+  writeFile(est_, "5000.0 0 0 0 0 0 0 1\n5000.1 1 0 0 0 0 0 1\n5000.2 2 0 0 0 0 0 1\n");
+  const RunResult r = eval({gt_, est_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_FALSE(r.err.empty());
+  EXPECT_TRUE(r.out.empty()) << describe(r);
+}
+
+TEST_F(EvalCli, UsageErrorsExitTwoWithUsage) {
+  RunResult r = eval({gt_, est_, "--frobnicate"});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "unknown option '--frobnicate'"));
+  EXPECT_TRUE(contains(r.err, "usage: stillpoint-eval"));
+  r = eval({gt_});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "expected GROUNDTRUTH.txt and TRAJ.txt"));
+  r = eval({gt_, est_, "--max-dt", "-1"});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "--max-dt"));
+}
+
+TEST_F(EvalCli, HelpExitsZero) {
+  const RunResult r = eval({"--help"});
+  EXPECT_EQ(r.exit_code, 0) << describe(r);
+  EXPECT_TRUE(contains(r.out, "ate_rmse_m=<v> rpe_trans_m_s=<v> rpe_rot_deg_s=<v> matched=<n>"));
+}
+
+}  // namespace
+}  // namespace stillpoint

@@ -1,0 +1,263 @@
+// stillpoint-replay's command-line contract on small synthetic sequences:
+// exit status, which file/field/line the errors name, and the skipped-frame
+// accounting of the summary. Tracking accuracy is not asserted here (the
+// synthetic scene is a textured plane); see replay_teddy_sequential for that.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <regex>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "cli_runner.hpp"
+#include "stillpoint/dataset/testing.hpp"
+
+namespace stillpoint {
+namespace {
+
+namespace fs = std::filesystem;
+using test::readFile;
+using test::RunResult;
+using test::writeFile;
+
+constexpr int kFrames = 10;
+
+std::string describe(const RunResult& r) {
+  return "exit " + std::to_string(r.exit_code) + "\n--- stdout ---\n" + r.out + "--- stderr ---\n" + r.err;
+}
+
+::testing::AssertionResult contains(const std::string& text, const std::string& part) {
+  if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << "\"" << part << "\" not found in:\n" << text;
+}
+
+class ReplayCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    scratch_ = fs::temp_directory_path() /
+               ("stillpoint_replay_cli_" + std::to_string(::getpid()) + "_" + info->name());
+    fs::remove_all(scratch_);
+    fs::create_directories(scratch_);
+    dataset::testing::SyntheticDatasetOptions options;
+    options.n_frames = kFrames;
+    options.width = 320;
+    options.height = 240;
+    auto written = dataset::testing::writeSyntheticTumDataset((scratch_ / "seq").string(), options);
+    ASSERT_TRUE(written.ok()) << written.error();
+    seq_ = *written;
+    const CameraModel& c = seq_.camera;
+    camera_ = (scratch_ / "camera.yaml").string();
+    writeFile(camera_, "width: " + std::to_string(c.width) + "\nheight: " + std::to_string(c.height) +
+                           "\nfx: " + std::to_string(c.fx) + "\nfy: " + std::to_string(c.fy) +
+                           "\ncx: " + std::to_string(c.cx) + "\ncy: " + std::to_string(c.cy) +
+                           "\ndepth_factor: " + std::to_string(c.depth_factor) + "\n");
+    output_ = (scratch_ / "traj.txt").string();
+  }
+  void TearDown() override {
+    if (!HasFailure()) fs::remove_all(scratch_);
+  }
+
+  RunResult replay(std::vector<std::string> args) {
+    args.insert(args.begin(), STILLPOINT_REPLAY);
+    return test::run(args, scratch_);
+  }
+  // The synthetic sequence with our camera file and any extra options.
+  RunResult replaySequence(std::vector<std::string> extra = {}) {
+    std::vector<std::string> args{seq_.directory, "--camera", camera_, "--output", output_, "--sequential"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    return replay(args);
+  }
+  std::string writeScratch(const std::string& name, const std::string& text) {
+    const auto path = scratch_ / name;
+    writeFile(path, text);
+    return path.string();
+  }
+  std::string rgbFile(int k) const { return "rgb/" + seq_.colour_stamps[k].toSecondsString() + ".png"; }
+  std::string depthFile(int k) const { return "depth/" + seq_.depth_stamps[k].toSecondsString() + ".png"; }
+
+  fs::path scratch_;
+  dataset::testing::SyntheticDataset seq_;
+  std::string camera_, output_;
+};
+
+// --- success path -----------------------------------------------------------
+
+TEST_F(ReplayCli, GoodSequenceWritesTrajectoryAndMachineReadableLastLine) {
+  const RunResult r = replaySequence();
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  EXPECT_TRUE(fs::is_regular_file(output_)) << describe(r);
+  EXPECT_TRUE(contains(r.out, "0 skipped (bad input)"));
+  const std::regex last(
+      "frames=10 tracked=[0-9]+ lost=[0-9]+ keyframes=[0-9]+ track_ms_median=[0-9.]+ track_ms_p95=[0-9.]+");
+  EXPECT_TRUE(std::regex_match(test::lastLine(r.out), last)) << describe(r);
+}
+
+TEST_F(ReplayCli, HelpPrintsUsageAndExitsZero) {
+  const RunResult r = replay({"--help"});
+  EXPECT_EQ(r.exit_code, 0) << describe(r);
+  EXPECT_TRUE(contains(r.out, "usage: stillpoint-replay DATASET_DIR"));
+}
+
+TEST_F(ReplayCli, ShippedDefaultConfigIsAccepted) {
+  const RunResult r = replaySequence({"--config", STILLPOINT_SOURCE_DIR "/config/slam.yaml"});
+  EXPECT_EQ(r.exit_code, 0) << describe(r);
+}
+
+// --- usage errors: exit 2 with the usage text --------------------------------
+
+TEST_F(ReplayCli, UnknownOptionExitsTwoWithUsage) {
+  const RunResult r = replaySequence({"--frobnicate"});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "unknown option --frobnicate"));
+  EXPECT_TRUE(contains(r.err, "usage: stillpoint-replay"));
+  EXPECT_TRUE(r.out.empty()) << describe(r);
+}
+
+TEST_F(ReplayCli, MissingRequiredOptionsExitTwo) {
+  RunResult r = replay({seq_.directory, "--output", output_});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "missing --camera"));
+  r = replay({seq_.directory, "--camera", "fr3"});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "missing --output"));
+  r = replay({"--camera", "fr3", "--output", output_});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "missing DATASET_DIR"));
+  r = replaySequence({"--max-frames", "zero"});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "--max-frames"));
+}
+
+// --- bad input: exit 1 naming what is wrong ----------------------------------
+
+TEST_F(ReplayCli, MissingDatasetDirectoryIsNamed) {
+  const std::string missing = (scratch_ / "no_such_sequence").string();
+  const RunResult r = replay({missing, "--camera", "fr3", "--output", output_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, missing));
+  EXPECT_TRUE(contains(r.err, "does not exist"));
+}
+
+TEST_F(ReplayCli, UnknownCameraPresetOrMissingFileIsNamed) {
+  const std::string missing = (scratch_ / "no_camera.yaml").string();
+  const RunResult r = replay({seq_.directory, "--camera", missing, "--output", output_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, missing));
+  EXPECT_TRUE(contains(r.err, "cannot be opened"));
+}
+
+TEST_F(ReplayCli, CameraFileMissingFieldIsNamed) {
+  const std::string camera = writeScratch("nofy.yaml", "width: 320\nheight: 240\nfx: 256\ncx: 160\ncy: 120\n");
+  const RunResult r = replay({seq_.directory, "--camera", camera, "--output", output_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, camera));
+  EXPECT_TRUE(contains(r.err, "missing field 'fy'"));
+}
+
+TEST_F(ReplayCli, CameraFileSyntaxErrorNamesLine) {
+  const std::string camera =
+      writeScratch("syntax.yaml", "width: 320\nheight: 240\nfx: [256, \nfy: 256\ncx: 160\ncy: 120\n");
+  const RunResult r = replay({seq_.directory, "--camera", camera, "--output", output_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, camera));
+  EXPECT_TRUE(std::regex_search(r.err, std::regex("line [0-9]+"))) << describe(r);
+}
+
+TEST_F(ReplayCli, CameraFileWrongTypeNamesFieldAndLine) {
+  const std::string camera =
+      writeScratch("type.yaml", "width: 320\nheight: 240\nfx: wide\nfy: 256\ncx: 160\ncy: 120\n");
+  const RunResult r = replay({seq_.directory, "--camera", camera, "--output", output_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, "line 3: field 'fx' has the wrong type"));
+}
+
+TEST_F(ReplayCli, CameraFileInvalidValueNamesField) {
+  const std::string camera =
+      writeScratch("range.yaml", "width: 320\nheight: 240\nfx: -5\nfy: 256\ncx: 160\ncy: 120\n");
+  const RunResult r = replay({seq_.directory, "--camera", camera, "--output", output_});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, "field 'fx'"));
+}
+
+TEST_F(ReplayCli, ConfigUnknownKeyIsNamedWithLine) {
+  const std::string config = writeScratch("unknown.yaml", "tracking:\n  min_inliers_local_map: 30\n  min_inlier: 3\n");
+  const RunResult r = replaySequence({"--config", config});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, config));
+  EXPECT_TRUE(contains(r.err, "line 3: unknown field 'tracking.min_inlier'"));
+}
+
+TEST_F(ReplayCli, ConfigWrongTypeIsNamedWithLine) {
+  const std::string config = writeScratch("type.yaml", "orb:\n  num_features: many\n");
+  const RunResult r = replaySequence({"--config", config});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, "line 2: field 'orb.num_features' has the wrong type"));
+}
+
+TEST_F(ReplayCli, ConfigOutOfRangeValueIsNamed) {
+  const std::string config = writeScratch("range.yaml", "mapping:\n  ba_iterations: 0\n");
+  const RunResult r = replaySequence({"--config", config});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, "mapping.ba_iterations"));
+}
+
+TEST_F(ReplayCli, ConfigSyntaxErrorNamesLine) {
+  const std::string config = writeScratch("syntax.yaml", "orb:\n  num_features: 500\n  num_levels: [8\n");
+  const RunResult r = replaySequence({"--config", config});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, config));
+  EXPECT_TRUE(std::regex_search(r.err, std::regex("line [0-9]+"))) << describe(r);
+}
+
+TEST_F(ReplayCli, TimestampsOutOfOrderNameFileAndLine) {
+  // rgb.txt: three comment lines, then frame k on line k + 4. Swap frames 4 and 5.
+  const fs::path list = fs::path(seq_.directory) / "rgb.txt";
+  std::string text = readFile(list);
+  const std::string line4 = seq_.colour_stamps[4].toSecondsString() + " " + rgbFile(4) + "\n";
+  const std::string line5 = seq_.colour_stamps[5].toSecondsString() + " " + rgbFile(5) + "\n";
+  const auto at = text.find(line4 + line5);
+  ASSERT_NE(at, std::string::npos) << text;
+  text.replace(at, line4.size() + line5.size(), line5 + line4);
+  writeFile(list, text);
+
+  const RunResult r = replaySequence();
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, list.string() + ":9:")) << describe(r);
+  EXPECT_TRUE(contains(r.err, "timestamps must increase strictly"));
+}
+
+// --- bad frames are skipped and counted, the run goes on ----------------------
+
+TEST_F(ReplayCli, CorruptPngAndEmptyDepthAreSkippedAndCounted) {
+  const fs::path dir(seq_.directory);
+  writeFile(dir / rgbFile(3), "\x89PNG\r\n\x1a\n this is not really a PNG");
+  const cv::Mat zeros(seq_.camera.height, seq_.camera.width, CV_16UC1, cv::Scalar(0));
+  ASSERT_TRUE(cv::imwrite((dir / depthFile(6)).string(), zeros));
+
+  const RunResult r = replaySequence();
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  EXPECT_TRUE(contains(r.out, "2 skipped (bad input)")) << describe(r);
+  EXPECT_TRUE(contains(test::lastLine(r.out), "frames=8 ")) << describe(r);
+  EXPECT_TRUE(contains(r.err, "skipping frame 3")) << describe(r);
+  EXPECT_TRUE(contains(r.err, rgbFile(3))) << describe(r);
+  EXPECT_TRUE(contains(r.err, "skipping frame 6")) << describe(r);
+  EXPECT_TRUE(contains(r.err, depthFile(6))) << describe(r);
+  EXPECT_TRUE(contains(r.err, "all pixels are 0")) << describe(r);
+}
+
+TEST_F(ReplayCli, EveryFrameBadExitsOne) {
+  const fs::path dir(seq_.directory);
+  for (int k = 0; k < kFrames; ++k) writeFile(dir / rgbFile(k), "garbage");
+  const RunResult r = replaySequence();
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.out, "10 skipped (bad input)")) << describe(r);
+  EXPECT_TRUE(contains(test::lastLine(r.out), "frames=0 ")) << describe(r);
+}
+
+}  // namespace
+}  // namespace stillpoint
