@@ -115,7 +115,7 @@ SE3 KeyFrame::resolvedT_c_w() const {
     T = T * kf->T_self_parent;
     kf = kf->parent;
   }
-  return T * kf->T_c_w();
+  return renormalized(T * kf->T_c_w());
 }
 
 KeyFrame* Map::addKeyFrame(std::unique_ptr<KeyFrame> kf) {
@@ -183,7 +183,7 @@ void Map::setKeyFrameBad(KeyFrame* kf) {
   }
   if (new_parent) {
     std::erase(new_parent->children, kf);
-    kf->T_self_parent = kf->T_c_w() * new_parent->T_c_w().inverse();
+    kf->T_self_parent = renormalized(kf->T_c_w() * new_parent->T_c_w().inverse());
   }
   kf->parent = new_parent;
   kf->children.clear();

@@ -235,7 +235,7 @@ SE3 retract(const Eigen::Matrix<double, 6, 1>& dx, const SE3& T) {
   SE3 update = SE3::Identity();
   update.linear() = expSO3(dx.head<3>());
   update.translation() = dx.tail<3>();
-  return update * T;
+  return renormalized(update * T);
 }
 
 // Levenberg-Marquardt on the 6-DoF pose with Huber IRLS weights.
@@ -310,6 +310,8 @@ int optimizeFramePose(Frame* frame) {
     problem.observations.push_back(observationOf(*frame, i));
     index.push_back(i);
   }
+  auto badR = [](const SE3& T) { return (T.linear().transpose() * T.linear() - Mat3::Identity()).norm() > 1e-6; };
+  if (badR(frame->T_c_w)) std::fprintf(stderr, "optimizeFramePose: input non-orthonormal\n");
   const PoseResult r = std::getenv("SP_POSE_CERES") ? optimizePoseCeres(problem, frame->T_c_w) : optimizePose(problem, frame->T_c_w);
   if (std::getenv("SP_DEBUG_POSE")) {
     const PoseResult c = optimizePoseCeres(problem, frame->T_c_w);
@@ -331,8 +333,25 @@ int optimizeFramePose(Frame* frame) {
     for (int i : index) frame->outlier[i] = 1;
     return r.inliers;
   }
+  if (badR(r.T_c_w)) std::fprintf(stderr, "optimizeFramePose: OUTPUT non-orthonormal\n");
   frame->T_c_w = r.T_c_w;
   for (std::size_t k = 0; k < index.size(); ++k) frame->outlier[index[k]] = !r.inlier[k];
+  if (std::getenv("SP_CHI2_HIST")) {
+    int h[8] = {0};  // chi2 bins: <1, <2, <4, <8, <16, <64, <1000, >=1000; map points only
+    int hv[8] = {0};
+    for (std::size_t k = 0; k < index.size(); ++k) {
+      const double c = reprojectionChi2(*frame->camera, r.T_c_w, problem.points_w[k], problem.observations[k]);
+      const int b = c < 1 ? 0 : c < 2 ? 1 : c < 4 ? 2 : c < 8 ? 3 : c < 16 ? 4 : c < 64 ? 5 : c < 1000 ? 6 : 7;
+      (frame->points[index[k]]->isTemporary() ? hv : h)[b]++;
+      if (!frame->points[index[k]]->isTemporary()) {
+        static int lvl_bad[8], lvl_all[8], calls;
+        lvl_all[frame->keys[index[k]].octave]++;
+        if (c > 64) lvl_bad[frame->keys[index[k]].octave]++;
+        if (++calls % 20000 == 0) { for (int l = 0; l < 8; ++l) std::fprintf(stderr, "L%d %d/%d  ", l, lvl_bad[l], lvl_all[l]); std::fprintf(stderr, "\n"); }
+      }
+    }
+    std::fprintf(stderr, "chi2 map: %d %d %d %d | %d %d %d %d   vo: %d %d %d %d | %d %d %d %d\n", h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], hv[0], hv[1], hv[2], hv[3], hv[4], hv[5], hv[6], hv[7]);
+  }
   return r.inliers;
 }
 

@@ -106,7 +106,7 @@ std::vector<TrajectoryPose> SlamSystem::trajectory() const {
   std::vector<TrajectoryPose> out;
   out.reserve(impl_->tracker.records().size());
   for (const TrajectoryRecord& r : impl_->tracker.records()) {
-    const SE3 T_c_w = r.T_c_ref * r.reference->resolvedT_c_w();
+    const SE3 T_c_w = renormalized(r.T_c_ref * r.reference->resolvedT_c_w());
     out.push_back({r.stamp, T_c_w.inverse()});
   }
   return out;

@@ -3,6 +3,8 @@
 #include <opencv2/calib3d.hpp>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <chrono>
 #include <mutex>
 #include <numeric>
@@ -77,19 +79,24 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
 
   if (ok) {
     if (has_last_ && current_.id == last_.id + 1 && state_ == TrackingState::kOk)
-      velocity_ = current_.T_c_w * last_.T_c_w.inverse(), has_velocity_ = true;
+      velocity_ = renormalized(current_.T_c_w * last_.T_c_w.inverse()), has_velocity_ = true;
     else if (state_ != TrackingState::kOk)
       has_velocity_ = false;
     // Temporary odometry points never outlive the frame they helped track.
     for (int i = 0; i < current_.size(); ++i)
       if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
         current_.points[i] = nullptr;
-    records_.push_back({current_.stamp, reference_, current_.T_c_w * reference_->T_c_w().inverse()});
+    records_.push_back({current_.stamp, reference_, renormalized(current_.T_c_w * reference_->T_c_w().inverse())});
     out->T_w_c = current_.T_c_w.inverse();
   }
   SP_DEBUG(logger, "frame " << current_.id << " state " << toString(state_) << " inliers " << inliers_
                               << " local kfs " << local_keyframes_.size() << " local points " << local_points_.size()
                               << (new_keyframe ? " NEW KF" : ""));
+  if (std::getenv("SP_CHECK_ROT")) {
+    auto bad = [](const SE3& T) { return (T.linear().transpose() * T.linear() - Mat3::Identity()).norm() > 1e-6; };
+    if (bad(current_.T_c_w)) std::fprintf(stderr, "frame %ld: non-orthonormal pose\n", (long)current_.id);
+    for (const auto& kf : map_->keyframes()) if (bad(kf->T_c_w())) std::fprintf(stderr, "frame %ld: keyframe %ld non-orthonormal\n", (long)current_.id, (long)kf->id);
+  }
   out->stages = times_;
   out->state = state_;
   out->features = current_.size();
@@ -138,7 +145,7 @@ void Tracker::refreshLastFrame() {
   // motion model has enough to match against.
   if (!records_.empty()) {
     const TrajectoryRecord& r = records_.back();
-    last_.T_c_w = r.T_c_ref * r.reference->resolvedT_c_w();
+    last_.T_c_w = renormalized(r.T_c_ref * r.reference->resolvedT_c_w());
   }
   std::vector<std::pair<float, int>> by_depth;
   for (int i = 0; i < last_.size(); ++i)
@@ -173,7 +180,11 @@ int Tracker::discardOutliers() {
 }
 
 bool Tracker::trackWithMotionModel() {
-  current_.T_c_w = velocity_ * last_.T_c_w;
+  current_.T_c_w = renormalized(velocity_ * last_.T_c_w);
+  if (std::getenv("SP_CHECK_ROT")) {
+    auto err = [](const SE3& T) { return (T.linear().transpose() * T.linear() - Mat3::Identity()).norm(); };
+    std::fprintf(stderr, "motion: velocity %g last %g rec %g ref %g\n", err(velocity_), err(last_.T_c_w), err(records_.back().T_c_ref), err(records_.back().reference->resolvedT_c_w()));
+  }
   current_.clearMatches();
   int matches = searchByProjection(&current_, last_, 7.0f);
   if (matches < 20) {
@@ -342,7 +353,8 @@ bool Tracker::needNewKeyFrame(bool mapping_idle) const {
   if (!reference_) return false;
   const std::size_t keyframes = map_->goodKeyFrameCount();
   if (current_.id < last_reloc_frame_id_ + 30 && keyframes > 30) return false;
-  const int min_obs = keyframes == 1 ? 1 : (keyframes == 2 ? 2 : 3);
+  int min_obs = keyframes == 1 ? 1 : (keyframes == 2 ? 2 : 3);
+  if (const char* e = std::getenv("SP_KF_MINOBS")) min_obs = std::min(min_obs, std::atoi(e));
   const int ref_matches = reference_->trackedPoints(min_obs);
   int close_tracked = 0, close_untracked = 0;
   for (int i = 0; i < current_.size(); ++i) {

@@ -17,6 +17,16 @@ inline SE3 makeSE3(const Eigen::Quaterniond& q, const Vec3& t) {
   return T;
 }
 
+// Projects the rotation back onto SO(3). Chains of products (motion models:
+// v = T_k T_{k-1}^-1, T_{k+1} = v T_k) otherwise amplify rounding errors
+// exponentially, because Isometry::inverse() assumes an exact rotation.
+inline SE3 renormalized(const SE3& T) {
+  SE3 out = SE3::Identity();
+  out.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
+  out.translation() = T.translation();
+  return out;
+}
+
 // Exponential map of so(3): rotation vector -> rotation matrix.
 inline Mat3 expSO3(const Vec3& w) {
   const double theta = w.norm();
