@@ -7,8 +7,6 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
-#include <cstdlib>
-#include <numeric>
 #include <random>
 
 namespace stillpoint::features {
@@ -54,27 +52,6 @@ std::array<TestPair, 256> makePattern() {
 const std::array<TestPair, 256>& pattern() {
   static const std::array<TestPair, 256> kPattern = makePattern();
   return kPattern;
-}
-
-// Harris corner measure over a 7x7 block (central differences): a steadier
-// ranking than the FAST score, which saturates and flips between frames.
-float harrisResponse(const cv::Mat& image, cv::Point2f pt) {
-  constexpr int kHalfBlock = 3;
-  constexpr float kHarrisK = 0.04f;
-  const int cx = cvRound(pt.x), cy = cvRound(pt.y);
-  const int step = static_cast<int>(image.step1());
-  float a = 0, b = 0, c = 0;
-  for (int v = -kHalfBlock; v <= kHalfBlock; ++v) {
-    const std::uint8_t* row = image.ptr<std::uint8_t>(cy + v) + cx;
-    for (int u = -kHalfBlock; u <= kHalfBlock; ++u) {
-      const float dx = static_cast<float>(row[u + 1] - row[u - 1]);
-      const float dy = static_cast<float>(row[u + step] - row[u - step]);
-      a += dx * dx;
-      b += dy * dy;
-      c += dx * dy;
-    }
-  }
-  return a * b - c * c - kHarrisK * (a + b) * (a + b);
 }
 
 // Orientation by the intensity centroid of the circular patch.
@@ -196,8 +173,6 @@ void OrbExtractor::detectLevel(int level, std::vector<cv::KeyPoint>* out) const 
     const int r = std::min(rows - 1, static_cast<int>(p.y) / cell);
     return r * cols + c;
   };
-  const char* mode = std::getenv("SP_ORB_MODE");
-  const int orb_mode = mode ? std::atoi(mode) : 0;
   std::vector<std::vector<int>> per_cell(cols * rows);
   for (std::size_t i = 0; i < corners.size(); ++i) per_cell[cellIndex(corners[i].pt)].push_back(static_cast<int>(i));
   std::vector<cv::KeyPoint> weak;
@@ -225,16 +200,6 @@ void OrbExtractor::detectLevel(int level, std::vector<cv::KeyPoint>* out) const 
     float response;
     int index;
   };
-  if (orb_mode >= 1) {
-    for (auto& kp : corners) kp.response = harrisResponse(image, kp.pt + cv::Point2f(static_cast<float>(min_x), static_cast<float>(min_y)));
-  }
-  if (orb_mode == 2) {
-    std::vector<int> order(corners.size());
-    std::iota(order.begin(), order.end(), 0);
-    for (auto& members : per_cell) members.clear();
-    // global ranking: all in one "cell"
-    per_cell.assign(1, order);
-  }
   // Round robin over cells: every cell gives its best corner before any cell
   // gives its second, which spreads features evenly over the image.
   std::vector<Candidate> candidates;

@@ -1,8 +1,6 @@
 #include "frame.hpp"
 
-#include <algorithm>
 #include <cmath>
-#include <cstdlib>
 
 namespace stillpoint::slam {
 
@@ -85,20 +83,6 @@ void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, featu
     if (x < 0 || y < 0 || x >= depth_m.cols || y >= depth_m.rows) continue;
     const float z = depth_m.at<float>(y, x);
     if (!(z > cam.min_depth) || !(z < cam.max_depth)) continue;
-    if (const char* e = std::getenv("SP_DEPTH_EDGE")) {
-      const int r = std::atoi(e);
-      float lo = z, hi = z;
-      bool hole = false;
-      for (int dy = -r; dy <= r; ++dy)
-        for (int dx = -r; dx <= r; ++dx) {
-          const int xx = std::clamp(x + dx, 0, depth_m.cols - 1), yy = std::clamp(y + dy, 0, depth_m.rows - 1);
-          const float zz = depth_m.at<float>(yy, xx);
-          if (zz <= 0) { hole = true; continue; }
-          lo = std::min(lo, zz);
-          hi = std::max(hi, zz);
-        }
-      if (hole || hi - lo > 0.02f + 0.02f * z) continue;
-    }
     frame->depth[i] = z;
     frame->u_right[i] = frame->un[i].x - static_cast<float>(cam.bf()) / z;
   }

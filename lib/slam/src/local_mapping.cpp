@@ -1,7 +1,6 @@
 #include "local_mapping.hpp"
 
 #include <chrono>
-#include <cstdlib>
 #include <set>
 
 #include "matcher.hpp"
@@ -25,7 +24,7 @@ void LocalMapper::process(KeyFrame* kf) {
     for (const auto& p : kf->frame.points)
       if (p && !p->bad && p->first_keyframe_id == kf->id) recent_points_.push_back(p);
     cullRecentPoints(kf);
-    if (!std::getenv("SP_NO_FUSE")) fuseWithNeighbours(kf); else kf->updateConnections();
+    fuseWithNeighbours(kf);
   }
   abort_ba_ = false;
   if (options_.mapping.local_ba && map_->keyframes().size() > 2) {
@@ -38,7 +37,7 @@ void LocalMapper::process(KeyFrame* kf) {
   }
   {
     std::unique_lock lock(map_->mutex());
-    if (!std::getenv("SP_NO_KFCULL")) cullKeyFrames(kf);
+    cullKeyFrames(kf);
   }
   total_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }

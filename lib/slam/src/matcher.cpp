@@ -3,8 +3,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 
 #include "stillpoint/features/descriptor.hpp"
 
@@ -102,7 +100,6 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
   const LevelInfo& lv = *current->levels;
   const Vec3 centre = current->cameraCentre();
   int matches = 0;
-  int n_view = 0, n_nocand = 0, n_thresh = 0, n_ratio = 0;
   if (in_view_out) in_view_out->assign(points.size(), 0);
   for (std::size_t k = 0; k < points.size(); ++k) {
     const auto& point = points[k];
@@ -116,7 +113,6 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
     const double view_cos = ray.dot(point->normal) / dist;
     if (view_cos < 0.5) continue;
     if (in_view_out) (*in_view_out)[k] = 1;
-    ++n_view;
     const int level = point->predictLevel(dist, lv);
     const float r = radius_factor * (view_cos > 0.998 ? 2.5f : 4.0f) * static_cast<float>(lv.scales[level]);
     const auto candidates = current->grid.query(current->keys, current->un, static_cast<float>(uv.x()),
@@ -138,14 +134,12 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
         second_level = current->keys[j].octave;
       }
     }
-    if (best_idx < 0) { ++n_nocand; continue; }
-    if (best > kMatchThresholdHigh) { ++n_thresh; continue; }
-    if (best_level == second_level && best > 0.8 * second) { ++n_ratio; continue; }
+    if (best_idx < 0 || best > kMatchThresholdHigh) continue;
+    if (best_level == second_level && best > 0.8 * second) continue;
     current->points[best_idx] = point;
     current->outlier[best_idx] = 0;
     ++matches;
   }
-  if (std::getenv("SP_DEBUG_MATCH")) std::fprintf(stderr, "local search: %zu pts, %d in view, %d no cand, %d thresh, %d ratio, %d matched\n", points.size(), n_view, n_nocand, n_thresh, n_ratio, matches);
   return matches;
 }
 

@@ -3,8 +3,6 @@
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
 
-#include <cstdio>
-#include <cstdlib>
 #include <mutex>
 #include <set>
 #include <unordered_map>
@@ -63,18 +61,67 @@ struct PoseOnlyError : ReprojectionError {
   Vec3 p_w;
 };
 
-struct FullError : ReprojectionError {
-  using ReprojectionError::ReprojectionError;
-  template <typename T>
-  bool operator()(const T* pose, const T* point, T* residual) const {
-    return project(pose, point, residual);
-  }
-};
 
-ceres::CostFunction* makeFullCost(const CameraModel& cam, const Observation& o) {
-  if (o.u_right >= 0) return new ceres::AutoDiffCostFunction<FullError, 3, 6, 3>(new FullError(cam, o));
-  return new ceres::AutoDiffCostFunction<FullError, 2, 6, 3>(new FullError(cam, o));
+// Left Jacobian of SO(3): d(exp(w) x)/dw = -[exp(w) x]x J_l(w) when the
+// rotation vector itself is the parameter.
+Mat3 leftJacobianSO3(const Vec3& w) {
+  const double theta2 = w.squaredNorm();
+  Mat3 W;
+  W << 0, -w.z(), w.y(), w.z(), 0, -w.x(), -w.y(), w.x(), 0;
+  if (theta2 < 1e-10) return Mat3::Identity() + 0.5 * W;
+  const double theta = std::sqrt(theta2);
+  return Mat3::Identity() + (1 - std::cos(theta)) / theta2 * W + (theta - std::sin(theta)) / (theta2 * theta) * W * W;
 }
+
+// Bundle-adjustment residual with analytic Jacobians. Always three rows (the
+// depth row is zero for keypoints without depth) so that Ceres uses its
+// fixed-size Schur eliminator for 3-row residuals, 6-D poses and 3-D points.
+class BundleAdjustmentCost final : public ceres::SizedCostFunction<3, 6, 3> {
+ public:
+  BundleAdjustmentCost(const CameraModel& cam, const Observation& o)
+      : fx_(cam.fx), fy_(cam.fy), cx_(cam.cx), cy_(cam.cy), bf_(cam.bf()), obs_(o) {}
+
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
+    const double* pose = parameters[0];
+    const Vec3 w(pose[0], pose[1], pose[2]);
+    const Mat3 R = expSO3(w);
+    const Vec3 point(parameters[1][0], parameters[1][1], parameters[1][2]);
+    const Vec3 Rp = R * point;
+    const Vec3 p = Rp + Vec3(pose[3], pose[4], pose[5]);
+    const bool stereo = obs_.u_right >= 0;
+    const double z = std::max(p.z(), 1e-6);
+    const double inv_z = 1.0 / z;
+    const double u = fx_ * p.x() * inv_z + cx_;
+    const double s = obs_.inv_sigma;
+    residuals[0] = (u - obs_.u) * s;
+    residuals[1] = (fy_ * p.y() * inv_z + cy_ - obs_.v) * s;
+    residuals[2] = stereo ? (u - bf_ * inv_z - obs_.u_right) * s : 0.0;
+    if (!jacobians) return true;
+    const double inv_z2 = inv_z * inv_z;
+    Eigen::Matrix3d J_p;
+    J_p << fx_ * inv_z, 0, -fx_ * p.x() * inv_z2,  //
+        0, fy_ * inv_z, -fy_ * p.y() * inv_z2,     //
+        fx_ * inv_z, 0, -(fx_ * p.x() - bf_) * inv_z2;
+    if (!stereo) J_p.row(2).setZero();
+    J_p *= s;
+    if (jacobians[0]) {
+      Eigen::Map<Eigen::Matrix<double, 3, 6, Eigen::RowMajor>> J(jacobians[0]);
+      Mat3 skew;
+      skew << 0, -Rp.z(), Rp.y(), Rp.z(), 0, -Rp.x(), -Rp.y(), Rp.x(), 0;
+      J.leftCols<3>() = -J_p * skew * leftJacobianSO3(w);
+      J.rightCols<3>() = J_p;
+    }
+    if (jacobians[1]) {
+      Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> J(jacobians[1]);
+      J = J_p * R;
+    }
+    return true;
+  }
+
+ private:
+  double fx_, fy_, cx_, cy_, bf_;
+  Observation obs_;
+};
 
 Observation observationOf(const Frame& f, int i) {
   Observation o;
@@ -253,7 +300,6 @@ SE3 minimisePose(const PoseProblem& problem, const std::vector<char>& active, co
     const SE3 candidate = retract(dx, T);
     PoseLinearisation next;
     linearisePose(problem, active, candidate, robust, false, &next);
-    if (std::getenv("SP_TRACE_LM")) std::fprintf(stderr, "  it %d lambda %g cost %.2f -> %.2f |dx| %g\n", it, lambda, lin.cost, next.cost, dx.norm());
     if (next.cost <= lin.cost) {
       T = candidate;
       lambda = std::max(1e-7, lambda * 0.1);
@@ -310,48 +356,14 @@ int optimizeFramePose(Frame* frame) {
     problem.observations.push_back(observationOf(*frame, i));
     index.push_back(i);
   }
-  auto badR = [](const SE3& T) { return (T.linear().transpose() * T.linear() - Mat3::Identity()).norm() > 1e-6; };
-  if (badR(frame->T_c_w)) std::fprintf(stderr, "optimizeFramePose: input non-orthonormal\n");
-  const PoseResult r = std::getenv("SP_POSE_CERES") ? optimizePoseCeres(problem, frame->T_c_w) : optimizePose(problem, frame->T_c_w);
-  if (std::getenv("SP_DEBUG_POSE")) {
-    const PoseResult c = optimizePoseCeres(problem, frame->T_c_w);
-    {
-      const PoseResult a1 = optimizePose(problem, frame->T_c_w, 1), c1 = optimizePoseCeres(problem, frame->T_c_w, 1);
-      std::vector<char> all(index.size(), 1);
-      PoseLinearisation la, lc, l0;
-      linearisePose(problem, all, a1.T_c_w, true, false, &la);
-      linearisePose(problem, all, c1.T_c_w, true, false, &lc);
-      linearisePose(problem, all, frame->T_c_w, true, false, &l0);
-      if (lc.cost < 0.95 * la.cost) { setenv("SP_TRACE_LM", "1", 1); optimizePose(problem, frame->T_c_w, 1); unsetenv("SP_TRACE_LM"); }
-      std::fprintf(stderr, "round0: start cost %.1f ours %.1f ceres %.1f\n", l0.cost, la.cost, lc.cost);
-    }
-    std::fprintf(stderr, "n=%zu ours inl=%d ceres inl=%d dt=%g\n", index.size(), r.inliers, c.inliers,
-                 (r.T_c_w.translation() - c.T_c_w.translation()).norm());
-  }
+  const PoseResult r = optimizePose(problem, frame->T_c_w);
   if (r.inliers < 10) {
     // No trustworthy pose: every match counts as an outlier, the pose stays.
     for (int i : index) frame->outlier[i] = 1;
     return r.inliers;
   }
-  if (badR(r.T_c_w)) std::fprintf(stderr, "optimizeFramePose: OUTPUT non-orthonormal\n");
   frame->T_c_w = r.T_c_w;
   for (std::size_t k = 0; k < index.size(); ++k) frame->outlier[index[k]] = !r.inlier[k];
-  if (std::getenv("SP_CHI2_HIST")) {
-    int h[8] = {0};  // chi2 bins: <1, <2, <4, <8, <16, <64, <1000, >=1000; map points only
-    int hv[8] = {0};
-    for (std::size_t k = 0; k < index.size(); ++k) {
-      const double c = reprojectionChi2(*frame->camera, r.T_c_w, problem.points_w[k], problem.observations[k]);
-      const int b = c < 1 ? 0 : c < 2 ? 1 : c < 4 ? 2 : c < 8 ? 3 : c < 16 ? 4 : c < 64 ? 5 : c < 1000 ? 6 : 7;
-      (frame->points[index[k]]->isTemporary() ? hv : h)[b]++;
-      if (!frame->points[index[k]]->isTemporary()) {
-        static int lvl_bad[8], lvl_all[8], calls;
-        lvl_all[frame->keys[index[k]].octave]++;
-        if (c > 64) lvl_bad[frame->keys[index[k]].octave]++;
-        if (++calls % 20000 == 0) { for (int l = 0; l < 8; ++l) std::fprintf(stderr, "L%d %d/%d  ", l, lvl_bad[l], lvl_all[l]); std::fprintf(stderr, "\n"); }
-      }
-    }
-    std::fprintf(stderr, "chi2 map: %d %d %d %d | %d %d %d %d   vo: %d %d %d %d | %d %d %d %d\n", h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], hv[0], hv[1], hv[2], hv[3], hv[4], hv[5], hv[6], hv[7]);
-  }
   return r.inliers;
 }
 
@@ -427,13 +439,15 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
       if (is_outlier[i]) continue;
       const Obs& ob = observations[i];
       const double delta = std::sqrt(ob.o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
-      problem.AddResidualBlock(makeFullCost(*camera, ob.o), new ceres::HuberLoss(delta), poses[ob.camera].data(),
-                               positions[ob.point].data());
+      problem.AddResidualBlock(new BundleAdjustmentCost(*camera, ob.o), new ceres::HuberLoss(delta),
+                               poses[ob.camera].data(), positions[ob.point].data());
     }
     for (std::size_t c = 0; c < cameras.size(); ++c)
       if (fixed[c] && problem.HasParameterBlock(poses[c].data())) problem.SetParameterBlockConstant(poses[c].data());
     ceres::Solver::Options options;
-    options.linear_solver_type = ceres::SPARSE_SCHUR;
+    // Local windows have few cameras: a dense reduced camera system is the
+    // fastest (Debian's Ceres has no fixed-size Schur specialisations).
+    options.linear_solver_type = ceres::DENSE_SCHUR;
     options.max_num_iterations = pass == 0 ? std::max(1, iterations / 2) : iterations;
     options.num_threads = 1;
     options.logging_type = ceres::SILENT;

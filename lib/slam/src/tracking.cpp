@@ -92,11 +92,6 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
   SP_DEBUG(logger, "frame " << current_.id << " state " << toString(state_) << " inliers " << inliers_
                               << " local kfs " << local_keyframes_.size() << " local points " << local_points_.size()
                               << (new_keyframe ? " NEW KF" : ""));
-  if (std::getenv("SP_CHECK_ROT")) {
-    auto bad = [](const SE3& T) { return (T.linear().transpose() * T.linear() - Mat3::Identity()).norm() > 1e-6; };
-    if (bad(current_.T_c_w)) std::fprintf(stderr, "frame %ld: non-orthonormal pose\n", (long)current_.id);
-    for (const auto& kf : map_->keyframes()) if (bad(kf->T_c_w())) std::fprintf(stderr, "frame %ld: keyframe %ld non-orthonormal\n", (long)current_.id, (long)kf->id);
-  }
   out->stages = times_;
   out->state = state_;
   out->features = current_.size();
@@ -181,10 +176,6 @@ int Tracker::discardOutliers() {
 
 bool Tracker::trackWithMotionModel() {
   current_.T_c_w = renormalized(velocity_ * last_.T_c_w);
-  if (std::getenv("SP_CHECK_ROT")) {
-    auto err = [](const SE3& T) { return (T.linear().transpose() * T.linear() - Mat3::Identity()).norm(); };
-    std::fprintf(stderr, "motion: velocity %g last %g rec %g ref %g\n", err(velocity_), err(last_.T_c_w), err(records_.back().T_c_ref), err(records_.back().reference->resolvedT_c_w()));
-  }
   current_.clearMatches();
   int matches = searchByProjection(&current_, last_, 7.0f);
   if (matches < 20) {
@@ -353,9 +344,10 @@ bool Tracker::needNewKeyFrame(bool mapping_idle) const {
   if (!reference_) return false;
   const std::size_t keyframes = map_->goodKeyFrameCount();
   if (current_.id < last_reloc_frame_id_ + 30 && keyframes > 30) return false;
-  int min_obs = keyframes == 1 ? 1 : (keyframes == 2 ? 2 : 3);
-  if (const char* e = std::getenv("SP_KF_MINOBS")) min_obs = std::min(min_obs, std::atoi(e));
-  const int ref_matches = reference_->trackedPoints(min_obs);
+  // Every map point of the reference keyframe counts: a point seen by one
+  // keyframe is as useful to tracking as one seen by many (requiring several
+  // observations starves young maps of keyframes, and then of observations).
+  const int ref_matches = reference_->trackedPoints(1);
   int close_tracked = 0, close_untracked = 0;
   for (int i = 0; i < current_.size(); ++i) {
     if (current_.depth[i] <= 0 || current_.depth[i] >= close_depth_) continue;

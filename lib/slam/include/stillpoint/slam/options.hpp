@@ -21,7 +21,7 @@ struct TrackingOptions {
 struct KeyframeOptions {
   double max_interval_s = 1.0;      // insert at least this often while tracking degrades
   int min_interval_frames = 0;
-  double tracked_ratio = 0.75;      // insert when tracked/ref-keyframe points falls below
+  double tracked_ratio = 0.4;       // insert when tracked/ref-keyframe points falls below
   int close_tracked_min = 100;      // ...or too few close points are tracked
   int close_untracked_min = 70;     // ...while this many close points could be added
   int min_new_points = 100;         // new keyframe creates at least this many points
