@@ -86,6 +86,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
     for (int i = 0; i < current_.size(); ++i)
       if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
         current_.points[i] = nullptr;
+    std::shared_lock lock(map_->mutex());  // keyframe poses change under local BA
     records_.push_back({current_.stamp, reference_, renormalized(current_.T_c_w * reference_->T_c_w().inverse())});
     out->T_w_c = current_.T_c_w.inverse();
   }
