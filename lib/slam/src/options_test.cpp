@@ -1,0 +1,268 @@
+// SlamOptions: range checks that name the field, and the YAML file format
+// (round trip, unknown keys, wrong types, empty file).
+#include "stillpoint/slam/options.hpp"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace stillpoint::slam {
+namespace {
+
+namespace fs = std::filesystem;
+
+::testing::AssertionResult contains(const std::string& text, const std::string& part) {
+  if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << "\"" << text << "\" does not contain \"" << part << "\"";
+}
+
+// Every test writes its YAML into its own temporary folder.
+class OptionsFileTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           ("stillpoint_options_test_" + std::to_string(::getpid()) + "_" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  std::string write(const std::string& text) {
+    const fs::path path = dir_ / "slam.yaml";
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out << text;
+    return path.string();
+  }
+
+  fs::path dir_;
+};
+
+TEST(SlamOptionsValidate, DefaultsAreValid) {
+  const SlamOptions defaults;
+  EXPECT_TRUE(defaults.orb.validate().ok()) << defaults.orb.validate().error();
+  EXPECT_TRUE(defaults.tracking.validate().ok()) << defaults.tracking.validate().error();
+  EXPECT_TRUE(defaults.keyframes.validate().ok()) << defaults.keyframes.validate().error();
+  EXPECT_TRUE(defaults.mapping.validate().ok()) << defaults.mapping.validate().error();
+  EXPECT_TRUE(defaults.validate().ok()) << defaults.validate().error();
+}
+
+struct BadValue {
+  const char* field;  // the name the error must contain
+  std::function<void(SlamOptions&)> spoil;
+};
+
+// One out-of-range value per check; each must fail both its own struct's
+// validate() and SlamOptions::validate(), naming the field.
+TEST(SlamOptionsValidate, EachOutOfRangeValueNamesItsField) {
+  const std::vector<BadValue> cases = {
+      {"orb.num_features", [](SlamOptions& o) { o.orb.num_features = 10; }},
+      {"orb.num_levels", [](SlamOptions& o) { o.orb.num_levels = 0; }},
+      {"orb.scale_factor", [](SlamOptions& o) { o.orb.scale_factor = 1.0; }},
+      {"orb.fast_threshold", [](SlamOptions& o) { o.orb.fast_threshold = 0; }},
+      {"orb.min_fast_threshold", [](SlamOptions& o) { o.orb.min_fast_threshold = o.orb.fast_threshold + 1; }},
+      {"orb.cell_size", [](SlamOptions& o) { o.orb.cell_size = 4; }},
+      {"tracking.min_init_features", [](SlamOptions& o) { o.tracking.min_init_features = 19; }},
+      {"tracking.min_inliers_local_map", [](SlamOptions& o) { o.tracking.min_inliers_local_map = 5; }},
+      {"tracking.min_inliers_after_reloc", [](SlamOptions& o) { o.tracking.min_inliers_after_reloc = 10; }},
+      {"tracking.close_depth_baselines", [](SlamOptions& o) { o.tracking.close_depth_baselines = 0; }},
+      {"tracking.local_keyframes_max", [](SlamOptions& o) { o.tracking.local_keyframes_max = 0; }},
+      {"tracking.relocalisation_candidates", [](SlamOptions& o) { o.tracking.relocalisation_candidates = 0; }},
+      {"keyframes.max_interval_s", [](SlamOptions& o) { o.keyframes.max_interval_s = -1; }},
+      {"keyframes.min_interval_frames", [](SlamOptions& o) { o.keyframes.min_interval_frames = -1; }},
+      {"keyframes.tracked_ratio", [](SlamOptions& o) { o.keyframes.tracked_ratio = 1.5; }},
+      {"keyframes.close_tracked_min", [](SlamOptions& o) { o.keyframes.close_tracked_min = -1; }},
+      {"keyframes.close_untracked_min", [](SlamOptions& o) { o.keyframes.close_untracked_min = -1; }},
+      {"keyframes.min_new_points", [](SlamOptions& o) { o.keyframes.min_new_points = -1; }},
+      {"mapping.ba_iterations", [](SlamOptions& o) { o.mapping.ba_iterations = 0; }},
+      {"mapping.ba_max_keyframes", [](SlamOptions& o) { o.mapping.ba_max_keyframes = 1; }},
+      {"mapping.redundant_ratio", [](SlamOptions& o) { o.mapping.redundant_ratio = 0; }},
+      {"mapping.redundant_min_observers", [](SlamOptions& o) { o.mapping.redundant_min_observers = 0; }},
+      {"mapping.point_found_ratio", [](SlamOptions& o) { o.mapping.point_found_ratio = 1; }},
+      {"mapping.fuse_neighbours", [](SlamOptions& o) { o.mapping.fuse_neighbours = 0; }},
+  };
+  for (const BadValue& c : cases) {
+    SCOPED_TRACE(c.field);
+    SlamOptions o;
+    c.spoil(o);
+    const std::string section = std::string(c.field).substr(0, std::string(c.field).find('.'));
+    const Status own = section == "orb"        ? o.orb.validate()
+                       : section == "tracking" ? o.tracking.validate()
+                       : section == "keyframes" ? o.keyframes.validate()
+                                                : o.mapping.validate();
+    ASSERT_FALSE(own.ok());
+    EXPECT_TRUE(contains(own.error(), c.field));
+    const Status whole = o.validate();
+    ASSERT_FALSE(whole.ok());
+    EXPECT_TRUE(contains(whole.error(), c.field));
+  }
+}
+
+TEST(SlamOptionsValidate, NonFiniteValuesAreRejected) {
+  SlamOptions o;
+  o.keyframes.tracked_ratio = std::nan("");
+  EXPECT_FALSE(o.validate().ok());
+  o = SlamOptions{};
+  o.tracking.close_depth_baselines = std::nan("");
+  EXPECT_FALSE(o.validate().ok());
+}
+
+// Every field of `o` set away from its default (and still valid).
+SlamOptions everythingChanged() {
+  SlamOptions o;
+  o.orb.num_features = 1500;
+  o.orb.num_levels = 6;
+  o.orb.scale_factor = 1.15;
+  o.orb.fast_threshold = 25;
+  o.orb.min_fast_threshold = 9;
+  o.orb.cell_size = 40;
+  o.tracking.min_init_features = 250;
+  o.tracking.min_inliers_local_map = 35;
+  o.tracking.min_inliers_after_reloc = 60;
+  o.tracking.close_depth_baselines = 37.5;
+  o.tracking.local_keyframes_max = 45;
+  o.tracking.relocalisation_candidates = 12;
+  o.keyframes.max_interval_s = 0.75;
+  o.keyframes.min_interval_frames = 3;
+  o.keyframes.tracked_ratio = 0.55;
+  o.keyframes.close_tracked_min = 90;
+  o.keyframes.close_untracked_min = 65;
+  o.keyframes.min_new_points = 80;
+  o.mapping.local_ba = false;
+  o.mapping.ba_iterations = 7;
+  o.mapping.ba_max_keyframes = 15;
+  o.mapping.redundant_ratio = 0.85;
+  o.mapping.redundant_min_observers = 4;
+  o.mapping.point_found_ratio = 0.3;
+  o.mapping.fuse_neighbours = 8;
+  o.sequential = true;
+  return o;
+}
+
+void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
+  EXPECT_EQ(a.orb.num_features, b.orb.num_features);
+  EXPECT_EQ(a.orb.num_levels, b.orb.num_levels);
+  EXPECT_EQ(a.orb.scale_factor, b.orb.scale_factor);
+  EXPECT_EQ(a.orb.fast_threshold, b.orb.fast_threshold);
+  EXPECT_EQ(a.orb.min_fast_threshold, b.orb.min_fast_threshold);
+  EXPECT_EQ(a.orb.cell_size, b.orb.cell_size);
+  EXPECT_EQ(a.tracking.min_init_features, b.tracking.min_init_features);
+  EXPECT_EQ(a.tracking.min_inliers_local_map, b.tracking.min_inliers_local_map);
+  EXPECT_EQ(a.tracking.min_inliers_after_reloc, b.tracking.min_inliers_after_reloc);
+  EXPECT_EQ(a.tracking.close_depth_baselines, b.tracking.close_depth_baselines);
+  EXPECT_EQ(a.tracking.local_keyframes_max, b.tracking.local_keyframes_max);
+  EXPECT_EQ(a.tracking.relocalisation_candidates, b.tracking.relocalisation_candidates);
+  EXPECT_EQ(a.keyframes.max_interval_s, b.keyframes.max_interval_s);
+  EXPECT_EQ(a.keyframes.min_interval_frames, b.keyframes.min_interval_frames);
+  EXPECT_EQ(a.keyframes.tracked_ratio, b.keyframes.tracked_ratio);
+  EXPECT_EQ(a.keyframes.close_tracked_min, b.keyframes.close_tracked_min);
+  EXPECT_EQ(a.keyframes.close_untracked_min, b.keyframes.close_untracked_min);
+  EXPECT_EQ(a.keyframes.min_new_points, b.keyframes.min_new_points);
+  EXPECT_EQ(a.mapping.local_ba, b.mapping.local_ba);
+  EXPECT_EQ(a.mapping.ba_iterations, b.mapping.ba_iterations);
+  EXPECT_EQ(a.mapping.ba_max_keyframes, b.mapping.ba_max_keyframes);
+  EXPECT_EQ(a.mapping.redundant_ratio, b.mapping.redundant_ratio);
+  EXPECT_EQ(a.mapping.redundant_min_observers, b.mapping.redundant_min_observers);
+  EXPECT_EQ(a.mapping.point_found_ratio, b.mapping.point_found_ratio);
+  EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
+  EXPECT_EQ(a.sequential, b.sequential);
+}
+
+TEST_F(OptionsFileTest, ToYamlRoundTripsEveryField) {
+  const SlamOptions changed = everythingChanged();
+  ASSERT_TRUE(changed.validate().ok()) << changed.validate().error();
+  const auto loaded = loadSlamOptions(write(toYaml(changed)));
+  ASSERT_TRUE(loaded.ok()) << loaded.error();
+  expectSameOptions(*loaded, changed);
+  EXPECT_EQ(toYaml(*loaded), toYaml(changed));
+  // Guard against a test that compares defaults with defaults: each field differs from its default.
+  EXPECT_NE(toYaml(changed), toYaml(SlamOptions{}));
+}
+
+TEST_F(OptionsFileTest, DefaultsRoundTrip) {
+  const auto loaded = loadSlamOptions(write(toYaml(SlamOptions{})));
+  ASSERT_TRUE(loaded.ok()) << loaded.error();
+  expectSameOptions(*loaded, SlamOptions{});
+}
+
+TEST_F(OptionsFileTest, PartialFileKeepsOtherDefaults) {
+  const auto loaded = loadSlamOptions(write("tracking:\n  min_inliers_local_map: 40\nsequential: true\n"));
+  ASSERT_TRUE(loaded.ok()) << loaded.error();
+  SlamOptions expected;
+  expected.tracking.min_inliers_local_map = 40;
+  expected.sequential = true;
+  expectSameOptions(*loaded, expected);
+}
+
+TEST_F(OptionsFileTest, EmptyFileGivesDefaults) {
+  for (const std::string text : {"", "\n", "# only a comment\n"}) {
+    SCOPED_TRACE("file: \"" + text + "\"");
+    const auto loaded = loadSlamOptions(write(text));
+    ASSERT_TRUE(loaded.ok()) << loaded.error();
+    expectSameOptions(*loaded, SlamOptions{});
+  }
+}
+
+TEST_F(OptionsFileTest, UnknownKeyNamesFieldAndLine) {
+  const auto nested = loadSlamOptions(write("tracking:\n  min_init_features: 300\n  min_inlier_local_map: 20\n"));
+  ASSERT_FALSE(nested.ok());
+  EXPECT_TRUE(contains(nested.error(), "tracking.min_inlier_local_map"));
+  EXPECT_TRUE(contains(nested.error(), "line 3"));
+
+  const auto top = loadSlamOptions(write("orb:\n  num_features: 900\nsequentail: true\n"));
+  ASSERT_FALSE(top.ok());
+  EXPECT_TRUE(contains(top.error(), "sequentail"));
+  EXPECT_TRUE(contains(top.error(), "line 3"));
+
+  const auto section = loadSlamOptions(write("\nmaping:\n  local_ba: false\n"));
+  ASSERT_FALSE(section.ok());
+  EXPECT_TRUE(contains(section.error(), "maping.local_ba"));
+  EXPECT_TRUE(contains(section.error(), "line 3"));
+}
+
+TEST_F(OptionsFileTest, WrongTypeNamesFieldAndLine) {
+  const auto integer = loadSlamOptions(write("orb:\n  scale_factor: 1.3\n  num_features: many\n"));
+  ASSERT_FALSE(integer.ok());
+  EXPECT_TRUE(contains(integer.error(), "orb.num_features"));
+  EXPECT_TRUE(contains(integer.error(), "line 3"));
+
+  const auto real = loadSlamOptions(write("keyframes:\n  tracked_ratio: [0.4]\n"));
+  ASSERT_FALSE(real.ok());
+  EXPECT_TRUE(contains(real.error(), "keyframes.tracked_ratio"));
+  EXPECT_TRUE(contains(real.error(), "line 2"));
+
+  const auto boolean = loadSlamOptions(write("# comment\nsequential: maybe\n"));
+  ASSERT_FALSE(boolean.ok());
+  EXPECT_TRUE(contains(boolean.error(), "sequential"));
+  EXPECT_TRUE(contains(boolean.error(), "line 2"));
+
+  // A fractional value for an integer field is a type error, not a silent truncation.
+  const auto fraction = loadSlamOptions(write("mapping:\n  ba_iterations: 2.5\n"));
+  ASSERT_FALSE(fraction.ok());
+  EXPECT_TRUE(contains(fraction.error(), "mapping.ba_iterations"));
+}
+
+TEST_F(OptionsFileTest, OutOfRangeValueInFileNamesField) {
+  const auto loaded = loadSlamOptions(write("mapping:\n  redundant_ratio: 1.5\n"));
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_TRUE(contains(loaded.error(), "mapping.redundant_ratio"));
+}
+
+TEST_F(OptionsFileTest, MalformedYamlAndMissingFileAreErrors) {
+  const auto malformed = loadSlamOptions(write("orb:\n  num_features: [1000\n"));
+  ASSERT_FALSE(malformed.ok());
+  EXPECT_TRUE(contains(malformed.error(), "line"));
+
+  const std::string missing = (dir_ / "does_not_exist.yaml").string();
+  const auto none = loadSlamOptions(missing);
+  ASSERT_FALSE(none.ok());
+  EXPECT_TRUE(contains(none.error(), missing));
+}
+
+}  // namespace
+}  // namespace stillpoint::slam
