@@ -164,16 +164,34 @@ struct SwitchablePoseError : PoseOnlyError {
   const char* active;
 };
 
-PoseResult optimizePoseCeres(const PoseProblem& problem, const SE3& initial, int rounds) {
-  const std::size_t n = problem.points_w.size();
+namespace {
+
+// All observations start as inliers; fewer than 3 cannot fix a pose.
+PoseResult initialPoseResult(std::size_t n, const SE3& initial) {
   PoseResult result;
   result.T_c_w = initial;
-  result.inlier.assign(n, 1);
-  if (n < 3) {
-    result.inliers = 0;
-    result.inlier.assign(n, 0);
-    return result;
+  result.inlier.assign(n, n >= 3 ? 1 : 0);
+  return result;
+}
+
+// Chi-square test of every observation at T; returns the inlier count.
+int classifyInliers(const PoseProblem& problem, const SE3& T, std::vector<char>* inlier) {
+  int inliers = 0;
+  for (std::size_t i = 0; i < problem.points_w.size(); ++i) {
+    const Observation& o = problem.observations[i];
+    const double chi2 = reprojectionChi2(*problem.camera, T, problem.points_w[i], o);
+    (*inlier)[i] = chi2 <= (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+    inliers += (*inlier)[i];
   }
+  return inliers;
+}
+
+}  // namespace
+
+PoseResult optimizePoseCeres(const PoseProblem& problem, const SE3& initial, int rounds) {
+  const std::size_t n = problem.points_w.size();
+  PoseResult result = initialPoseResult(n, initial);
+  if (n < 3) return result;
   double pose[6];
   toParameters(initial, pose);
   // One problem for all rounds; between rounds observations failing the
@@ -206,14 +224,9 @@ PoseResult optimizePoseCeres(const PoseProblem& problem, const SE3& initial, int
     ceres::Solver::Summary summary;
     ceres::Solve(options, &ceres_problem, &summary);
     const SE3 T = fromParameters(pose);
-    result.inliers = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-      const Observation& o = problem.observations[i];
-      const double chi2 = reprojectionChi2(*problem.camera, T, problem.points_w[i], o);
-      result.inlier[i] = chi2 <= (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
-      active[i] = result.inlier[i];
-      result.inliers += result.inlier[i];
-    }
+    result.inliers = classifyInliers(problem, T, &result.inlier);
+    // Copy in place: the residuals hold pointers into `active`.
+    std::copy(result.inlier.begin(), result.inlier.end(), active.begin());
     if (result.inliers < 10) break;
   }
   result.T_c_w = fromParameters(pose);
@@ -318,27 +331,16 @@ SE3 minimisePose(const PoseProblem& problem, const std::vector<char>& active, co
 
 PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds) {
   const std::size_t n = problem.points_w.size();
-  PoseResult result;
-  result.T_c_w = initial;
-  result.inlier.assign(n, 1);
-  if (n < 3) {
-    result.inliers = 0;
-    result.inlier.assign(n, 0);
-    return result;
-  }
+  PoseResult result = initialPoseResult(n, initial);
+  if (n < 3) return result;
   std::vector<char> active(n, 1);
   SE3 T = initial;
   for (int round = 0; round < rounds; ++round) {
     // Huber while outliers may still be in; the last rounds refine the
     // accepted set with the plain quadratic cost.
     T = minimisePose(problem, active, T, round < 2, 30);
-    result.inliers = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-      const Observation& o = problem.observations[i];
-      const double chi2 = reprojectionChi2(*problem.camera, T, problem.points_w[i], o);
-      active[i] = result.inlier[i] = chi2 <= (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
-      result.inliers += result.inlier[i];
-    }
+    result.inliers = classifyInliers(problem, T, &result.inlier);
+    active = result.inlier;
     if (result.inliers < 10) break;
   }
   result.T_c_w = T;
