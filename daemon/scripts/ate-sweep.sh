@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Accuracy of a change, judged on more than one run: replays a sequence in
+# sequential (deterministic) mode with several ORB feature budgets, two at a
+# time, and prints each ATE with their mean and median. Single runs of a
+# feature-based SLAM move by +-0.003 m on small changes; compare sweeps.
+#
+# usage: daemon/scripts/ate-sweep.sh [SEQUENCE_DIR] [EXTRA_YAML]
+#   SEQUENCE_DIR defaults to ../shared/data/tum_fr3_teddy_200 beside the repository;
+#   EXTRA_YAML is appended to each run's config, e.g. $'mapping:\n  ba_iterations: 20\n'.
+set -euo pipefail
+repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+sequence=${1:-$repo/../shared/data/tum_fr3_teddy_200}
+extra=${2:-}
+replay=${REPLAY:-$repo/build/release/bin/stillpoint-replay}
+[[ -x $replay ]] || { echo "ate-sweep: build first ($replay missing)" >&2; exit 1; }
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+
+run() {
+  local n=$1
+  printf 'orb:\n  num_features: %s\n%s' "$n" "$extra" > "$work/$n.yaml"
+  "$replay" "$sequence" --camera fr3 --sequential --config "$work/$n.yaml" --output "$work/$n.txt" 2>/dev/null |
+    sed -n 's/.*ate_rmse_m=\([0-9.]*\).*/\1/p' | head -n 1 > "$work/$n.ate"
+}
+export -f run
+export replay sequence extra work
+printf '%s\n' 900 950 1000 1050 1100 1150 | xargs -P 2 -I{} bash -c 'run {}'
+cat "$work"/*.ate | sort -n | awk '{a[NR] = $1; s += $1}
+  END {
+    if (NR == 0) { print "ate-sweep: no run produced an ATE" > "/dev/stderr"; exit 1 }
+    printf "ATE [m]:"; for (i = 1; i <= NR; ++i) printf " %.4f", a[i]
+    printf "  mean %.4f  median %.4f  (%d runs)\n", s / NR, (a[int((NR + 1) / 2)] + a[int(NR / 2) + 1]) / 2, NR
+  }'
