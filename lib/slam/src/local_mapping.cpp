@@ -24,7 +24,10 @@ void LocalMapper::process(KeyFrame* kf) {
     for (const auto& p : kf->frame.points)
       if (p && !p->bad && p->first_keyframe_id == kf->id) recent_points_.push_back(p);
     cullRecentPoints(kf);
-    fuseWithNeighbours(kf);
+    if (options_.mapping.fuse)
+      fuseWithNeighbours(kf);
+    else
+      kf->updateConnections();
   }
   abort_ba_ = false;
   if (options_.mapping.local_ba && map_->keyframes().size() > 2) {

@@ -69,6 +69,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("keyframes", "close_untracked_min", o.keyframes.close_untracked_min);
   v("keyframes", "min_new_points", o.keyframes.min_new_points);
   v("mapping", "local_ba", o.mapping.local_ba);
+  v("mapping", "fuse", o.mapping.fuse);
   v("mapping", "ba_iterations", o.mapping.ba_iterations);
   v("mapping", "ba_max_keyframes", o.mapping.ba_max_keyframes);
   v("mapping", "redundant_ratio", o.mapping.redundant_ratio);
