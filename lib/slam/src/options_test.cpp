@@ -11,15 +11,14 @@
 #include <string>
 #include <vector>
 
+#include "test_helpers.hpp"
+
 namespace stillpoint::slam {
 namespace {
 
 namespace fs = std::filesystem;
 
-::testing::AssertionResult contains(const std::string& text, const std::string& part) {
-  if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();
-  return ::testing::AssertionFailure() << "\"" << text << "\" does not contain \"" << part << "\"";
-}
+using testing::contains;
 
 // Every test writes its YAML into its own temporary folder.
 class OptionsFileTest : public ::testing::Test {

@@ -21,15 +21,14 @@
 #include "stillpoint/dataset/testing.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 
+#include "test_helpers.hpp"
+
 namespace stillpoint::slam {
 namespace {
 
 namespace fs = std::filesystem;
 
-::testing::AssertionResult contains(const std::string& text, const std::string& part) {
-  if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();
-  return ::testing::AssertionFailure() << "\"" << text << "\" does not contain \"" << part << "\"";
-}
+using testing::contains;
 
 double degrees(double radians) { return radians * 180.0 / M_PI; }
 
