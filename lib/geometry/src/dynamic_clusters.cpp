@@ -1,0 +1,48 @@
+#include "stillpoint/geometry/dynamic_clusters.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace stillpoint::geometry {
+
+Status DynamicClusterOptions::validate() const {
+  if (!(cauchy_c2 > 0)) return Error{"geometry.cauchy_c2 must be > 0"};
+  if (min_features < 1) return Error{"geometry.min_features must be >= 1"};
+  if (!(reference_quantile >= 0 && reference_quantile <= 1))
+    return Error{"geometry.reference_quantile must be in [0, 1]"};
+  if (!(relative_factor >= 1)) return Error{"geometry.relative_factor must be >= 1"};
+  if (!(absolute_floor >= 0)) return Error{"geometry.absolute_floor must be >= 0"};
+  return Status::success();
+}
+
+double cauchyRho(double chi2, double c2) { return c2 * std::log1p(chi2 / c2); }
+
+ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, int clusters,
+                                const DynamicClusterOptions& options) {
+  ClusterVerdict verdict;
+  verdict.clusters.assign(std::max(0, clusters), {});
+  for (const FeatureResidual& r : residuals) {
+    if (r.cluster < 0 || r.cluster >= clusters) continue;
+    ClusterScore& c = verdict.clusters[r.cluster];
+    ++c.features;
+    c.mean_rho += cauchyRho(r.chi2, options.cauchy_c2);
+  }
+  std::vector<double> judged;
+  for (ClusterScore& c : verdict.clusters) {
+    if (c.features > 0) c.mean_rho /= c.features;
+    c.judged = c.features >= options.min_features;
+    if (c.judged) judged.push_back(c.mean_rho);
+  }
+  if (judged.empty()) return verdict;
+  std::sort(judged.begin(), judged.end());
+  const auto q = static_cast<std::size_t>(std::floor(options.reference_quantile * (judged.size() - 1) + 0.5));
+  verdict.reference = judged[q];
+  verdict.threshold = std::max(options.absolute_floor, options.relative_factor * verdict.reference);
+  for (ClusterScore& c : verdict.clusters) {
+    c.dynamic = c.judged && c.mean_rho > verdict.threshold;
+    verdict.dynamic_clusters += c.dynamic;
+  }
+  return verdict;
+}
+
+}  // namespace stillpoint::geometry
