@@ -1,0 +1,173 @@
+#include "stillpoint/synth/score.hpp"
+
+#include <cmath>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+
+namespace stillpoint::synth {
+namespace {
+
+namespace fs = std::filesystem;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+double ratio(int a, int b) { return b > 0 ? static_cast<double>(a) / b : kNaN; }
+
+bool isSkippable(const std::string& line) {
+  const auto p = line.find_first_not_of(" \t\r");
+  return p == std::string::npos || line[p] == '#';
+}
+
+}  // namespace
+
+double FrameScore::precision() const { return ratio(true_positives, flagged); }
+double FrameScore::recall() const { return ratio(true_positives, on_movers); }
+double FrameScore::eligibleRecall() const { return ratio(eligible_flagged, eligible_features); }
+
+FrameScore scoreFrame(const cv::Mat& mask, std::span<const FlaggedFeature> features, int min_mover_features) {
+  FrameScore s;
+  std::map<std::uint16_t, MoverFeatureCount> movers;
+  for (const FlaggedFeature& f : features) {
+    const long x = std::lround(f.u), y = std::lround(f.v);
+    if (!std::isfinite(f.u) || !std::isfinite(f.v) || x < 0 || y < 0 || x >= mask.cols || y >= mask.rows) {
+      ++s.outside;
+      continue;
+    }
+    ++s.features;
+    s.flagged += f.flagged;
+    const std::uint16_t id = mask.at<std::uint16_t>(static_cast<int>(y), static_cast<int>(x));
+    if (id == 0) continue;
+    ++s.on_movers;
+    s.true_positives += f.flagged;
+    MoverFeatureCount& m = movers[id];
+    m.id = id;
+    ++m.features;
+    m.flagged += f.flagged;
+  }
+  for (const auto& [id, m] : movers) {
+    s.movers.push_back(m);
+    if (m.features >= min_mover_features) {
+      ++s.eligible_movers;
+      s.eligible_features += m.features;
+      s.eligible_flagged += m.flagged;
+    }
+  }
+  return s;
+}
+
+SequenceScore averageScores(std::span<const FrameScore> frames, int min_mover_features) {
+  SequenceScore q;
+  q.frames = static_cast<int>(frames.size());
+  double p = 0, r = 0, er = 0, ep = 0;
+  for (const FrameScore& f : frames) {
+    if (f.flagged > 0) {
+      p += f.precision();
+      ++q.precision_frames;
+    }
+    if (f.on_movers > 0) {
+      r += f.recall();
+      ++q.recall_frames;
+    } else if (f.flagged > 0) {
+      ++q.static_frames_with_flags;
+    }
+    if (f.eligible_movers > 0) {
+      er += f.eligibleRecall();
+      ++q.eligible_frames;
+      if (f.flagged > 0) {
+        ep += f.precision();
+        ++q.eligible_precision_frames;
+      }
+    }
+    q.features += f.features;
+    q.flagged += f.flagged;
+    q.on_movers += f.on_movers;
+    q.true_positives += f.true_positives;
+    for (const MoverFeatureCount& m : f.movers) {
+      MoverFeatureCount& t = q.movers[m.id];
+      t.id = m.id;
+      t.features += m.features;
+      t.flagged += m.flagged;
+      if (m.features >= min_mover_features) ++q.mover_eligible_frames[m.id];
+    }
+  }
+  q.precision_mean = q.precision_frames ? p / q.precision_frames : kNaN;
+  q.recall_mean = q.recall_frames ? r / q.recall_frames : kNaN;
+  q.eligible_recall_mean = q.eligible_frames ? er / q.eligible_frames : kNaN;
+  q.eligible_precision_mean = q.eligible_precision_frames ? ep / q.eligible_precision_frames : kNaN;
+  return q;
+}
+
+Result<std::map<Timestamp, std::vector<FlaggedFeature>>> readFlaggedFeatures(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return Error{"cannot open feature file '" + path + "'"};
+  std::map<Timestamp, std::vector<FlaggedFeature>> out;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    if (isSkippable(line)) continue;
+    std::istringstream ss(line);
+    std::string stamp_text, extra;
+    FlaggedFeature f;
+    int flagged = -1;
+    const std::string where = path + ":" + std::to_string(number) + ": ";
+    if (!(ss >> stamp_text >> f.u >> f.v >> flagged)) {
+      return Error{where + "expected 'timestamp u v flagged(0/1)'"};
+    }
+    if (ss >> extra) return Error{where + "unexpected extra field '" + extra + "'"};
+    const std::optional<Timestamp> stamp = Timestamp::parseSeconds(stamp_text);
+    if (!stamp) return Error{where + "bad timestamp '" + stamp_text + "'"};
+    if (flagged != 0 && flagged != 1) return Error{where + "flagged must be 0 or 1"};
+    if (!std::isfinite(f.u) || !std::isfinite(f.v)) return Error{where + "u and v must be finite"};
+    f.flagged = flagged == 1;
+    out[*stamp].push_back(f);
+  }
+  return out;
+}
+
+Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const std::string& features_path,
+                                          int min_mover_features) {
+  const fs::path list = fs::path(sequence_dir) / "mask.txt";
+  std::ifstream in(list);
+  if (!in) return Error{"cannot open " + list.string() + " (not a stillpoint-synth sequence?)"};
+  std::map<Timestamp, std::string> masks;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    if (isSkippable(line)) continue;
+    std::istringstream ss(line);
+    std::string stamp_text, file;
+    const std::optional<Timestamp> stamp = (ss >> stamp_text >> file) ? Timestamp::parseSeconds(stamp_text) : std::nullopt;
+    if (!stamp) return Error{list.string() + ":" + std::to_string(number) + ": expected 'timestamp filename'"};
+    masks[*stamp] = (fs::path(sequence_dir) / file).string();
+  }
+  Result<std::map<Timestamp, std::vector<FlaggedFeature>>> features = readFlaggedFeatures(features_path);
+  if (!features.ok()) return Error{features.error()};
+  SequenceScoreReport report;
+  std::vector<FrameScore> scores;
+  for (const auto& [stamp, list_features] : *features) {
+    auto it = masks.find(stamp);
+    if (it == masks.end()) {
+      return Error{features_path + ": timestamp " + stamp.toSecondsString() + " is not in " + list.string()};
+    }
+    cv::Mat mask;
+    try {
+      mask = cv::imread(it->second, cv::IMREAD_UNCHANGED);
+    } catch (const std::exception& e) {
+      return Error{"cannot read mask " + it->second + ": " + e.what()};
+    }
+    if (mask.empty() || mask.type() != CV_16UC1) return Error{"mask " + it->second + " is missing or not 16-bit"};
+    report.frames.emplace_back(stamp, scoreFrame(mask, list_features, min_mover_features));
+    scores.push_back(report.frames.back().second);
+  }
+  report.frames_without_features = static_cast<int>(masks.size() - report.frames.size());
+  report.score = averageScores(scores, min_mover_features);
+  return report;
+}
+
+}  // namespace stillpoint::synth
