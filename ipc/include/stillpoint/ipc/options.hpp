@@ -1,0 +1,54 @@
+#pragma once
+// IPC configuration: the `ipc:` section of the daemon's YAML file feeds these plain
+// structs. validate() names the bad field.
+#include <cstdint>
+#include <string>
+
+#include "stillpoint/core/result.hpp"
+
+namespace YAML {
+class Node;
+}
+
+namespace stillpoint::ipc {
+
+struct ShmOptions {
+  bool enabled = true;
+  std::string name = "stillpoint_pose";  // /dev/shm/<name>
+  std::uint32_t capacity = 1024;         // records in the ring, power of two
+};
+
+struct LcmOptions {
+  bool enabled = false;
+  // ttl=0 keeps the multicast on this host.
+  std::string url = "udpm://239.255.76.67:7667?ttl=0";
+  std::string pose_channel = "STILLPOINT_POSE";
+  std::string status_channel = "STILLPOINT_STATUS";
+};
+
+struct DdsOptions {
+  bool enabled = false;
+  std::uint32_t domain_id = 0;
+  // Cyclone DDS configuration: an XML string or a URI ("file:///etc/cyclonedds.xml").
+  // Empty: Cyclone's defaults (and CYCLONEDDS_URI).
+  std::string config;
+  std::string pose_topic = "stillpoint_pose";
+  std::string status_topic = "stillpoint_status";
+};
+
+struct IpcOptions {
+  std::uint32_t queue_capacity = 8;  // publisher hand-off queue, drop-oldest
+  ShmOptions shm;
+  LcmOptions lcm;
+  DdsOptions dds;
+
+  Status validate() const;
+};
+
+// Reads the `ipc:` map (the node itself, not its parent). Omitted keys keep their
+// defaults; unknown keys and wrong types are errors naming the key.
+Result<IpcOptions> parseIpcOptions(const YAML::Node& node);
+// Loads a YAML file whose top level has an `ipc:` map (absent: defaults).
+Result<IpcOptions> loadIpcOptions(const std::string& path);
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,45 @@
+#pragma once
+// Writer side of the shared-memory pose ring (layout and reader: stillpoint_shm.h).
+// Single writer: one ShmPoseWriter per ring name; write() is wait-free.
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "stillpoint/core/result.hpp"
+#include "stillpoint_shm.h"
+
+namespace stillpoint::ipc {
+
+class ShmPoseWriter {
+ public:
+  // Builds a new ring file and renames it over /dev/shm/<name>: readers of a previous
+  // writer see a restart. generation = previous ring's + 1 (1 if none). Fails when the
+  // name is invalid, capacity is not a power of two in [2, 2^20], or a live process
+  // still owns the ring.
+  static Result<std::unique_ptr<ShmPoseWriter>> create(const std::string& name, std::uint32_t capacity);
+  // Marks the ring closed; the file stays so late readers still see the last pose.
+  ~ShmPoseWriter();
+  ShmPoseWriter(const ShmPoseWriter&) = delete;
+  ShmPoseWriter& operator=(const ShmPoseWriter&) = delete;
+
+  // Publishes `record` as the next record; its `sequence` field is overwritten.
+  void write(const sp_pose_record& record);
+
+  std::uint64_t generation() const { return generation_; }
+  std::uint64_t written() const { return count_; }
+  const std::string& path() const { return path_; }
+
+  // Removes /dev/shm/<name> (tests, uninstall). Missing is fine.
+  static Status remove(const std::string& name);
+
+ private:
+  ShmPoseWriter() = default;
+  std::string path_;
+  unsigned char* base_ = nullptr;
+  std::size_t size_ = 0;
+  std::uint64_t generation_ = 0;
+  std::uint64_t count_ = 0;
+  std::uint32_t capacity_ = 0;
+};
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,72 @@
+#pragma once
+// One publishing interface, three transports (shared memory, LCM, Cyclone DDS), and
+// the matching subscribers used by stillpoint-echo, the tests and the benchmarks.
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <string_view>
+#include <vector>
+
+#include "stillpoint/core/result.hpp"
+#include "stillpoint/ipc/messages.hpp"
+#include "stillpoint/ipc/options.hpp"
+
+namespace stillpoint::ipc {
+
+// Sends messages. Called from one thread (the Publisher's); implementations need not
+// be thread-safe. Errors are returned, never thrown.
+class Transport {
+ public:
+  virtual ~Transport() = default;
+  virtual std::string_view name() const = 0;
+  virtual Status publishPose(const PoseMessage& pose) = 0;
+  virtual Status publishStatus(const StatusMessage& status) = 0;
+  // Readers currently matched (DDS); -1 when the transport cannot know (shm, LCM).
+  virtual int matchedReaders() const { return -1; }
+};
+
+Result<std::unique_ptr<Transport>> makeShmTransport(const ShmOptions& options);
+Result<std::unique_ptr<Transport>> makeLcmTransport(const LcmOptions& options);
+Result<std::unique_ptr<Transport>> makeDdsTransport(const DdsOptions& options);
+// Every transport enabled in `options`, in the order shm, lcm, dds.
+Result<std::vector<std::unique_ptr<Transport>>> makeTransports(const IpcOptions& options);
+
+// Receives messages. poll() waits up to `timeout` and calls the handlers for what
+// arrived; it returns how many messages it handled.
+class Subscriber {
+ public:
+  using PoseHandler = std::function<void(const PoseMessage&)>;
+  using StatusHandler = std::function<void(const StatusMessage&)>;
+  // Called once per detected writer restart (shared memory only).
+  using RestartHandler = std::function<void()>;
+
+  virtual ~Subscriber() = default;
+  virtual Result<int> poll(std::chrono::milliseconds timeout) = 0;
+  // Messages the transport told us we missed (shm: overwritten before read).
+  virtual std::uint64_t lost() const { return 0; }
+  // Writers matched on every topic (DDS); -1 when the transport cannot know.
+  virtual int matchedWriters() const { return -1; }
+
+  void onPose(PoseHandler handler) { pose_handler_ = std::move(handler); }
+  void onStatus(StatusHandler handler) { status_handler_ = std::move(handler); }
+  void onRestart(RestartHandler handler) { restart_handler_ = std::move(handler); }
+
+ protected:
+  PoseHandler pose_handler_;
+  StatusHandler status_handler_;
+  RestartHandler restart_handler_;
+};
+
+struct ShmSubscriberOptions {
+  bool from_oldest = false;  // start with the oldest record still in the ring
+  bool busy_poll = false;    // spin instead of sleeping 50 us between empty polls
+  bool wait_for_ring = false;  // a missing ring is not an error: keep trying until it appears
+};
+Result<std::unique_ptr<Subscriber>> makeShmSubscriber(const ShmOptions& options,
+                                                      const ShmSubscriberOptions& sub = {});
+Result<std::unique_ptr<Subscriber>> makeLcmSubscriber(const LcmOptions& options);
+// pose_history: keep-last depth of the pose reader (the writer keeps only the last).
+Result<std::unique_ptr<Subscriber>> makeDdsSubscriber(const DdsOptions& options,
+                                                      int pose_history = 64);
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,386 @@
+/*
+ * stillpoint_shm.h - header-only reader of stillpoint's shared-memory pose ring.
+ *
+ * C99 or C++ (GCC or Clang), Linux. Needs nothing from stillpoint: copy this one file
+ * into a controller and read the camera pose at camera rate without blocking the writer.
+ *
+ *   sp_shm_reader r;
+ *   sp_shm_reader_init(&r);
+ *   int rc = sp_shm_reader_open(&r, "stillpoint_pose", SP_SHM_START_LATEST);
+ *   if (rc != SP_SHM_OK) { fprintf(stderr, "%s\n", sp_shm_strerror(rc)); ... }
+ *   sp_pose_record pose;
+ *   for (;;) {
+ *     rc = sp_shm_reader_next(&r, &pose);   // never blocks
+ *     if (rc == SP_SHM_OK) use(&pose);
+ *     else if (rc == SP_SHM_EMPTY) sleep_a_little();
+ *     else if (rc == SP_SHM_RESTARTED) note_writer_restart();  // stream starts again
+ *   }
+ *   sp_shm_reader_close(&r);
+ *
+ * Layout (little-endian, all fields naturally aligned): a 128-byte header, then
+ * `capacity` slots of 128 bytes. Record n (1-based, per writer generation) lives in
+ * slot n % capacity. Each slot is a seqlock: its `seq` word is 2n-1 while the writer
+ * fills it with record n and 2n once complete. A reader copies the payload between two
+ * reads of `seq` and keeps the copy only when both reads equal 2n, so it never returns
+ * a torn record. Every shared word is accessed through the __atomic builtins (the same
+ * code then compiles as C99, which has no <stdatomic.h>, and as C++).
+ *
+ * A restarting writer builds a fresh ring file and renames it over the old name, with
+ * `generation` one higher. Readers notice the new file (different inode) while polling
+ * and reattach to it; sp_shm_reader_next() then returns SP_SHM_RESTARTED once.
+ *
+ * In strict C99 mode (-std=c99) POSIX declarations need _POSIX_C_SOURCE; this header
+ * defines it when nothing else has, so include it first or define it yourself.
+ */
+#ifndef STILLPOINT_SHM_H
+#define STILLPOINT_SHM_H
+
+#if !defined(_POSIX_C_SOURCE) && !defined(_GNU_SOURCE) && !defined(_DEFAULT_SOURCE)
+#define _POSIX_C_SOURCE 200809L
+#endif
+
+#include <errno.h>
+#include <fcntl.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#ifdef O_CLOEXEC
+#define SP_SHM_O_CLOEXEC O_CLOEXEC
+#else /* a system header came first without _POSIX_C_SOURCE >= 200809L */
+#define SP_SHM_O_CLOEXEC 0
+#endif
+
+#if !defined(__GNUC__) && !defined(__clang__)
+#error "stillpoint_shm.h needs the GCC/Clang __atomic builtins"
+#endif
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define SP_SHM_MAGIC 0x48535053u /* "SPSH" in little-endian byte order */
+#define SP_SHM_SCHEMA_VERSION 1u
+#define SP_SHM_HEADER_SIZE 128u
+#define SP_SHM_SLOT_SIZE 128u
+#define SP_SHM_POSE_WORDS 14
+#define SP_SHM_DEFAULT_NAME "stillpoint_pose"
+#define SP_SHM_DIR "/dev/shm/"
+#define SP_SHM_MAX_CAPACITY (1u << 20)
+
+/* Tracking state of a pose record. */
+enum {
+  SP_TRACKING_INITIALISING = 0,
+  SP_TRACKING_OK = 1,
+  SP_TRACKING_LOST = 2,
+  SP_TRACKING_RELOCALISED = 3
+};
+
+/* Writer state in the header. */
+enum { SP_SHM_WRITER_RUNNING = 1, SP_SHM_WRITER_CLOSED = 2 };
+
+/* Pose record, schema version 1. Exactly SP_SHM_POSE_WORDS 64-bit words. */
+typedef struct sp_pose_record {
+  uint64_t sequence;         /* 1-based position in this writer generation's stream */
+  int64_t sensor_stamp_ns;   /* capture time of the frame */
+  int64_t publish_stamp_ns;  /* CLOCK_REALTIME when the publisher sent it */
+  uint64_t frame_counter;    /* frames seen by the tracker since start */
+  double position[3];        /* translation of T_map_camera [m] */
+  double orientation[4];     /* rotation of T_map_camera, unit quaternion x, y, z, w */
+  uint32_t tracking_state;   /* SP_TRACKING_* */
+  uint32_t tracked_features;
+  uint32_t dynamic_rejected_features;
+  uint32_t keyframes;
+  uint64_t map_id;           /* changes when the map is reset */
+} sp_pose_record;
+
+typedef struct sp_shm_slot {
+  uint64_t seq; /* 0 empty, 2n-1 writing record n, 2n holds record n */
+  uint64_t words[SP_SHM_POSE_WORDS];
+  uint64_t reserved;
+} sp_shm_slot;
+
+typedef struct sp_shm_header {
+  uint32_t magic;          /* written last when the ring is created */
+  uint16_t schema_version; /* SP_SHM_SCHEMA_VERSION */
+  uint16_t header_size;    /* SP_SHM_HEADER_SIZE */
+  uint32_t record_size;    /* sizeof(sp_pose_record) */
+  uint32_t slot_size;      /* SP_SHM_SLOT_SIZE */
+  uint32_t capacity;       /* slots, a power of two */
+  uint32_t writer_pid;
+  uint64_t generation;     /* 1 for the first writer, +1 on each restart */
+  uint64_t write_count;    /* atomic: sequence of the newest complete record */
+  uint64_t writer_state;   /* atomic: SP_SHM_WRITER_* */
+  int64_t created_ns;      /* CLOCK_REALTIME when this generation started */
+  uint64_t reserved[9];
+} sp_shm_header;
+
+/* Compile-time layout checks (C99 has no static_assert). */
+typedef char sp_shm_check_record_size[(sizeof(sp_pose_record) == 8 * SP_SHM_POSE_WORDS) ? 1 : -1];
+typedef char sp_shm_check_slot_size[(sizeof(sp_shm_slot) == SP_SHM_SLOT_SIZE) ? 1 : -1];
+typedef char sp_shm_check_header_size[(sizeof(sp_shm_header) == SP_SHM_HEADER_SIZE) ? 1 : -1];
+
+/* Return codes. Negative values are errors. */
+enum {
+  SP_SHM_OK = 0,
+  SP_SHM_EMPTY = 1,             /* no record newer than the last one returned */
+  SP_SHM_RESTARTED = 2,         /* writer restarted; reader reattached, no record returned */
+  SP_SHM_ERR_NAME = -1,         /* name empty, too long, or with characters other than [A-Za-z0-9._-] */
+  SP_SHM_ERR_NO_RING = -2,      /* no ring of that name (is the writer running?) */
+  SP_SHM_ERR_OPEN = -3,         /* open/fstat/mmap failed (see errno) */
+  SP_SHM_ERR_NOT_A_RING = -4,   /* wrong magic, or file too small */
+  SP_SHM_ERR_VERSION = -5,      /* schema version this reader does not know */
+  SP_SHM_ERR_LAYOUT = -6,       /* header/record/slot size or capacity inconsistent */
+  SP_SHM_ERR_NOT_OPEN = -7      /* reader not attached */
+};
+
+enum { SP_SHM_START_LATEST = 0, SP_SHM_START_OLDEST = 1 };
+
+typedef struct sp_shm_reader {
+  char path[256];
+  int fd;
+  int start_mode;
+  const unsigned char* base;
+  size_t map_size;
+  uint64_t generation;     /* generation of the ring currently attached */
+  uint64_t next_sequence;  /* next record this reader will return */
+  uint64_t lost;           /* records overwritten before this reader reached them */
+  uint64_t restarts;       /* writer restarts seen */
+  uint64_t dev, ino;       /* identity of the attached file */
+  uint32_t empty_polls;
+} sp_shm_reader;
+
+static inline const char* sp_shm_strerror(int code) {
+  switch (code) {
+    case SP_SHM_OK: return "ok";
+    case SP_SHM_EMPTY: return "no new record";
+    case SP_SHM_RESTARTED: return "writer restarted";
+    case SP_SHM_ERR_NAME: return "invalid ring name (use 1-200 characters from [A-Za-z0-9._-], not starting with '.')";
+    case SP_SHM_ERR_NO_RING: return "no pose ring of that name in /dev/shm (is the stillpoint publisher running?)";
+    case SP_SHM_ERR_OPEN: return "cannot open or map the pose ring";
+    case SP_SHM_ERR_NOT_A_RING: return "file is not a stillpoint pose ring (bad magic or too small)";
+    case SP_SHM_ERR_VERSION: return "pose ring has a schema version this reader does not support";
+    case SP_SHM_ERR_LAYOUT: return "pose ring header is inconsistent (record size, slot size or capacity)";
+    case SP_SHM_ERR_NOT_OPEN: return "reader is not attached to a ring";
+    default: return "unknown error";
+  }
+}
+
+/* Validates a ring name and writes "/dev/shm/<name>" into out. */
+static inline int sp_shm_make_path(const char* name, char* out, size_t out_size) {
+  size_t i, n;
+  if (name == NULL) return SP_SHM_ERR_NAME;
+  n = strlen(name);
+  if (n == 0 || n > 200 || name[0] == '.') return SP_SHM_ERR_NAME;
+  for (i = 0; i < n; ++i) {
+    const char c = name[i];
+    const int ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                   c == '_' || c == '-' || c == '.';
+    if (!ok) return SP_SHM_ERR_NAME;
+  }
+  if ((size_t)snprintf(out, out_size, "%s%s", SP_SHM_DIR, name) >= out_size) return SP_SHM_ERR_NAME;
+  return SP_SHM_OK;
+}
+
+static inline const sp_shm_header* sp_shm_reader_header(const sp_shm_reader* r) {
+  return (const sp_shm_header*)(const void*)r->base;
+}
+
+static inline const sp_shm_slot* sp_shm_reader_slot(const sp_shm_reader* r, uint64_t n) {
+  const sp_shm_header* h = sp_shm_reader_header(r);
+  return (const sp_shm_slot*)(const void*)(r->base + SP_SHM_HEADER_SIZE +
+                                            (size_t)(n & (uint64_t)(h->capacity - 1u)) * SP_SHM_SLOT_SIZE);
+}
+
+/* Checks a mapped header. Kept separate so the writer uses the same rules. */
+static inline int sp_shm_check_header(const sp_shm_header* h, size_t file_size) {
+  if (file_size < SP_SHM_HEADER_SIZE) return SP_SHM_ERR_NOT_A_RING;
+  if (__atomic_load_n(&h->magic, __ATOMIC_ACQUIRE) != SP_SHM_MAGIC) return SP_SHM_ERR_NOT_A_RING;
+  if (h->schema_version != SP_SHM_SCHEMA_VERSION) return SP_SHM_ERR_VERSION;
+  if (h->header_size != SP_SHM_HEADER_SIZE || h->record_size != sizeof(sp_pose_record) ||
+      h->slot_size != SP_SHM_SLOT_SIZE || h->capacity == 0 || h->capacity > SP_SHM_MAX_CAPACITY ||
+      (h->capacity & (h->capacity - 1u)) != 0 ||
+      file_size != (size_t)SP_SHM_HEADER_SIZE + (size_t)h->capacity * SP_SHM_SLOT_SIZE)
+    return SP_SHM_ERR_LAYOUT;
+  return SP_SHM_OK;
+}
+
+static inline void sp_shm_reader_init(sp_shm_reader* r) {
+  memset(r, 0, sizeof(*r));
+  r->fd = -1;
+}
+
+static inline void sp_shm_reader_detach(sp_shm_reader* r) {
+  if (r->base != NULL) munmap((void*)(uintptr_t)r->base, r->map_size);
+  if (r->fd >= 0) close(r->fd);
+  r->base = NULL;
+  r->map_size = 0;
+  r->fd = -1;
+}
+
+/* Maps the file at r->path; on success positions the reader per r->start_mode. */
+static inline int sp_shm_reader_attach(sp_shm_reader* r) {
+  struct stat st;
+  void* map;
+  int rc;
+  const sp_shm_header* h;
+  uint64_t newest, capacity;
+  r->fd = open(r->path, O_RDONLY | SP_SHM_O_CLOEXEC);
+  if (r->fd < 0) return errno == ENOENT ? SP_SHM_ERR_NO_RING : SP_SHM_ERR_OPEN;
+  if (fstat(r->fd, &st) != 0) {
+    sp_shm_reader_detach(r);
+    return SP_SHM_ERR_OPEN;
+  }
+  if ((size_t)st.st_size < SP_SHM_HEADER_SIZE) {
+    sp_shm_reader_detach(r);
+    return SP_SHM_ERR_NOT_A_RING;
+  }
+  map = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_SHARED, r->fd, 0);
+  if (map == MAP_FAILED) {
+    sp_shm_reader_detach(r);
+    return SP_SHM_ERR_OPEN;
+  }
+  r->base = (const unsigned char*)map;
+  r->map_size = (size_t)st.st_size;
+  h = sp_shm_reader_header(r);
+  rc = sp_shm_check_header(h, r->map_size);
+  if (rc != SP_SHM_OK) {
+    sp_shm_reader_detach(r);
+    return rc;
+  }
+  r->dev = (uint64_t)st.st_dev;
+  r->ino = (uint64_t)st.st_ino;
+  r->generation = h->generation;
+  newest = __atomic_load_n(&h->write_count, __ATOMIC_ACQUIRE);
+  capacity = h->capacity;
+  if (r->start_mode == SP_SHM_START_OLDEST)
+    r->next_sequence = newest >= capacity ? newest - capacity + 1 : 1;
+  else
+    r->next_sequence = newest + 1;
+  r->empty_polls = 0;
+  return SP_SHM_OK;
+}
+
+/* Opens the ring `name` (in /dev/shm). start: SP_SHM_START_LATEST returns only records
+ * published from now on, SP_SHM_START_OLDEST the oldest still in the ring first. */
+static inline int sp_shm_reader_open(sp_shm_reader* r, const char* name, int start) {
+  int rc;
+  sp_shm_reader_detach(r);
+  rc = sp_shm_make_path(name, r->path, sizeof(r->path));
+  if (rc != SP_SHM_OK) return rc;
+  r->start_mode = start;
+  return sp_shm_reader_attach(r);
+}
+
+static inline void sp_shm_reader_close(sp_shm_reader* r) { sp_shm_reader_detach(r); }
+
+/* 1 when the attached writer has closed the ring cleanly (no more records until a restart). */
+static inline int sp_shm_reader_writer_closed(const sp_shm_reader* r) {
+  if (r->base == NULL) return 0;
+  return __atomic_load_n(&sp_shm_reader_header(r)->writer_state, __ATOMIC_ACQUIRE) == SP_SHM_WRITER_CLOSED;
+}
+
+/* Reattaches when the name now points at a different file (a restarted writer).
+ * Returns SP_SHM_RESTARTED when it did, SP_SHM_OK when nothing changed. A missing file
+ * keeps the old mapping (the writer may be restarting). */
+static inline int sp_shm_reader_check_restart(sp_shm_reader* r) {
+  struct stat st;
+  int rc;
+  if (r->base == NULL) { /* opened before the ring existed: attaching is not a restart */
+    rc = sp_shm_reader_attach(r);
+    return rc == SP_SHM_OK ? SP_SHM_EMPTY : rc;
+  }
+  if (stat(r->path, &st) != 0) return SP_SHM_OK;
+  if ((uint64_t)st.st_ino == r->ino && (uint64_t)st.st_dev == r->dev) return SP_SHM_OK;
+  sp_shm_reader_detach(r);
+  r->start_mode = SP_SHM_START_OLDEST; /* a new stream: deliver it from its start */
+  rc = sp_shm_reader_attach(r);
+  if (rc != SP_SHM_OK) return rc;
+  r->restarts++;
+  return SP_SHM_RESTARTED;
+}
+
+/* Copies record n if the slot still holds it. 1 on success, 0 if it was overwritten. */
+static inline int sp_shm_try_read(const sp_shm_reader* r, uint64_t n, sp_pose_record* out) {
+  uint64_t words[SP_SHM_POSE_WORDS];
+  const sp_shm_slot* slot = sp_shm_reader_slot(r, n);
+  uint64_t s1, s2;
+  int i;
+  s1 = __atomic_load_n(&slot->seq, __ATOMIC_ACQUIRE);
+  if (s1 != 2 * n) return 0;
+  for (i = 0; i < SP_SHM_POSE_WORDS; ++i) words[i] = __atomic_load_n(&slot->words[i], __ATOMIC_RELAXED);
+  __atomic_thread_fence(__ATOMIC_ACQUIRE);
+  s2 = __atomic_load_n(&slot->seq, __ATOMIC_RELAXED);
+  if (s2 != s1) return 0;
+  memcpy(out, words, sizeof(*out));
+  return 1;
+}
+
+/* Returns the next record in order (SP_SHM_OK), SP_SHM_EMPTY when there is none yet, or
+ * SP_SHM_RESTARTED after reattaching to a restarted writer. Never blocks. Records the
+ * writer overwrote before this reader got to them are skipped and counted in r->lost. */
+static inline int sp_shm_reader_next(sp_shm_reader* r, sp_pose_record* out) {
+  const sp_shm_header* h;
+  uint64_t newest, capacity;
+  int attempt;
+  if (r->base == NULL) {
+    if (r->path[0] == '\0') return SP_SHM_ERR_NOT_OPEN;
+    return sp_shm_reader_check_restart(r);
+  }
+  h = sp_shm_reader_header(r);
+  capacity = h->capacity;
+  for (attempt = 0; attempt < 16; ++attempt) {
+    newest = __atomic_load_n(&h->write_count, __ATOMIC_ACQUIRE);
+    if (r->next_sequence > newest) {
+      /* Nothing new: now and then (or when the writer said goodbye) look for a restart. */
+      if (++r->empty_polls >= 64 || __atomic_load_n(&h->writer_state, __ATOMIC_ACQUIRE) == SP_SHM_WRITER_CLOSED) {
+        r->empty_polls = 0;
+        if (sp_shm_reader_check_restart(r) == SP_SHM_RESTARTED) return SP_SHM_RESTARTED;
+      }
+      return SP_SHM_EMPTY;
+    }
+    r->empty_polls = 0;
+    if (newest - r->next_sequence >= capacity) {
+      r->lost += newest - capacity + 1 - r->next_sequence;
+      r->next_sequence = newest - capacity + 1;
+    }
+    if (sp_shm_try_read(r, r->next_sequence, out)) {
+      r->next_sequence++;
+      return SP_SHM_OK;
+    }
+    /* Overwritten while we looked: the writer lapped us; skip ahead and retry. */
+    r->lost++;
+    r->next_sequence++;
+  }
+  return SP_SHM_EMPTY;
+}
+
+/* Returns the newest record (SP_SHM_OK) and skips anything older; SP_SHM_EMPTY if the
+ * ring has no record yet. For consumers that only want the current pose. */
+static inline int sp_shm_reader_latest(sp_shm_reader* r, sp_pose_record* out) {
+  const sp_shm_header* h;
+  uint64_t newest;
+  int attempt;
+  if (r->base == NULL) return r->path[0] == '\0' ? SP_SHM_ERR_NOT_OPEN : sp_shm_reader_check_restart(r);
+  h = sp_shm_reader_header(r);
+  for (attempt = 0; attempt < 16; ++attempt) {
+    newest = __atomic_load_n(&h->write_count, __ATOMIC_ACQUIRE);
+    if (newest == 0 || newest < r->next_sequence) return sp_shm_reader_next(r, out);
+    if (sp_shm_try_read(r, newest, out)) {
+      if (newest > r->next_sequence) r->lost += newest - r->next_sequence;
+      r->next_sequence = newest + 1;
+      return SP_SHM_OK;
+    }
+  }
+  return SP_SHM_EMPTY;
+}
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* STILLPOINT_SHM_H */

@@ -1,0 +1,213 @@
+// LCM transport. Types come from msg/*.lcm through lcm-gen at build time.
+#include <lcm/lcm-cpp.hpp>
+
+#include <cstring>
+
+#include "stillpoint/ipc/transport.hpp"
+#include "stillpoint_lcm/pose_t.hpp"
+#include "stillpoint_lcm/status_t.hpp"
+
+namespace stillpoint::ipc {
+namespace {
+
+// Unsigned values travel in LCM's signed types bit for bit.
+std::int64_t asSigned(std::uint64_t v) { return static_cast<std::int64_t>(v); }
+std::uint64_t asUnsigned(std::int64_t v) { return static_cast<std::uint64_t>(v); }
+
+stillpoint_lcm::pose_t toLcm(const PoseMessage& p) {
+  stillpoint_lcm::pose_t m{};
+  m.schema_version = PoseMessage::kSchemaVersion;
+  m.sensor_stamp_ns = p.sensor_stamp.nanoseconds();
+  m.publish_stamp_ns = p.publish_stamp.nanoseconds();
+  m.frame_counter = asSigned(p.frame_counter);
+  for (int i = 0; i < 3; ++i) m.position[i] = p.position[i];
+  for (int i = 0; i < 4; ++i) m.orientation[i] = p.orientation[i];
+  m.tracking_state = static_cast<std::int8_t>(p.state);
+  m.tracked_features = p.tracked_features;
+  m.dynamic_rejected_features = p.dynamic_rejected_features;
+  m.keyframes = p.keyframes;
+  m.map_id = asSigned(p.map_id);
+  return m;
+}
+
+template <typename T>
+Result<T> narrow(std::int64_t v, const char* field) {
+  if (v < 0 || static_cast<std::uint64_t>(v) > std::numeric_limits<T>::max())
+    return Error{std::string("lcm: field ") + field + " out of range: " + std::to_string(v)};
+  return static_cast<T>(v);
+}
+
+Result<PoseMessage> fromLcm(const stillpoint_lcm::pose_t& m) {
+  if (m.schema_version != static_cast<std::int32_t>(PoseMessage::kSchemaVersion))
+    return Error{"lcm: pose schema version " + std::to_string(m.schema_version) + ", this build reads " +
+                 std::to_string(PoseMessage::kSchemaVersion)};
+  auto state = trackingStateFromInt(m.tracking_state);
+  auto tracked = narrow<std::uint32_t>(m.tracked_features, "tracked_features");
+  auto rejected = narrow<std::uint32_t>(m.dynamic_rejected_features, "dynamic_rejected_features");
+  auto keyframes = narrow<std::uint32_t>(m.keyframes, "keyframes");
+  if (!state) return Error{"lcm: " + state.error()};
+  if (!tracked) return Error{tracked.error()};
+  if (!rejected) return Error{rejected.error()};
+  if (!keyframes) return Error{keyframes.error()};
+  PoseMessage p;
+  p.sensor_stamp = Timestamp::fromNanoseconds(m.sensor_stamp_ns);
+  p.publish_stamp = Timestamp::fromNanoseconds(m.publish_stamp_ns);
+  p.frame_counter = asUnsigned(m.frame_counter);
+  for (int i = 0; i < 3; ++i) p.position[i] = m.position[i];
+  for (int i = 0; i < 4; ++i) p.orientation[i] = m.orientation[i];
+  p.state = *state;
+  p.tracked_features = *tracked;
+  p.dynamic_rejected_features = *rejected;
+  p.keyframes = *keyframes;
+  p.map_id = asUnsigned(m.map_id);
+  return p;
+}
+
+stillpoint_lcm::status_t toLcm(const StatusMessage& s) {
+  stillpoint_lcm::status_t m{};
+  m.schema_version = StatusMessage::kSchemaVersion;
+  m.publish_stamp_ns = s.publish_stamp.nanoseconds();
+  m.uptime_s = s.uptime_s;
+  m.frames_received = asSigned(s.frames_received);
+  m.frames_dropped = asSigned(s.frames_dropped);
+  m.map_id = asSigned(s.map_id);
+  m.num_threads = static_cast<std::int16_t>(s.threads.size());
+  for (const auto& t : s.threads)
+    m.threads.push_back({t.name, t.loop_rate_hz, t.latency_ms_median, t.latency_ms_max});
+  m.num_queues = static_cast<std::int16_t>(s.queues.size());
+  for (const auto& q : s.queues) m.queues.push_back({q.name, q.depth, q.capacity, asSigned(q.dropped)});
+  return m;
+}
+
+Result<StatusMessage> fromLcm(const stillpoint_lcm::status_t& m) {
+  if (m.schema_version != static_cast<std::int32_t>(StatusMessage::kSchemaVersion))
+    return Error{"lcm: status schema version " + std::to_string(m.schema_version) + ", this build reads " +
+                 std::to_string(StatusMessage::kSchemaVersion)};
+  StatusMessage s;
+  s.publish_stamp = Timestamp::fromNanoseconds(m.publish_stamp_ns);
+  s.uptime_s = m.uptime_s;
+  s.frames_received = asUnsigned(m.frames_received);
+  s.frames_dropped = asUnsigned(m.frames_dropped);
+  s.map_id = asUnsigned(m.map_id);
+  for (const auto& t : m.threads) s.threads.push_back({t.name, t.loop_rate_hz, t.latency_ms_median, t.latency_ms_max});
+  for (const auto& q : m.queues) {
+    auto depth = narrow<std::uint32_t>(q.depth, "queues.depth");
+    auto capacity = narrow<std::uint32_t>(q.capacity, "queues.capacity");
+    if (!depth) return Error{depth.error()};
+    if (!capacity) return Error{capacity.error()};
+    s.queues.push_back({q.name, *depth, *capacity, asUnsigned(q.dropped)});
+  }
+  if (Status v = validate(s); !v) return Error{"lcm: " + v.error()};
+  return s;
+}
+
+Status checkUrl(const std::string& url) {
+  // lcm::LCM prints its own complaint and leaves the object unusable; say which URL.
+  if (url.find("://") == std::string::npos)
+    return Error{"lcm: URL '" + url + "' is not of the form provider://address (e.g. udpm://239.255.76.67:7667?ttl=0)"};
+  return Status::success();
+}
+
+class LcmTransport final : public Transport {
+ public:
+  explicit LcmTransport(const LcmOptions& options) : options_(options), lcm_(options.url) {}
+  bool good() { return lcm_.good(); }
+  std::string_view name() const override { return "lcm"; }
+
+  Status publishPose(const PoseMessage& pose) override {
+    const auto m = toLcm(pose);
+    if (lcm_.publish(options_.pose_channel, &m) != 0) return Error{"lcm: publish on " + options_.pose_channel + " failed"};
+    return Status::success();
+  }
+  Status publishStatus(const StatusMessage& status) override {
+    if (Status v = validate(status); !v) return v;
+    const auto m = toLcm(status);
+    if (lcm_.publish(options_.status_channel, &m) != 0)
+      return Error{"lcm: publish on " + options_.status_channel + " failed"};
+    return Status::success();
+  }
+
+ private:
+  LcmOptions options_;
+  lcm::LCM lcm_;
+};
+
+class LcmSubscriber final : public Subscriber {
+ public:
+  explicit LcmSubscriber(const LcmOptions& options) : options_(options), lcm_(options.url) {}
+
+  Status start() {
+    if (!lcm_.good()) return Error{"lcm: cannot open URL '" + options_.url + "'"};
+    // Raw callbacks: decode failures (another schema on our channel) become errors
+    // returned from poll() instead of being dropped silently.
+    lcm_.subscribeFunction(options_.pose_channel, &LcmSubscriber::onRawPose, this);
+    lcm_.subscribeFunction(options_.status_channel, &LcmSubscriber::onRawStatus, this);
+    return Status::success();
+  }
+
+  Result<int> poll(std::chrono::milliseconds timeout) override {
+    handled_ = 0;
+    error_.clear();
+    const int rc = lcm_.handleTimeout(static_cast<int>(timeout.count()));
+    if (!error_.empty()) return Error{error_};
+    if (rc < 0) return Error{"lcm: receive failed on '" + options_.url + "' (end of log for file://)"};
+    // Drain what else is already waiting without blocking.
+    while (lcm_.handleTimeout(0) > 0) {
+      if (!error_.empty()) return Error{error_};
+    }
+    return handled_;
+  }
+
+ private:
+  static void onRawPose(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
+    stillpoint_lcm::pose_t m;
+    if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
+      self->error_ = "lcm: cannot decode a pose_t on " + channel + " (different schema?)";
+      return;
+    }
+    auto pose = fromLcm(m);
+    if (!pose) {
+      self->error_ = pose.error();
+      return;
+    }
+    ++self->handled_;
+    if (self->pose_handler_) self->pose_handler_(*pose);
+  }
+  static void onRawStatus(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
+    stillpoint_lcm::status_t m;
+    if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
+      self->error_ = "lcm: cannot decode a status_t on " + channel + " (different schema?)";
+      return;
+    }
+    auto status = fromLcm(m);
+    if (!status) {
+      self->error_ = status.error();
+      return;
+    }
+    ++self->handled_;
+    if (self->status_handler_) self->status_handler_(*status);
+  }
+
+  LcmOptions options_;
+  lcm::LCM lcm_;
+  int handled_ = 0;
+  std::string error_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<Transport>> makeLcmTransport(const LcmOptions& options) {
+  if (Status s = checkUrl(options.url); !s) return Error{s.error()};
+  auto t = std::make_unique<LcmTransport>(options);
+  if (!t->good()) return Error{"lcm: cannot open URL '" + options.url + "'"};
+  return std::unique_ptr<Transport>(std::move(t));
+}
+
+Result<std::unique_ptr<Subscriber>> makeLcmSubscriber(const LcmOptions& options) {
+  if (Status s = checkUrl(options.url); !s) return Error{s.error()};
+  auto sub = std::make_unique<LcmSubscriber>(options);
+  if (Status s = sub->start(); !s) return Error{s.error()};
+  return std::unique_ptr<Subscriber>(std::move(sub));
+}
+
+}  // namespace stillpoint::ipc

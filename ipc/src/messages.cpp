@@ -1,0 +1,57 @@
+#include "stillpoint/ipc/messages.hpp"
+
+#include <cmath>
+
+namespace stillpoint::ipc {
+
+const char* toString(TrackingState state) {
+  switch (state) {
+    case TrackingState::kInitialising: return "initialising";
+    case TrackingState::kOk: return "ok";
+    case TrackingState::kLost: return "lost";
+    case TrackingState::kRelocalised: return "relocalised";
+  }
+  return "unknown";
+}
+
+Result<TrackingState> trackingStateFromInt(std::int64_t value) {
+  if (value < 0 || value > 3) return Error{"tracking state " + std::to_string(value) + " is not one of 0..3"};
+  return static_cast<TrackingState>(value);
+}
+
+namespace {
+Status validateName(const std::string& what, const std::string& name) {
+  if (name.empty() || name.size() > StatusMessage::kMaxNameLength)
+    return Error{what + " name '" + name + "' must have 1.." + std::to_string(StatusMessage::kMaxNameLength) +
+                 " characters"};
+  for (char c : name)
+    if (c < 0x20 || c > 0x7e) return Error{what + " name '" + name + "' has a non-printable character"};
+  return Status::success();
+}
+}  // namespace
+
+Status validate(const StatusMessage& status) {
+  if (status.threads.size() > StatusMessage::kMaxThreads)
+    return Error{"status: " + std::to_string(status.threads.size()) + " threads, at most " +
+                 std::to_string(StatusMessage::kMaxThreads)};
+  if (status.queues.size() > StatusMessage::kMaxQueues)
+    return Error{"status: " + std::to_string(status.queues.size()) + " queues, at most " +
+                 std::to_string(StatusMessage::kMaxQueues)};
+  for (const auto& t : status.threads)
+    if (Status s = validateName("status: thread", t.name); !s) return s;
+  for (const auto& q : status.queues)
+    if (Status s = validateName("status: queue", q.name); !s) return s;
+  return Status::success();
+}
+
+Status validate(const PoseMessage& pose) {
+  for (double v : pose.position)
+    if (!std::isfinite(v)) return Error{"pose: position is not finite"};
+  double n2 = 0.0;
+  for (double v : pose.orientation) n2 += v * v;
+  if (!std::isfinite(n2) || std::abs(std::sqrt(n2) - 1.0) > 1e-6)
+    return Error{"pose: orientation is not a unit quaternion (|q| = " + std::to_string(std::sqrt(n2)) + ")"};
+  return Status::success();
+}
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,122 @@
+#include "stillpoint/ipc/options.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <functional>
+#include <set>
+
+namespace stillpoint::ipc {
+
+Status IpcOptions::validate() const {
+  if (queue_capacity < 1 || queue_capacity > 4096) return Error{"ipc.queue_capacity must be in [1, 4096]"};
+  if (shm.capacity < 2 || shm.capacity > (1u << 20) || (shm.capacity & (shm.capacity - 1)) != 0)
+    return Error{"ipc.shm.capacity must be a power of two in [2, 1048576]"};
+  if (shm.name.empty() || shm.name.size() > 200 || shm.name[0] == '.' ||
+      shm.name.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") !=
+          std::string::npos)
+    return Error{"ipc.shm.name must be 1-200 characters from [A-Za-z0-9._-], not starting with '.'"};
+  if (lcm.url.empty()) return Error{"ipc.lcm.url must not be empty"};
+  if (lcm.pose_channel.empty() || lcm.status_channel.empty() || lcm.pose_channel == lcm.status_channel)
+    return Error{"ipc.lcm.pose_channel and ipc.lcm.status_channel must be non-empty and differ"};
+  // Cyclone accepts domain ids 0..230 (the RTPS port mapping overflows beyond).
+  if (dds.domain_id > 230) return Error{"ipc.dds.domain_id must be in [0, 230]"};
+  if (dds.pose_topic.empty() || dds.status_topic.empty() || dds.pose_topic == dds.status_topic)
+    return Error{"ipc.dds.pose_topic and ipc.dds.status_topic must be non-empty and differ"};
+  return Status::success();
+}
+
+namespace {
+
+struct Reader {
+  const YAML::Node& node;
+  std::string prefix;
+  std::set<std::string> known;
+  std::string error;
+
+  template <typename T>
+  void get(const std::string& key, T& field) {
+    known.insert(key);
+    if (!error.empty()) return;
+    const YAML::Node v = node[key];
+    if (!v.IsDefined() || v.IsNull()) return;
+    try {
+      field = v.as<T>();
+    } catch (const YAML::Exception&) {
+      error = "line " + std::to_string(v.Mark().line + 1) + ": field '" + prefix + key + "' has the wrong type";
+    }
+  }
+  // Unknown keys are errors: a typo must not silently fall back to a default.
+  void checkUnknown() {
+    if (!error.empty()) return;
+    for (const auto& kv : node) {
+      const std::string key = kv.first.as<std::string>();
+      if (!known.count(key)) {
+        error = "line " + std::to_string(kv.first.Mark().line + 1) + ": unknown field '" + prefix + key + "'";
+        return;
+      }
+    }
+  }
+};
+
+Status section(const YAML::Node& parent, const std::string& key, const std::string& prefix,
+               const std::function<void(Reader&)>& fields) {
+  const YAML::Node node = parent[key];
+  if (!node.IsDefined() || node.IsNull()) return Status::success();
+  if (!node.IsMap()) return Error{"line " + std::to_string(node.Mark().line + 1) + ": '" + prefix + "' must be a map"};
+  Reader r{node, prefix + ".", {}, {}};
+  fields(r);
+  r.checkUnknown();
+  if (!r.error.empty()) return Error{r.error};
+  return Status::success();
+}
+
+}  // namespace
+
+Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
+  IpcOptions o;
+  if (!node.IsDefined() || node.IsNull()) return o;
+  if (!node.IsMap()) return Error{"'ipc' must be a map"};
+  Reader top{node, "ipc.", {"shm", "lcm", "dds"}, {}};
+  top.get("queue_capacity", o.queue_capacity);
+  top.checkUnknown();
+  if (!top.error.empty()) return Error{top.error};
+  Status s = section(node, "shm", "ipc.shm", [&](Reader& r) {
+    r.get("enabled", o.shm.enabled);
+    r.get("name", o.shm.name);
+    r.get("capacity", o.shm.capacity);
+  });
+  if (s) s = section(node, "lcm", "ipc.lcm", [&](Reader& r) {
+    r.get("enabled", o.lcm.enabled);
+    r.get("url", o.lcm.url);
+    r.get("pose_channel", o.lcm.pose_channel);
+    r.get("status_channel", o.lcm.status_channel);
+  });
+  if (s) s = section(node, "dds", "ipc.dds", [&](Reader& r) {
+    r.get("enabled", o.dds.enabled);
+    r.get("domain_id", o.dds.domain_id);
+    r.get("config", o.dds.config);
+    r.get("pose_topic", o.dds.pose_topic);
+    r.get("status_topic", o.dds.status_topic);
+  });
+  if (!s) return Error{s.error()};
+  if (Status v = o.validate(); !v) return Error{v.error()};
+  return o;
+}
+
+Result<IpcOptions> loadIpcOptions(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    return Error{"config '" + path + "': cannot be opened"};
+  } catch (const YAML::Exception& e) {
+    return Error{"config '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+  }
+  if (root.IsNull()) return IpcOptions{};
+  if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};
+  auto parsed = parseIpcOptions(root["ipc"]);
+  if (!parsed) return Error{"config '" + path + "': " + parsed.error()};
+  return parsed;
+}
+
+}  // namespace stillpoint::ipc

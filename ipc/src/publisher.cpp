@@ -1,0 +1,129 @@
+#include "stillpoint/ipc/publisher.hpp"
+
+#include <chrono>
+
+#include "stillpoint/core/log.hpp"
+
+namespace stillpoint::ipc {
+namespace {
+const log::Logger kLog("ipc");
+
+Timestamp wallClockNow() {
+  return Timestamp::fromNanoseconds(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                        std::chrono::system_clock::now().time_since_epoch())
+                                        .count());
+}
+}  // namespace
+
+Publisher::Publisher(std::vector<std::unique_ptr<Transport>> transports, std::uint32_t queue_capacity,
+                     Mode mode)
+    : transports_(std::move(transports)), capacity_(queue_capacity == 0 ? 1 : queue_capacity), mode_(mode) {
+  stats_.queue_capacity = capacity_;
+  if (mode_ == Mode::kThreaded) thread_ = std::jthread([this](std::stop_token stop) { run(stop); });
+}
+
+Result<std::unique_ptr<Publisher>> Publisher::create(const IpcOptions& options, Mode mode) {
+  if (Status s = options.validate(); !s) return Error{s.error()};
+  auto transports = makeTransports(options);
+  if (!transports) return Error{transports.error()};
+  return std::make_unique<Publisher>(std::move(transports.value()), options.queue_capacity, mode);
+}
+
+Publisher::~Publisher() {
+  close();
+  if (thread_.joinable()) thread_.join();
+  flush();  // kInline leftovers, or anything a racing publish slipped in
+}
+
+void Publisher::close() {
+  {
+    std::lock_guard lock(mutex_);
+    closed_ = true;
+  }
+  ready_.notify_all();
+}
+
+void Publisher::push(Item item) {
+  {
+    std::lock_guard lock(mutex_);
+    if (closed_) return;
+    if (queue_.size() >= capacity_) {
+      queue_.pop_front();
+      ++stats_.dropped;
+    }
+    queue_.push_back(std::move(item));
+    ++stats_.enqueued;
+  }
+  if (mode_ == Mode::kThreaded)
+    ready_.notify_one();
+  else
+    flush();
+}
+
+void Publisher::publishPose(const PoseMessage& pose) { push(Item(pose)); }
+void Publisher::publishStatus(StatusMessage status) { push(Item(std::move(status))); }
+
+void Publisher::send(Item& item) {
+  std::uint64_t errors = 0;
+  if (auto* pose = std::get_if<PoseMessage>(&item)) {
+    pose->publish_stamp = wallClockNow();
+    for (auto& t : transports_) {
+      if (Status s = t->publishPose(*pose); !s) {
+        ++errors;
+        static log::RateLimiter limiter(std::chrono::seconds(5));
+        SP_WARN_EVERY(kLog, limiter, t->name() << ": pose not sent: " << s.error());
+      }
+    }
+  } else {
+    auto& status = std::get<StatusMessage>(item);
+    status.publish_stamp = wallClockNow();
+    for (auto& t : transports_) {
+      if (Status s = t->publishStatus(status); !s) {
+        ++errors;
+        static log::RateLimiter limiter(std::chrono::seconds(5));
+        SP_WARN_EVERY(kLog, limiter, t->name() << ": status not sent: " << s.error());
+      }
+    }
+  }
+  std::lock_guard lock(mutex_);
+  ++stats_.sent;
+  stats_.send_errors += errors;
+}
+
+void Publisher::flush() {
+  std::lock_guard send_lock(send_mutex_);
+  for (;;) {
+    Item item;
+    {
+      std::lock_guard lock(mutex_);
+      if (queue_.empty()) return;
+      item = std::move(queue_.front());
+      queue_.pop_front();
+    }
+    send(item);
+  }
+}
+
+void Publisher::run(std::stop_token stop) {
+  for (;;) {
+    Item item;
+    {
+      std::unique_lock lock(mutex_);
+      ready_.wait(lock, stop, [this] { return closed_ || !queue_.empty(); });
+      if (queue_.empty()) return;  // closed (or stop requested) and drained
+      item = std::move(queue_.front());
+      queue_.pop_front();
+    }
+    std::lock_guard send_lock(send_mutex_);
+    send(item);
+  }
+}
+
+PublisherStats Publisher::stats() const {
+  std::lock_guard lock(mutex_);
+  PublisherStats s = stats_;
+  s.queue_depth = static_cast<std::uint32_t>(queue_.size());
+  return s;
+}
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,117 @@
+// Shared-memory transport: poses go into the ring; status is not carried (the ring
+// holds pose records only; status travels over LCM or DDS).
+#include <thread>
+
+#include "stillpoint/ipc/shm_writer.hpp"
+#include "stillpoint/ipc/transport.hpp"
+
+namespace stillpoint::ipc {
+namespace {
+
+sp_pose_record toRecord(const PoseMessage& p) {
+  sp_pose_record r{};
+  r.sensor_stamp_ns = p.sensor_stamp.nanoseconds();
+  r.publish_stamp_ns = p.publish_stamp.nanoseconds();
+  r.frame_counter = p.frame_counter;
+  for (int i = 0; i < 3; ++i) r.position[i] = p.position[i];
+  for (int i = 0; i < 4; ++i) r.orientation[i] = p.orientation[i];
+  r.tracking_state = static_cast<std::uint32_t>(p.state);
+  r.tracked_features = p.tracked_features;
+  r.dynamic_rejected_features = p.dynamic_rejected_features;
+  r.keyframes = p.keyframes;
+  r.map_id = p.map_id;
+  return r;
+}
+
+Result<PoseMessage> fromRecord(const sp_pose_record& r) {
+  PoseMessage p;
+  auto state = trackingStateFromInt(r.tracking_state);
+  if (!state) return Error{"shm: " + state.error()};
+  p.state = *state;
+  p.sensor_stamp = Timestamp::fromNanoseconds(r.sensor_stamp_ns);
+  p.publish_stamp = Timestamp::fromNanoseconds(r.publish_stamp_ns);
+  p.frame_counter = r.frame_counter;
+  for (int i = 0; i < 3; ++i) p.position[i] = r.position[i];
+  for (int i = 0; i < 4; ++i) p.orientation[i] = r.orientation[i];
+  p.tracked_features = r.tracked_features;
+  p.dynamic_rejected_features = r.dynamic_rejected_features;
+  p.keyframes = r.keyframes;
+  p.map_id = r.map_id;
+  return p;
+}
+
+class ShmTransport final : public Transport {
+ public:
+  explicit ShmTransport(std::unique_ptr<ShmPoseWriter> writer) : writer_(std::move(writer)) {}
+  std::string_view name() const override { return "shm"; }
+  Status publishPose(const PoseMessage& pose) override {
+    writer_->write(toRecord(pose));
+    return Status::success();
+  }
+  Status publishStatus(const StatusMessage&) override { return Status::success(); }
+
+ private:
+  std::unique_ptr<ShmPoseWriter> writer_;
+};
+
+class ShmSubscriber final : public Subscriber {
+ public:
+  ShmSubscriber(std::string name, ShmSubscriberOptions options) : name_(std::move(name)), options_(options) {
+    sp_shm_reader_init(&reader_);
+  }
+  ~ShmSubscriber() override { sp_shm_reader_close(&reader_); }
+
+  Status open() {
+    const int rc = sp_shm_reader_open(&reader_, name_.c_str(),
+                                      options_.from_oldest ? SP_SHM_START_OLDEST : SP_SHM_START_LATEST);
+    if (rc == SP_SHM_OK || (rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring)) return Status::success();
+    return Error{"shm: ring '" + name_ + "': " + sp_shm_strerror(rc)};
+  }
+
+  Result<int> poll(std::chrono::milliseconds timeout) override {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    int handled = 0;
+    sp_pose_record record;
+    for (;;) {
+      const int rc = sp_shm_reader_next(&reader_, &record);
+      if (rc == SP_SHM_OK) {
+        auto pose = fromRecord(record);
+        if (!pose) return Error{pose.error()};
+        ++handled;
+        if (pose_handler_) pose_handler_(*pose);
+        continue;  // drain everything available before returning
+      }
+      if (rc == SP_SHM_RESTARTED) {
+        if (restart_handler_) restart_handler_();
+        continue;
+      }
+      if (rc < 0 && !(rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring))
+        return Error{"shm: ring '" + name_ + "': " + sp_shm_strerror(rc)};
+      if (handled > 0 || std::chrono::steady_clock::now() >= deadline) return handled;
+      if (!options_.busy_poll) std::this_thread::sleep_for(std::chrono::microseconds(50));
+    }
+  }
+
+  std::uint64_t lost() const override { return reader_.lost; }
+
+ private:
+  std::string name_;
+  ShmSubscriberOptions options_;
+  sp_shm_reader reader_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<Transport>> makeShmTransport(const ShmOptions& options) {
+  auto writer = ShmPoseWriter::create(options.name, options.capacity);
+  if (!writer) return Error{writer.error()};
+  return std::unique_ptr<Transport>(new ShmTransport(std::move(writer.value())));
+}
+
+Result<std::unique_ptr<Subscriber>> makeShmSubscriber(const ShmOptions& options, const ShmSubscriberOptions& sub) {
+  auto s = std::make_unique<ShmSubscriber>(options.name, sub);
+  if (Status st = s->open(); !st) return Error{st.error()};
+  return std::unique_ptr<Subscriber>(std::move(s));
+}
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,74 @@
+#include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
+
+#include <cstdio>
+#include <fstream>
+
+#include "stillpoint/ipc/options.hpp"
+
+namespace stillpoint::ipc {
+
+TEST(IpcOptions, DefaultsAreValidAndKeepLcmOnThisHost) {
+  IpcOptions o;
+  EXPECT_TRUE(o.validate().ok());
+  EXPECT_EQ(o.lcm.url, "udpm://239.255.76.67:7667?ttl=0");
+  EXPECT_TRUE(o.shm.enabled);
+  EXPECT_FALSE(o.lcm.enabled);
+  EXPECT_FALSE(o.dds.enabled);
+}
+
+TEST(IpcOptions, ParsesEveryField) {
+  const auto node = YAML::Load(R"(
+queue_capacity: 16
+shm: {enabled: false, name: my_ring, capacity: 256}
+lcm: {enabled: true, url: "udpm://239.255.76.67:7700?ttl=0", pose_channel: P, status_channel: S}
+dds: {enabled: true, domain_id: 7, config: "<CycloneDDS/>", pose_topic: pt, status_topic: st}
+)");
+  auto o = parseIpcOptions(node);
+  ASSERT_TRUE(o.ok()) << o.error();
+  EXPECT_EQ(o->queue_capacity, 16u);
+  EXPECT_FALSE(o->shm.enabled);
+  EXPECT_EQ(o->shm.name, "my_ring");
+  EXPECT_EQ(o->shm.capacity, 256u);
+  EXPECT_EQ(o->lcm.url, "udpm://239.255.76.67:7700?ttl=0");
+  EXPECT_EQ(o->lcm.pose_channel, "P");
+  EXPECT_EQ(o->dds.domain_id, 7u);
+  EXPECT_EQ(o->dds.config, "<CycloneDDS/>");
+  EXPECT_EQ(o->dds.status_topic, "st");
+}
+
+TEST(IpcOptions, ErrorsNameTheField) {
+  struct Case {
+    const char* yaml;
+    const char* field;
+  };
+  const Case cases[] = {
+      {"shm: {capacity: 1000}", "ipc.shm.capacity"},
+      {"shm: {name: 'a/b'}", "ipc.shm.name"},
+      {"lcm: {urll: x}", "ipc.lcm.urll"},
+      {"dds: {domain_id: notanumber}", "ipc.dds.domain_id"},
+      {"dds: {domain_id: 231}", "ipc.dds.domain_id"},
+      {"queue_capacity: 0", "ipc.queue_capacity"},
+      {"bogus: 1", "ipc.bogus"},
+      {"lcm: {pose_channel: X, status_channel: X}", "ipc.lcm.pose_channel"},
+  };
+  for (const auto& c : cases) {
+    auto o = parseIpcOptions(YAML::Load(c.yaml));
+    ASSERT_FALSE(o.ok()) << c.yaml;
+    EXPECT_NE(o.error().find(c.field), std::string::npos) << c.yaml << " -> " << o.error();
+  }
+}
+
+TEST(IpcOptions, LoadsTheIpcSectionOfAFile) {
+  const std::string path = testing::TempDir() + "ipc_options_test.yaml";
+  std::ofstream(path) << "tracking: {whatever: 1}\nipc:\n  shm:\n    name: from_file\n";
+  auto o = loadIpcOptions(path);
+  ASSERT_TRUE(o.ok()) << o.error();
+  EXPECT_EQ(o->shm.name, "from_file");
+  std::remove(path.c_str());
+  auto missing = loadIpcOptions(path);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().find(path), std::string::npos);
+}
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,192 @@
+// The shared-memory ring in one process: the C++ writer against the header-only reader.
+// Cross-process stress (torn reads, restarts, late readers) is in shm_stress_test.sh.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstring>
+
+#include "stillpoint/ipc/shm_writer.hpp"
+#include "stillpoint/ipc/transport.hpp"
+#include "stillpoint_shm.h"
+
+namespace stillpoint::ipc {
+namespace {
+
+std::string uniqueName(const char* what) { return std::string("sp_ut_") + what + "_" + std::to_string(::getpid()); }
+
+sp_pose_record record(std::uint64_t k) {
+  sp_pose_record r{};
+  r.frame_counter = k;
+  r.sensor_stamp_ns = static_cast<std::int64_t>(k) * 1000;
+  r.position[0] = 0.5 * static_cast<double>(k);
+  r.orientation[3] = 1.0;
+  r.tracking_state = SP_TRACKING_OK;
+  r.map_id = 0xABCDEF0123456789ULL;
+  return r;
+}
+
+class Ring : public testing::Test {
+ protected:
+  void SetUp() override {
+    name_ = uniqueName(testing::UnitTest::GetInstance()->current_test_info()->name());
+    (void)ShmPoseWriter::remove(name_);
+    sp_shm_reader_init(&reader_);
+  }
+  void TearDown() override {
+    sp_shm_reader_close(&reader_);
+    (void)ShmPoseWriter::remove(name_);
+  }
+  std::string name_;
+  sp_shm_reader reader_;
+};
+
+TEST_F(Ring, RecordsArriveInOrderWithEveryField) {
+  auto w = ShmPoseWriter::create(name_, 16);
+  ASSERT_TRUE(w.ok()) << w.error();
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+  sp_pose_record out;
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_EMPTY);
+  for (std::uint64_t k = 1; k <= 5; ++k) (*w)->write(record(k));
+  for (std::uint64_t k = 1; k <= 5; ++k) {
+    ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+    sp_pose_record expected = record(k);
+    expected.sequence = k;
+    EXPECT_EQ(std::memcmp(&expected, &out, sizeof(out)), 0) << "record " << k;
+  }
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_EMPTY);
+  EXPECT_EQ(reader_.lost, 0u);
+  EXPECT_EQ(reader_.generation, 1u);
+}
+
+TEST_F(Ring, StartLatestSkipsHistoryStartOldestReplaysIt) {
+  auto w = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w.ok());
+  for (std::uint64_t k = 1; k <= 3; ++k) (*w)->write(record(k));
+  sp_pose_record out;
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_EMPTY);
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_OLDEST), SP_SHM_OK);
+  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  EXPECT_EQ(out.sequence, 1u);
+  ASSERT_EQ(sp_shm_reader_latest(&reader_, &out), SP_SHM_OK);
+  EXPECT_EQ(out.frame_counter, 3u);
+}
+
+TEST_F(Ring, OverrunSkipsToTheOldestSurvivorAndCountsTheLoss) {
+  auto w = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w.ok());
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_OLDEST), SP_SHM_OK);
+  for (std::uint64_t k = 1; k <= 20; ++k) (*w)->write(record(k));
+  sp_pose_record out;
+  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  EXPECT_EQ(out.sequence, 13u);
+  EXPECT_EQ(reader_.lost, 12u);
+}
+
+TEST_F(Ring, WriterRestartIsDetectedAndTheNewStreamRead) {
+  auto w1 = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w1.ok());
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+  (*w1)->write(record(1));
+  sp_pose_record out;
+  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  w1.value().reset();
+  EXPECT_EQ(sp_shm_reader_writer_closed(&reader_), 1);
+  auto w2 = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w2.ok()) << w2.error();
+  EXPECT_EQ((*w2)->generation(), 2u);
+  (*w2)->write(record(100));
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_RESTARTED);
+  EXPECT_EQ(reader_.generation, 2u);
+  EXPECT_EQ(reader_.restarts, 1u);
+  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  EXPECT_EQ(out.sequence, 1u);
+  EXPECT_EQ(out.frame_counter, 100u);
+}
+
+TEST_F(Ring, ReaderOpenedBeforeTheWriterAttachesLater) {
+  sp_pose_record out;
+  EXPECT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_OLDEST), SP_SHM_ERR_NO_RING);
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_ERR_NO_RING);
+  auto w = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w.ok());
+  (*w)->write(record(1));
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_EMPTY);  // attached
+  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  EXPECT_EQ(out.sequence, 1u);
+}
+
+TEST_F(Ring, BadNamesAndBadFilesGiveClearErrors) {
+  EXPECT_EQ(sp_shm_reader_open(&reader_, "", SP_SHM_START_LATEST), SP_SHM_ERR_NAME);
+  EXPECT_EQ(sp_shm_reader_open(&reader_, "../etc/passwd", SP_SHM_START_LATEST), SP_SHM_ERR_NAME);
+  EXPECT_EQ(sp_shm_reader_open(&reader_, ".hidden", SP_SHM_START_LATEST), SP_SHM_ERR_NAME);
+  EXPECT_FALSE(ShmPoseWriter::create("a/b", 8).ok());
+  EXPECT_FALSE(ShmPoseWriter::create(name_, 12).ok());  // not a power of two
+
+  const std::string path = "/dev/shm/" + name_;
+  auto writeFile = [&](const void* data, std::size_t size) {
+    const int fd = ::open(path.c_str(), O_CREAT | O_TRUNC | O_WRONLY, 0644);
+    ASSERT_GE(fd, 0);
+    ASSERT_EQ(::write(fd, data, size), static_cast<ssize_t>(size));
+    ::close(fd);
+  };
+  writeFile("hello", 5);
+  EXPECT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_ERR_NOT_A_RING);
+
+  std::vector<unsigned char> buf(SP_SHM_HEADER_SIZE + 8 * SP_SHM_SLOT_SIZE, 0);
+  auto* h = reinterpret_cast<sp_shm_header*>(buf.data());
+  h->magic = SP_SHM_MAGIC;
+  h->schema_version = 99;
+  writeFile(buf.data(), buf.size());
+  EXPECT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_ERR_VERSION);
+
+  h->schema_version = SP_SHM_SCHEMA_VERSION;
+  h->header_size = SP_SHM_HEADER_SIZE;
+  h->record_size = sizeof(sp_pose_record);
+  h->slot_size = SP_SHM_SLOT_SIZE;
+  h->capacity = 16;  // file only holds 8
+  writeFile(buf.data(), buf.size());
+  EXPECT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_ERR_LAYOUT);
+  h->capacity = 8;
+  writeFile(buf.data(), buf.size());
+  EXPECT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+
+  // The C++ subscriber turns the codes into messages that say what is wrong.
+  ShmOptions o;
+  o.name = name_ + "_missing";
+  auto sub = makeShmSubscriber(o);
+  ASSERT_FALSE(sub.ok());
+  EXPECT_NE(sub.error().find("is the stillpoint publisher running"), std::string::npos) << sub.error();
+}
+
+TEST_F(Ring, ShmTransportAndSubscriberRoundTripAPose) {
+  ShmOptions o;
+  o.name = name_;
+  o.capacity = 8;
+  auto t = makeShmTransport(o);
+  ASSERT_TRUE(t.ok()) << t.error();
+  auto sub = makeShmSubscriber(o);
+  ASSERT_TRUE(sub.ok()) << sub.error();
+  std::vector<PoseMessage> got;
+  (*sub)->onPose([&](const PoseMessage& p) { got.push_back(p); });
+  PoseMessage p;
+  p.sensor_stamp = Timestamp::fromNanoseconds(123456789);
+  p.publish_stamp = Timestamp::fromNanoseconds(987654321);
+  p.frame_counter = 42;
+  p.position = {1.5, -2.25, 1e-300};
+  p.orientation = {0.5, 0.5, 0.5, 0.5};
+  p.state = TrackingState::kRelocalised;
+  p.tracked_features = 812;
+  p.dynamic_rejected_features = 17;
+  p.keyframes = 9;
+  p.map_id = 0xFFFFFFFFFFFFFFFFULL;
+  ASSERT_TRUE((*t)->publishPose(p).ok());
+  auto n = (*sub)->poll(std::chrono::milliseconds(100));
+  ASSERT_TRUE(n.ok()) << n.error();
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_EQ(got[0], p);
+}
+
+}  // namespace
+}  // namespace stillpoint::ipc

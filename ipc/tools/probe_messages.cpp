@@ -1,0 +1,71 @@
+#include "probe_messages.hpp"
+
+#include <cmath>
+#include <cstring>
+
+namespace stillpoint::ipc::probe {
+
+PoseMessage testPose(std::uint64_t k) {
+  PoseMessage p;
+  p.sensor_stamp = Timestamp::fromNanoseconds(1'700'000'000'123'456'789LL + static_cast<std::int64_t>(k) * 33'333'333);
+  p.frame_counter = k;
+  // Values with full mantissas and a negative zero-ish one: a text or float round trip would show.
+  const double a = static_cast<double>(k) * 0.001;
+  p.position = {std::sin(a) * 3.14159265358979, -std::ldexp(static_cast<double>(k), -7) / 3.0, 1.0 / (k + 3.0)};
+  const double half = 0.5 * std::fmod(a * 7.0, 6.28318530717958);
+  const double ax[3] = {0.267261241912424, 0.534522483824849, 0.801783725737273};  // unit axis
+  p.orientation = {ax[0] * std::sin(half), ax[1] * std::sin(half), ax[2] * std::sin(half), std::cos(half)};
+  p.state = static_cast<TrackingState>(k % 4);
+  p.tracked_features = static_cast<std::uint32_t>(400 + k % 700);
+  p.dynamic_rejected_features = static_cast<std::uint32_t>(k % 37);
+  p.keyframes = static_cast<std::uint32_t>(k / 10);
+  p.map_id = 0xC0FFEE0000000000ULL | (k / 100);  // top bit set: unsigned survives signed wire types
+  return p;
+}
+
+StatusMessage testStatus(std::uint64_t k) {
+  StatusMessage s;
+  s.uptime_s = 0.25 * static_cast<double>(k) + 1.0 / 3.0;
+  s.frames_received = 30 * k;
+  s.frames_dropped = k % 5;
+  s.map_id = 0xC0FFEE0000000000ULL | k;
+  s.threads = {{"tracking", 29.97, 11.9 + 0.01 * static_cast<double>(k), 15.5},
+               {"local_mapping", 2.5, 40.0, 165.0},
+               {"publisher", 30.0, 0.004, 0.05}};
+  s.queues = {{"camera", static_cast<std::uint32_t>(k % 3), 4, k / 7},
+              {"publish", 0, 8, 0xFFFFFFFFFFFFFFF0ULL}};
+  return s;
+}
+
+namespace {
+bool same(double a, double b) { return std::memcmp(&a, &b, sizeof(double)) == 0; }
+}  // namespace
+
+std::string diff(const PoseMessage& e, const PoseMessage& g) {
+  if (e.sensor_stamp != g.sensor_stamp) return "sensor_stamp";
+  if (e.frame_counter != g.frame_counter) return "frame_counter";
+  for (int i = 0; i < 3; ++i)
+    if (!same(e.position[i], g.position[i])) return "position[" + std::to_string(i) + "]";
+  for (int i = 0; i < 4; ++i)
+    if (!same(e.orientation[i], g.orientation[i])) return "orientation[" + std::to_string(i) + "]";
+  if (e.state != g.state) return "state";
+  if (e.tracked_features != g.tracked_features) return "tracked_features";
+  if (e.dynamic_rejected_features != g.dynamic_rejected_features) return "dynamic_rejected_features";
+  if (e.keyframes != g.keyframes) return "keyframes";
+  if (e.map_id != g.map_id) return "map_id";
+  return {};
+}
+
+std::string diff(const StatusMessage& e, const StatusMessage& g) {
+  StatusMessage a = e;
+  StatusMessage b = g;
+  a.publish_stamp = b.publish_stamp = Timestamp();
+  if (!same(a.uptime_s, b.uptime_s)) return "uptime_s";
+  if (a.threads.size() != b.threads.size()) return "threads";
+  for (std::size_t i = 0; i < a.threads.size(); ++i)
+    if (!same(a.threads[i].latency_ms_median, b.threads[i].latency_ms_median)) return "threads.latency";
+  if (!(a == b)) return "status fields";
+  return {};
+}
+
+}  // namespace stillpoint::ipc::probe
