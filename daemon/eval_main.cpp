@@ -34,6 +34,7 @@ constexpr const char* kUsage =
     "  --plot OUT.png  also write a top view and ATE-over-time plot\n"
     "  --max-dt S      association window in seconds (default 0.02)\n"
     "  --help          show this text\n"
+    "  --version       print the version and architecture\n"
     "\n"
     "exit status: 0 ok, 1 bad input or evaluation failed, 2 usage error\n";
 
@@ -65,6 +66,10 @@ int main(int argc, char** argv) {
     const std::string_view arg = argv[k];
     if (arg == "--help" || arg == "-h") {
       std::fputs(kUsage, stdout);
+      return 0;
+    }
+    if (arg == "--version") {
+      std::puts("stillpoint-eval " STILLPOINT_VERSION " (" STILLPOINT_ARCH ")");
       return 0;
     }
     if (arg == "--plot" || arg == "--max-dt") {

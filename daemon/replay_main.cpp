@@ -27,6 +27,7 @@ constexpr const char* kUsage =
     "usage: stillpoint-replay DATASET_DIR --camera fr1|fr2|fr3|CAMERA.yaml --output TRAJ.txt\n"
     "                         [--config SLAM.yaml] [--sequential] [--paced]\n"
     "                         [--modules none] [--max-frames N] [--log-level debug|info|warn|error]\n"
+    "       stillpoint-replay --help | --version\n"
     "\n"
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
     "as it can (--paced: at the recorded rate), writes the camera trajectory in TUM format and\n"
@@ -114,6 +115,10 @@ int main(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
       std::fputs(kUsage, stdout);
+      return 0;
+    }
+    if (!std::strcmp(argv[i], "--version")) {
+      std::puts("stillpoint-replay " STILLPOINT_VERSION " (" STILLPOINT_ARCH ")");
       return 0;
     }
   }

@@ -163,5 +163,11 @@ TEST_F(EvalCli, HelpExitsZero) {
   EXPECT_TRUE(contains(r.out, "ate_rmse_m=<v> rpe_trans_m_s=<v> rpe_rot_deg_s=<v> matched=<n>"));
 }
 
+TEST_F(EvalCli, VersionExitsZero) {
+  const RunResult r = eval({"--version"});
+  EXPECT_EQ(r.exit_code, 0) << describe(r);
+  EXPECT_TRUE(contains(r.out, "stillpoint-eval " STILLPOINT_VERSION)) << describe(r);
+}
+
 }  // namespace
 }  // namespace stillpoint

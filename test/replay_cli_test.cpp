@@ -103,6 +103,12 @@ TEST_F(ReplayCli, HelpPrintsUsageAndExitsZero) {
   EXPECT_TRUE(contains(r.out, "usage: stillpoint-replay DATASET_DIR"));
 }
 
+TEST_F(ReplayCli, VersionExitsZero) {
+  const RunResult r = replay({"--version"});
+  EXPECT_EQ(r.exit_code, 0) << describe(r);
+  EXPECT_TRUE(contains(r.out, "stillpoint-replay " STILLPOINT_VERSION)) << describe(r);
+}
+
 TEST_F(ReplayCli, ShippedDefaultConfigIsAccepted) {
   const RunResult r = replaySequence({"--config", STILLPOINT_SOURCE_DIR "/config/slam.yaml"});
   EXPECT_EQ(r.exit_code, 0) << describe(r);
