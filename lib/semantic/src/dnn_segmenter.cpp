@@ -82,10 +82,20 @@ class DnnSegmenter final : public Segmenter {
       if (!r) return Error{where + r.error()};
       seg->labels = std::move(r->labels);
       seg->instances = std::move(r->instances);
+      for (Instance& inst : seg->instances) inst.movable = is_movable_[inst.class_id];
       for (Instance& inst : seg->instances) {
-        inst.movable = is_movable_[inst.class_id];
         if (!inst.movable || inst.area == 0) continue;
-        inst.kept = inst.area >= min_area && inst.score >= options_.min_region_confidence;
+        keepOrDrop(inst, min_area);
+        if (inst.kept && options_.static_overlap_iou > 0) {
+          for (const Instance& other : seg->instances) {
+            if (other.movable || other.score <= inst.score || other.area == 0) continue;
+            if (maskIou(inst, other) >= options_.static_overlap_iou) {
+              inst.kept = false;
+              inst.drop_reason = "same object as static '" + other.class_name + "'";
+              break;
+            }
+          }
+        }
         if (inst.kept)
           seg->movable_mask(inst.box).setTo(255, inst.mask);
         else
@@ -103,6 +113,27 @@ class DnnSegmenter final : public Segmenter {
     }
     seg->movable_pixels = cv::countNonZero(seg->movable_mask);
     return Status::success();
+  }
+
+  void keepOrDrop(Instance& inst, double min_area) const {
+    inst.kept = true;
+    if (inst.area < min_area) {
+      inst.kept = false;
+      inst.drop_reason = "area";
+    } else if (inst.score < options_.min_region_confidence) {
+      inst.kept = false;
+      inst.drop_reason = "confidence";
+    }
+  }
+
+  static double maskIou(const Instance& a, const Instance& b) {
+    const cv::Rect both = a.box & b.box;
+    if (both.empty()) return 0.0;
+    const cv::Mat in_a = a.mask(both - a.box.tl()), in_b = b.mask(both - b.box.tl());
+    cv::Mat inter;
+    cv::bitwise_and(in_a, in_b, inter);
+    const double n = cv::countNonZero(inter);
+    return n / (a.area + b.area - n);
   }
 
   // Dense decoders: every connected region of a movable class becomes an
@@ -131,7 +162,7 @@ class DnnSegmenter final : public Segmenter {
         inst.score = float(conf_sum[i] / std::max(1, inst.area));
         inst.mask = components(inst.box) == i;
         inst.movable = true;
-        inst.kept = inst.area >= min_area && inst.score >= options_.min_region_confidence;
+        keepOrDrop(inst, min_area);
         if (inst.kept)
           seg->movable_mask(inst.box).setTo(255, inst.mask);
         else
@@ -206,6 +237,8 @@ Status SegmenterOptions::validate() const {
     return Error{"segmenter option 'min_region_fraction' must be in [0, 1)"};
   if (!(min_region_confidence >= 0 && min_region_confidence <= 1))
     return Error{"segmenter option 'min_region_confidence' must be in [0, 1]"};
+  if (!(static_overlap_iou >= 0 && static_overlap_iou <= 1))
+    return Error{"segmenter option 'static_overlap_iou' must be in [0, 1]"};
   return Status::success();
 }
 

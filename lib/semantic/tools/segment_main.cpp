@@ -24,7 +24,8 @@ namespace {
 const char* kUsage =
     "usage: stillpoint-segment (--card CARD.yaml | --recommended) [--model-dir DIR]\n"
     "                          [--out DIR] [--threshold P] [--score-threshold S]\n"
-    "                          [--min-area FRACTION] [--min-confidence P] [--furniture] [--threads N]\n"
+    "                          [--min-area FRACTION] [--min-confidence P] [--static-overlap IOU]\n"
+    "                          [--furniture] [--threads N]\n"
     "                          (IMAGE... | --tum DATASET_DIR [--from I] [--to J])\n"
     "Prints one line per image and a summary line; --out writes <name>_overlay.png\n"
     "(movable pixels red, pixels the post-filter dropped yellow, boxes with class and score).\n";
@@ -119,13 +120,14 @@ int main(int argc, char** argv) {
       tum_dir = v;
     } else if (a == "--furniture") {
       options.movable_furniture = true;
-    } else if (a == "--threshold" || a == "--score-threshold" || a == "--min-area" || a == "--min-confidence" ||
+    } else if (a == "--threshold" || a == "--score-threshold" || a == "--min-area" || a == "--min-confidence" || a == "--static-overlap" ||
                a == "--threads" || a == "--from" || a == "--to") {
       if (!value(&v) || !parseNumber(v, &d)) return usage(a + " needs a number");
       if (a == "--threshold") options.threshold = d;
       if (a == "--score-threshold") options.score_threshold = d;
       if (a == "--min-area") options.min_region_fraction = d;
       if (a == "--min-confidence") options.min_region_confidence = d;
+      if (a == "--static-overlap") options.static_overlap_iou = d;
       if (a == "--threads") options.threads = int(d);
       if (a == "--from") from = int(d);
       if (a == "--to") to = int(d);
@@ -188,8 +190,8 @@ int main(int argc, char** argv) {
                 filtered_pct, seg->instances.size(), seg->timing.total_ms);
     for (const Instance& inst : seg->instances)
       if (inst.area > 0)
-        std::printf(" [%s %.3f %dpx%s]", inst.class_name.c_str(), inst.score, inst.area,
-                    !inst.movable ? " static" : (inst.kept ? "" : " dropped"));
+        std::printf(" [%s %.3f %dpx%s%s]", inst.class_name.c_str(), inst.score, inst.area,
+                    !inst.movable ? " static" : (inst.kept ? "" : " dropped: "), inst.drop_reason.c_str());
     std::printf("\n");
     if (!out_dir.empty()) {
       const fs::path out = out_dir / (path.stem().string() + "_overlay.png");

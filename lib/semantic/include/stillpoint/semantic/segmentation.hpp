@@ -22,6 +22,7 @@ struct Instance {
   // False when the post-filter (min area / min confidence) dropped it from
   // the movable mask; kept in the list so the drop is visible.
   bool kept = true;
+  std::string drop_reason;  // why kept is false ("area", "confidence", "same object as static 'teddy bear'")
 };
 
 struct SegmentationTiming {
