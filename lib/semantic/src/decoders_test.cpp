@@ -193,3 +193,61 @@ TEST(Yolo, RejectsOutputsThatDoNotMatchTheCard) {
 
 }  // namespace
 }  // namespace stillpoint::semantic
+
+// ---- Post-filter ----------------------------------------------------------
+#include "post_filter.hpp"
+
+namespace stillpoint::semantic {
+namespace {
+
+Instance square(const std::string& name, bool movable, float score, cv::Rect box) {
+  Instance inst;
+  inst.class_name = name;
+  inst.movable = movable;
+  inst.score = score;
+  inst.box = box;
+  inst.mask = cv::Mat(box.size(), CV_8U, cv::Scalar(255));
+  inst.area = box.area();
+  return inst;
+}
+
+TEST(PostFilter, DropsSmallWeakAndRelabelledInstancesVisibly) {
+  Segmentation seg;
+  seg.movable_mask = cv::Mat(100, 100, CV_8U, cv::Scalar(0));
+  seg.instances = {
+      square("teddy bear", false, 0.78f, {10, 10, 40, 40}),
+      square("person", true, 0.66f, {12, 10, 40, 40}),   // mask IoU 0.9 with the bear: same object
+      square("person", true, 0.90f, {60, 60, 30, 30}),   // real
+      square("dog", true, 0.50f, {0, 90, 3, 3}),          // 9 px: too small
+      square("cat", true, 0.30f, {60, 10, 20, 20}),       // below the confidence floor
+      square("person", true, 0.95f, {10, 10, 40, 40}),    // stronger than the bear: kept
+  };
+  SegmenterOptions options;
+  options.min_region_confidence = 0.4;
+  options.static_overlap_iou = 0.6;
+  filterInstances(options, 20.0, &seg);
+  EXPECT_FALSE(seg.instances[1].kept);
+  EXPECT_EQ(seg.instances[1].drop_reason, "same object as static 'teddy bear'");
+  EXPECT_TRUE(seg.instances[2].kept);
+  EXPECT_EQ(seg.instances[3].drop_reason, "area");
+  EXPECT_EQ(seg.instances[4].drop_reason, "confidence");
+  EXPECT_TRUE(seg.instances[5].kept);
+  EXPECT_TRUE(seg.instances[0].kept);  // static instances are never in the mask
+  EXPECT_EQ(seg.movable_mask.at<uchar>(75, 75), 255);
+  EXPECT_EQ(seg.movable_mask.at<uchar>(91, 1), 0);
+  EXPECT_EQ(seg.filtered_pixels, 1600 + 9 + 400);
+  EXPECT_NEAR(maskIou(seg.instances[0], seg.instances[1]), 38.0 * 40 / (2 * 1600 - 38 * 40), 1e-9);
+
+  // Switched off, the relabelled teddy stays in the mask.
+  Segmentation off = seg;
+  off.movable_mask = cv::Mat(100, 100, CV_8U, cv::Scalar(0));
+  off.filtered_pixels = 0;
+  off.instances.erase(off.instances.begin() + 5);
+  options.static_overlap_iou = 0;
+  filterInstances(options, 20.0, &off);
+  EXPECT_TRUE(off.instances[1].kept);
+  EXPECT_EQ(off.movable_mask.at<uchar>(30, 48), 255);
+}
+
+}  // namespace
+}  // namespace stillpoint::semantic

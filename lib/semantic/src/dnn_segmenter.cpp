@@ -10,6 +10,7 @@
 
 #include "decoders.hpp"
 #include "onnx_info.hpp"
+#include "post_filter.hpp"
 #include "stillpoint/core/log.hpp"
 #include "stillpoint/semantic/segmenter.hpp"
 
@@ -83,24 +84,7 @@ class DnnSegmenter final : public Segmenter {
       seg->labels = std::move(r->labels);
       seg->instances = std::move(r->instances);
       for (Instance& inst : seg->instances) inst.movable = is_movable_[inst.class_id];
-      for (Instance& inst : seg->instances) {
-        if (!inst.movable || inst.area == 0) continue;
-        keepOrDrop(inst, min_area);
-        if (inst.kept && options_.static_overlap_iou > 0) {
-          for (const Instance& other : seg->instances) {
-            if (other.movable || other.score <= inst.score || other.area == 0) continue;
-            if (maskIou(inst, other) >= options_.static_overlap_iou) {
-              inst.kept = false;
-              inst.drop_reason = "same object as static '" + other.class_name + "'";
-              break;
-            }
-          }
-        }
-        if (inst.kept)
-          seg->movable_mask(inst.box).setTo(255, inst.mask);
-        else
-          seg->filtered_pixels += inst.area;
-      }
+      filterInstances(options_, min_area, seg);
     } else {
       Result<DenseDecoding> r =
           spec.type == DecoderType::kPersonProbability
@@ -113,27 +97,6 @@ class DnnSegmenter final : public Segmenter {
     }
     seg->movable_pixels = cv::countNonZero(seg->movable_mask);
     return Status::success();
-  }
-
-  void keepOrDrop(Instance& inst, double min_area) const {
-    inst.kept = true;
-    if (inst.area < min_area) {
-      inst.kept = false;
-      inst.drop_reason = "area";
-    } else if (inst.score < options_.min_region_confidence) {
-      inst.kept = false;
-      inst.drop_reason = "confidence";
-    }
-  }
-
-  static double maskIou(const Instance& a, const Instance& b) {
-    const cv::Rect both = a.box & b.box;
-    if (both.empty()) return 0.0;
-    const cv::Mat in_a = a.mask(both - a.box.tl()), in_b = b.mask(both - b.box.tl());
-    cv::Mat inter;
-    cv::bitwise_and(in_a, in_b, inter);
-    const double n = cv::countNonZero(inter);
-    return n / (a.area + b.area - n);
   }
 
   // Dense decoders: every connected region of a movable class becomes an
@@ -162,14 +125,10 @@ class DnnSegmenter final : public Segmenter {
         inst.score = float(conf_sum[i] / std::max(1, inst.area));
         inst.mask = components(inst.box) == i;
         inst.movable = true;
-        keepOrDrop(inst, min_area);
-        if (inst.kept)
-          seg->movable_mask(inst.box).setTo(255, inst.mask);
-        else
-          seg->filtered_pixels += inst.area;
         seg->instances.push_back(std::move(inst));
       }
     }
+    filterInstances(options_, min_area, seg);
     std::sort(seg->instances.begin(), seg->instances.end(),
               [](const Instance& a, const Instance& b) { return a.area > b.area; });
   }
