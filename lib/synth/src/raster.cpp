@@ -47,6 +47,14 @@ inline float wrapOrClamp(float x, int size, bool repeat, int* i0, int* i1) {
   return frac;
 }
 
+inline int wrapIndex(int i, int size, bool repeat) {
+  if (repeat) {
+    i %= size;
+    return i < 0 ? i + size : i;
+  }
+  return i < 0 ? 0 : (i >= size ? size - 1 : i);
+}
+
 struct Rasteriser {
   const CameraModel& cam;
   RenderTarget* target;
@@ -95,7 +103,10 @@ struct Rasteriser {
     const cv::Mat& tex = tri.texture->level(lod);
     const bool repeat = tri.texture->repeat();
     const int tw = tex.cols, th = tex.rows;
-    const float shade = tri.shade;
+    const int shade256 = static_cast<int>(tri.shade * 256.0f + 0.5f);
+    const float ftw = static_cast<float>(tw), fth = static_cast<float>(th);
+    const std::uint8_t* tex_data = tex.data;
+    const std::size_t tex_step = tex.step[0];
     const std::uint16_t id = tri.id;
     const double sign = area > 0 ? 1.0 : -1.0;
 
@@ -122,27 +133,47 @@ struct Rasteriser {
       const int xb = std::min(xhi, static_cast<int>(std::floor(right + 1e-9)));
       if (xa > xb) continue;
       const Eigen::Vector3d row = f[0] + dfdx * (xa - s[0].x()) + dfdy * (y - s[0].y());
+      // Float from the row start on: over one row the relative error stays ~1e-6.
+      const float w0 = static_cast<float>(row.x()), dw = static_cast<float>(dfdx.x());
+      const float a0 = static_cast<float>(row.y()), da = static_cast<float>(dfdx.y());
+      const float b0 = static_cast<float>(row.z()), db = static_cast<float>(dfdx.z());
       float* zrow = target->depth.ptr<float>(y);
       cv::Vec3b* crow = target->colour.ptr<cv::Vec3b>(y);
       std::uint16_t* irow = target->id.ptr<std::uint16_t>(y);
       for (int x = xa; x <= xb; ++x) {
-        const double dx = x - xa;
-        const double w = row.x() + dfdx.x() * dx;
+        const float dx = static_cast<float>(x - xa);
+        const float w = w0 + dw * dx;
         if (!(w > 0)) continue;
-        const float z = static_cast<float>(1.0 / w);
+        const float z = 1.0f / w;
         if (!(z < zrow[x])) continue;
-        const float u = static_cast<float>((row.y() + dfdx.y() * dx) * z);
-        const float vv = static_cast<float>((row.z() + dfdx.z() * dx) * z);
-        int u0, u1, v0, v1;
-        const float fu = wrapOrClamp(u * tw - 0.5f, tw, repeat, &u0, &u1);
-        const float fv = wrapOrClamp(vv * th - 0.5f, th, repeat, &v0, &v1);
-        const cv::Vec3b* r0 = tex.ptr<cv::Vec3b>(v0);
-        const cv::Vec3b* r1 = tex.ptr<cv::Vec3b>(v1);
+        const float tu = (a0 + da * dx) * z * ftw - 0.5f;
+        const float tv = (b0 + db * dx) * z * fth - 0.5f;
+        int u0 = static_cast<int>(tu), v0 = static_cast<int>(tv);
+        if (tu < static_cast<float>(u0)) --u0;
+        if (tv < static_cast<float>(v0)) --v0;
+        const int fu = static_cast<int>((tu - static_cast<float>(u0)) * 256.0f);
+        const int fv = static_cast<int>((tv - static_cast<float>(v0)) * 256.0f);
+        int u1 = u0 + 1, v1 = v0 + 1;
+        if (static_cast<unsigned>(u0) >= static_cast<unsigned>(tw - 1) ||
+            static_cast<unsigned>(v0) >= static_cast<unsigned>(th - 1)) {
+          u0 = wrapIndex(u0, tw, repeat);
+          u1 = wrapIndex(u1, tw, repeat);
+          v0 = wrapIndex(v0, th, repeat);
+          v1 = wrapIndex(v1, th, repeat);
+        }
+        const std::uint8_t* r0 = tex_data + static_cast<std::ptrdiff_t>(v0) * tex_step;
+        const std::uint8_t* r1 = tex_data + static_cast<std::ptrdiff_t>(v1) * tex_step;
+        const std::uint8_t* p00 = r0 + 3 * u0;
+        const std::uint8_t* p01 = r0 + 3 * u1;
+        const std::uint8_t* p10 = r1 + 3 * u0;
+        const std::uint8_t* p11 = r1 + 3 * u1;
         cv::Vec3b out;
         for (int ch = 0; ch < 3; ++ch) {
-          const float top = r0[u0][ch] + fu * (r0[u1][ch] - r0[u0][ch]);
-          const float bottom = r1[u0][ch] + fu * (r1[u1][ch] - r1[u0][ch]);
-          out[ch] = cv::saturate_cast<std::uint8_t>((top + fv * (bottom - top)) * shade);
+          const int top = (p00[ch] << 8) + (p01[ch] - p00[ch]) * fu;
+          const int bottom = (p10[ch] << 8) + (p11[ch] - p10[ch]) * fu;
+          const int value = ((top << 8) + (bottom - top) * fv) >> 16;  // 0..255
+          const int shaded = (value * shade256) >> 8;
+          out[ch] = static_cast<std::uint8_t>(shaded > 255 ? 255 : shaded);
         }
         zrow[x] = z;
         crow[x] = out;

@@ -1,5 +1,6 @@
 #include "stillpoint/synth/room.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <numbers>
@@ -10,7 +11,7 @@ namespace stillpoint::synth {
 namespace {
 
 constexpr double kPi = std::numbers::pi;
-constexpr double kX0 = -3.0, kX1 = 3.0, kY0 = -1.5, kY1 = 5.0, kZ1 = 2.7;
+constexpr double kX0 = -3.0, kX1 = 3.0, kY0 = -1.5, kY1 = 4.6, kZ1 = 2.7;
 
 SE3 lookAt(const Vec3& centre, const Vec3& target) {
   const Vec3 z = (target - centre).normalized();
@@ -83,8 +84,11 @@ SE3 roomCameraPose(CameraMotion motion, double t) {
 
 Result<Room> buildRoom(const RoomOptions& options, const std::string& base_dir, std::uint64_t seed) {
   Room room;
+  // Texel density follows the image resolution (2048 texels across the back wall at 640 px).
+  const double scale = std::clamp(options.width / 640.0, 0.125, 2.0);
   auto tex = [&](TextureStyle style, int w, int h, std::uint64_t s, bool repeat) {
-    room.textures.push_back(std::make_shared<const Texture>(makeTexture(style, w, h, seed * 1000 + s), repeat));
+    const int sw = std::max(16, static_cast<int>(w * scale)), sh = std::max(16, static_cast<int>(h * scale));
+    room.textures.push_back(std::make_shared<const Texture>(makeTexture(style, sw, sh, seed * 1000 + s), repeat));
     return room.textures.back().get();
   };
   Mesh& m = room.mesh;

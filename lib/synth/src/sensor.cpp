@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <vector>
 
 namespace stillpoint::synth {
 namespace {
@@ -16,6 +17,22 @@ std::uint64_t splitmix(std::uint64_t x) {
 }
 
 bool valid(float z) { return z > 0 && std::isfinite(z); }
+
+// 4096 standard normal samples (small enough to stay in L1) (Box-Muller over a fixed hash sequence), so the
+// per-pixel noise costs one hash and one lookup.
+const std::vector<float>& gaussianTable() {
+  static const std::vector<float> table = [] {
+    std::vector<float> t(1 << 12);
+    for (std::size_t i = 0; i < t.size(); ++i) {
+      const std::uint64_t h1 = splitmix(i * 2 + 1), h2 = splitmix(i * 2 + 2);
+      const double u1 = (static_cast<double>(h1 >> 11) + 0.5) * 0x1.0p-53;
+      const double u2 = static_cast<double>(h2 >> 11) * 0x1.0p-53;
+      t[i] = static_cast<float>(std::sqrt(-2.0 * std::log(u1)) * std::cos(6.283185307179586 * u2));
+    }
+    return t;
+  }();
+  return table;
+}
 
 }  // namespace
 
@@ -54,39 +71,40 @@ void applyDepthSensor(const cv::Mat& z_m, const cv::Mat& select, const DepthSens
   if (raw->empty() || raw->size() != z_m.size() || raw->type() != CV_16UC1) {
     *raw = cv::Mat(H, W, CV_16UC1, cv::Scalar(0));
   }
-  const PixelNoise noise(seed);
+  const std::vector<float>& gauss = gaussianTable();
+  const auto random_drop = static_cast<std::uint32_t>(o.random_dropout * 16777216.0);
+  const auto edge_drop = static_cast<std::uint32_t>(o.edge_dropout * 16777216.0);
+  const float min_z = static_cast<float>(o.min_depth_m), max_z = static_cast<float>(o.max_depth_m);
+  const float jump_per_m = static_cast<float>(o.edge_jump_m);
+  const float sigma1 = static_cast<float>(o.sigma_at_1m);
+  const float factor = static_cast<float>(o.depth_factor);
+  const std::uint64_t frame_key = splitmix(seed);
   for (int y = 0; y < H; ++y) {
     const float* zr = z_m.ptr<float>(y);
+    const float* up = y > 0 ? z_m.ptr<float>(y - 1) : nullptr;
+    const float* down = y + 1 < H ? z_m.ptr<float>(y + 1) : nullptr;
     const std::uint8_t* sel = select.empty() ? nullptr : select.ptr<std::uint8_t>(y);
     std::uint16_t* out = raw->ptr<std::uint16_t>(y);
     for (int x = 0; x < W; ++x) {
       if (sel && !sel[x]) continue;
       const float z = zr[x];
-      const std::uint64_t index = static_cast<std::uint64_t>(y) * W + x;
-      if (!valid(z) || z < o.min_depth_m || z > o.max_depth_m) {
+      if (!valid(z) || z < min_z || z > max_z) {
         out[x] = 0;
         continue;
       }
-      const double jump = o.edge_jump_m * z;
-      bool edge = false;
-      auto check = [&](int xx, int yy) {
-        if (xx < 0 || yy < 0 || xx >= W || yy >= H) return;
-        const float zn = z_m.ptr<float>(yy)[xx];
-        if (valid(zn) && std::abs(zn - z) > jump) edge = true;
-      };
-      check(x - 1, y);
-      check(x + 1, y);
-      check(x, y - 1);
-      check(x, y + 1);
-      const double u = noise.uniform(index);
-      if (u < o.random_dropout || (edge && u < o.edge_dropout)) {
+      const float jump = jump_per_m * z;
+      auto far = [&](float zn) { return valid(zn) && std::abs(zn - z) > jump; };
+      const bool edge = (x > 0 && far(zr[x - 1])) || (x + 1 < W && far(zr[x + 1])) ||
+                        (up && far(up[x])) || (down && far(down[x]));
+      const std::uint64_t h = splitmix(frame_key ^ (static_cast<std::uint64_t>(y) * W + x));
+      const auto u24 = static_cast<std::uint32_t>(h >> 40);
+      if (u24 < random_drop || (edge && u24 < edge_drop)) {
         out[x] = 0;
         continue;
       }
-      const double sigma = o.sigma_at_1m * z * z;
-      const double noisy = z + sigma * noise.gaussian(index);
-      const long q = std::lround(noisy * o.depth_factor);
-      out[x] = static_cast<std::uint16_t>(std::clamp(q, 0L, 65535L));
+      const float noisy = z + sigma1 * z * z * gauss[h & 0xFFF];
+      const float q = noisy * factor + 0.5f;  // round half up; noisy > 0 in practice
+      out[x] = q <= 0.0f ? 0 : (q >= 65535.0f ? 65535 : static_cast<std::uint16_t>(q));
     }
   }
 }

@@ -103,7 +103,7 @@ cv::Mat makeTexture(TextureStyle style, int width, int height, std::uint64_t see
       cv::Mat img = tint(valueNoise(width, height, rng, 4, 7, 0.55), randomColour(rng, 150, 200),
                          randomColour(rng, 215, 255));
       drawBlocks(&img, rng, static_cast<int>(size / 40), static_cast<int>(size / 40), static_cast<int>(size / 6));
-      drawText(&img, rng, static_cast<int>(size / 25), size / 1500.0, size / 500.0);
+      drawText(&img, rng, static_cast<int>(size / 20), size / 2500.0, size / 1000.0);
       return img;
     }
     case TextureStyle::kWood: {

@@ -14,7 +14,7 @@ namespace stillpoint::synth {
 struct DepthSensorOptions {
   double depth_factor = 5000.0;  // raw value / depth_factor = metres
   double min_depth_m = 0.4;
-  double max_depth_m = 4.5;
+  double max_depth_m = 5.0;
   double sigma_at_1m = 0.0015;    // noise sigma (m) at 1 m; sigma(z) = sigma_at_1m * z^2
   double edge_jump_m = 0.06;      // a 4-neighbour further than this (times z) marks a depth edge
   double edge_dropout = 0.7;      // probability that an edge pixel has no measurement
