@@ -18,8 +18,10 @@ function(stillpoint_library)
     PRIVATE ${CMAKE_CURRENT_SOURCE_DIR}/src)
   target_link_libraries(stillpoint_${ARG_NAME} PUBLIC ${ARG_PUBLIC_LINKS} PRIVATE ${ARG_PRIVATE_LINKS})
   stillpoint_warnings(stillpoint_${ARG_NAME})
-  install(TARGETS stillpoint_${ARG_NAME} EXPORT stillpointTargets)
-  install(DIRECTORY ${CMAKE_CURRENT_SOURCE_DIR}/include/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+  # Component "dev": the robot package (cmake/StillpointPackaging.cmake) leaves it out.
+  install(TARGETS stillpoint_${ARG_NAME} EXPORT stillpointTargets COMPONENT dev)
+  install(DIRECTORY ${CMAKE_CURRENT_SOURCE_DIR}/include/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}
+          COMPONENT dev)
 endfunction()
 
 # stillpoint_test(NAME <name> SOURCES ... LINKS ... [LABELS ...])
@@ -47,4 +49,26 @@ function(stillpoint_benchmark)
   add_executable(${ARG_NAME} ${ARG_SOURCES})
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_LINKS} benchmark::benchmark benchmark::benchmark_main)
   stillpoint_warnings(${ARG_NAME})
+endfunction()
+
+# stillpoint_program_path(<var> <target>)
+# Sets <var> to the path a test should run <target> by. Natively the program
+# itself; in a cross build a wrapper script that starts it under
+# CMAKE_CROSSCOMPILING_EMULATOR, because ctest runs the test binary there but
+# a program the test starts (std::system) would go to the host's kernel.
+function(stillpoint_program_path var target)
+  if(NOT CMAKE_CROSSCOMPILING OR NOT CMAKE_CROSSCOMPILING_EMULATOR)
+    set(${var} "$<TARGET_FILE:${target}>" PARENT_SCOPE)
+    return()
+  endif()
+  set(command "")
+  foreach(word IN LISTS CMAKE_CROSSCOMPILING_EMULATOR)
+    string(APPEND command "'${word}' ")
+  endforeach()
+  set(wrapper ${CMAKE_BINARY_DIR}/emulated/${target})
+  file(GENERATE OUTPUT ${wrapper}
+       CONTENT "#!/bin/sh\nexec ${command}'$<TARGET_FILE:${target}>' \"$@\"\n"
+       FILE_PERMISSIONS OWNER_READ OWNER_WRITE OWNER_EXECUTE GROUP_READ GROUP_EXECUTE
+                        WORLD_READ WORLD_EXECUTE)
+  set(${var} ${wrapper} PARENT_SCOPE)
 endfunction()
