@@ -231,8 +231,9 @@ Result<YoloDecoding> decodeYolo(const cv::Mat& detections, const cv::Mat& protot
     const Detection& det = candidates[idx];
     const cv::Point2d tl = geometry.toImage({det.box_net.x, det.box_net.y});
     const cv::Point2d br = geometry.toImage({det.box_net.x + det.box_net.width, det.box_net.y + det.box_net.height});
-    const cv::Rect box = cv::Rect(cv::Point(int(std::floor(tl.x)), int(std::floor(tl.y))),
-                                  cv::Point(int(std::ceil(br.x)), int(std::ceil(br.y)))) & image_rect;
+    // Pixels whose centre lies inside the box.
+    const cv::Rect box = cv::Rect(cv::Point(int(std::ceil(tl.x - 0.5)), int(std::ceil(tl.y - 0.5))),
+                                  cv::Point(int(std::ceil(br.x - 0.5)), int(std::ceil(br.y - 0.5)))) & image_rect;
     Instance inst;
     inst.class_id = det.class_id;
     inst.class_name = class_names[det.class_id];
