@@ -28,7 +28,7 @@ constexpr const char* kUsage =
     "                        [--motion static|xyz|rpy|halfsphere] [--frames N] [--size WxH] [common options]\n"
     "       stillpoint-synth score SEQUENCE_DIR FEATURES.txt [--min-features N] [--per-frame]\n"
     "       stillpoint-synth presets\n"
-    "common options: [--seed N] [--blur] [--threads N] [--max-frames N] [--png-compression 0-9]\n"
+    "common options: [--seed N] [--blur] [--threads N] [--max-frames N] [--png-compression 0-9 (default 0: uncompressed, fastest)]\n"
     "                [--no-write] [--photo-dir DIR]\n"
     "\n"
     "overlay: renders the movers into every frame of a TUM sequence with groundtruth.txt at the\n"
@@ -44,7 +44,7 @@ struct Args {
   std::string command;
   std::vector<std::string> positional;
   std::string camera, config, preset, motion, photo_dir = STILLPOINT_PHOTO_DIR, size;
-  long seed = -1, threads = 2, max_frames = 0, frames = 0, png_compression = 1, min_features = 10;
+  long seed = -1, threads = 2, max_frames = 0, frames = 0, png_compression = 0, min_features = 10;
   bool blur = false, no_write = false, per_frame = false;
 };
 

@@ -16,6 +16,7 @@
 #include <opencv2/imgproc.hpp>
 #include <yaml-cpp/yaml.h>
 
+#include "png_writer.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/trajectory.hpp"
 #include "stillpoint/synth/room.hpp"
@@ -69,6 +70,7 @@ Status runParallel(std::size_t n, int threads, const std::function<Status(std::s
 }
 
 Status writePng(const fs::path& path, const cv::Mat& image, int compression) {
+  if (compression == 0) return writeStoredPng(path.string(), image);
   try {
     if (cv::imwrite(path.string(), image, {cv::IMWRITE_PNG_COMPRESSION, compression})) return Status::success();
   } catch (const std::exception& e) {

@@ -60,7 +60,8 @@ CompositeFrame composeOverlay(const MoverRenderer& movers, const cv::Mat& bgr, c
 struct GenerateOptions {
   int threads = 2;
   int max_frames = 0;         // 0 = all
-  int png_compression = 1;    // cv::IMWRITE_PNG_COMPRESSION
+  // 0: our stored-block writer (fast, large files); 1-9: OpenCV's zlib level.
+  int png_compression = 0;
   bool write_images = true;   // false: decode and render only (speed measurement)
 };
 
