@@ -173,11 +173,12 @@ Result<ModelCard> loadModelCard(const std::filesystem::path& path) {
   std::string model;
 
   if (Status s = r.checkKeys(root, "", {"name", "model", "licence", "input", "decoder", "classes",
-                                        "movable", "optional_movable"});
+                                        "movable", "optional_movable", "confirm_with_geometry"});
       !s)
     return Error{s.error()};
   for (Status s : {r.read(root, "", "name", &card.name, false), r.read(root, "", "model", &model, true),
                    r.read(root, "", "licence", &card.licence, false),
+                   r.read(root, "", "confirm_with_geometry", &card.confirm_with_geometry, false),
                    r.readList(root, "", "classes", &card.classes, true),
                    r.readList(root, "", "movable", &card.movable, false),
                    r.readList(root, "", "optional_movable", &card.optional_movable, false)})

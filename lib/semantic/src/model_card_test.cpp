@@ -45,6 +45,7 @@ decoder:
 classes: [bg, person, chair]
 movable: [person]
 optional_movable: [chair]
+confirm_with_geometry: true
 )";
 
 TEST_F(CardFile, ReadsEveryField) {
@@ -64,6 +65,7 @@ TEST_F(CardFile, ReadsEveryField) {
   EXPECT_EQ(card->decoder.background_class, "bg");
   EXPECT_EQ(card->classId("chair"), 2);
   EXPECT_EQ(card->optional_movable, (std::vector<std::string>{"chair"}));
+  EXPECT_TRUE(card->confirm_with_geometry);
 }
 
 struct BadCase {
@@ -119,6 +121,7 @@ TEST(ShippedCards, LoadAndListTheDefaultMovableClasses) {
     auto card = loadModelCard(kProjectModels / name);
     ASSERT_TRUE(card.ok()) << card.error();
     EXPECT_EQ(card->movable.front(), "person") << name;
+    EXPECT_EQ(card->confirm_with_geometry, card->name != "coco_yolov5s_seg_320") << name;
   }
   auto coco = loadModelCard(kProjectModels / "coco_yolov5s_seg_320.yaml");
   ASSERT_TRUE(coco.ok());

@@ -68,6 +68,11 @@ struct ModelCard {
   // when SegmenterOptions::movable_furniture is set.
   std::vector<std::string> optional_movable;
   std::string licence;  // free text, shown by tools
+  // The model is known to label static things as movable with high
+  // confidence (the person models take the TUM teddy bear for a person at
+  // P > 0.95, so no threshold helps): the pipeline should remove map content
+  // under its masks only where another cue (geometry) agrees.
+  bool confirm_with_geometry = false;
 
   // Checks every field; the message names the field.
   Status validate() const;
