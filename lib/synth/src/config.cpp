@@ -334,7 +334,8 @@ Result<SynthConfig> synthPreset(const std::string& name, const std::string& phot
   } else if (name == "chair-push") {
     c.movers = {chair};
   } else if (name == "walker") {
-    c.movers = {walker("walker", path(kWalk, {-1.2, 1.6, 0.0}, {1.2, 1.6, 0.0}, 0.6))};
+    // Walks to and fro on the right of the teddy, clear of the camera's arc on the left.
+    c.movers = {walker("walker", path(kWalk, {1.0, 0.7, 0.0}, {0.5, 2.4, 0.0}, 0.6))};
   } else if (name == "mix") {
     c.movers = {walk_poster, book_box, chair};
   } else if (name == "room-walker") {

@@ -439,7 +439,7 @@ Result<GenerationReport> generateRoom(const std::string& output_dir, const Synth
   if (options.max_frames > 0) n = std::min(n, static_cast<std::size_t>(options.max_frames));
   // Whole microseconds so the lists read back exactly.
   auto stampOf = [&](std::size_t k) {
-    return Timestamp::fromNanoseconds((1'000'000'000LL + std::llround(k * 1e6 / ro.rate_hz)) * 1000);
+    return Timestamp::fromNanoseconds((1'000'000'000'000'000LL + std::llround(k * 1e6 / ro.rate_hz)) * 1000);
   };
   std::vector<FrameResult> results(n);
   Status status = runParallel(n, options.threads, [&](std::size_t k) -> Status {

@@ -1,0 +1,87 @@
+// stillpoint-synth's command-line contract: generation writes the TUM layout
+// plus masks and movers.yaml, score reads a feature file back, bad input exits
+// 1 with a message naming what is wrong, usage errors exit 2.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <string>
+
+#include "cli_runner.hpp"
+
+namespace stillpoint {
+namespace {
+
+namespace fs = std::filesystem;
+using test::RunResult;
+
+::testing::AssertionResult contains(const std::string& text, const std::string& part) {
+  if (text.find(part) != std::string::npos) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << "\"" << part << "\" not found in:\n" << text;
+}
+
+class SynthCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    scratch_ = fs::temp_directory_path() / ("stillpoint_synth_cli_" + std::to_string(::getpid()) + "_" + info->name());
+    fs::remove_all(scratch_);
+    fs::create_directories(scratch_);
+  }
+  void TearDown() override { fs::remove_all(scratch_); }
+  RunResult synth(std::vector<std::string> args) {
+    args.insert(args.begin(), STILLPOINT_SYNTH);
+    return test::run(args, scratch_);
+  }
+  fs::path scratch_;
+};
+
+TEST_F(SynthCli, RoomThenScore) {
+  const fs::path out = scratch_ / "room";
+  const RunResult r = synth({"room", out.string(), "--preset", "room-walker", "--frames", "3", "--size", "80x60",
+                             "--seed", "4"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(contains(test::lastLine(r.out), "frames=3 "));
+  for (const char* f : {"rgb.txt", "depth.txt", "mask.txt", "groundtruth.txt", "movers.yaml"}) {
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  }
+  EXPECT_TRUE(contains(test::readFile(out / "movers.yaml"), "shape: walker"));
+  // Score one flagged feature at the centre of the image against frame 1.
+  const std::string stamp = "1000000000.000000";
+  ASSERT_TRUE(contains(test::readFile(out / "mask.txt"), stamp));
+  test::writeFile(scratch_ / "features.txt", "# t u v flagged\n" + stamp + " 40 30 1\n" + stamp + " 1 1 0\n");
+  const RunResult s = synth({"score", out.string(), (scratch_ / "features.txt").string(), "--per-frame"});
+  ASSERT_EQ(s.exit_code, 0) << s.err;
+  EXPECT_TRUE(contains(s.out, "precision_mean="));
+  EXPECT_TRUE(contains(s.out, stamp));
+}
+
+TEST_F(SynthCli, BadInputExitsOneWithAMessage) {
+  RunResult r = synth({"overlay", "/nonexistent/seq", (scratch_ / "o").string(), "--camera", "fr3", "--preset",
+                       "poster-walk"});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "/nonexistent/seq"));
+  test::writeFile(scratch_ / "bad.yaml", "movers:\n  - name: a\n    shape: sphere\n");
+  r = synth({"room", (scratch_ / "o").string(), "--config", (scratch_ / "bad.yaml").string()});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "sphere"));
+  EXPECT_TRUE(contains(r.err, "line 3"));
+  r = synth({"room", (scratch_ / "o").string(), "--preset", "nope"});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "unknown preset"));
+  r = synth({"score", scratch_.string(), (scratch_ / "f.txt").string()});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "mask.txt"));
+}
+
+TEST_F(SynthCli, UsageErrorsExitTwo) {
+  EXPECT_EQ(synth({}).exit_code, 2);
+  EXPECT_EQ(synth({"overlay", "a", "b", "--preset", "mix"}).exit_code, 2);  // no --camera
+  EXPECT_EQ(synth({"room", "a", "--frames", "zero"}).exit_code, 2);
+  const RunResult help = synth({"--help"});
+  EXPECT_EQ(help.exit_code, 0);
+  EXPECT_TRUE(contains(help.out, "usage: stillpoint-synth"));
+}
+
+}  // namespace
+}  // namespace stillpoint
