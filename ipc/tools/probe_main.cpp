@@ -1,12 +1,12 @@
 // ipc_probe: publisher and subscriber processes for the ipc integration tests.
 //
-//   ipc_probe pub --transport lcm|dds --count N [--rate HZ] [--status-every K]
+//   ipc_probe pub --transport lcm|dds|shm --count N [--rate HZ] [--status-every K]
 //                 [--ready-file F] [--hold-file F] [--timeout S] [transport options]
 //   ipc_probe sub --transport lcm|dds --count N [--statuses M] [--last-status K]
 //                 [--ready-file F] [--timeout S] [transport options]
 //   ipc_probe shm-writer NAME RATE_HZ SECONDS [CAPACITY]
 //                 (stress-test writer: shm_pattern.h records, paced at RATE_HZ; prints the rate reached)
-//   transport options: --url URL  --domain ID  --dds-config XML|URI  --suffix S
+//   transport options (shm ring: sp_probe<suffix>): --url URL  --domain ID  --dds-config XML|URI  --suffix S
 //
 // Message k is probe::testPose(k) (frame_counter k = 1..N); the subscriber checks every
 // field bit for bit and that each arrives exactly once, in order. Status messages are
@@ -77,21 +77,23 @@ Args parse(int argc, char** argv) {
       usage("bad value for " + k);
     }
   }
-  if (a.transport != "lcm" && a.transport != "dds") usage("--transport must be lcm or dds");
+  if (a.transport != "lcm" && a.transport != "dds" && !(a.transport == "shm" && a.role == "pub"))
+    usage("--transport must be lcm or dds (pub also shm)");
   if (a.count < 0 || a.rate <= 0 || a.timeout <= 0) usage("--count, --rate and --timeout must be positive");
   return a;
 }
 
 IpcOptions optionsFor(const Args& a) {
   IpcOptions o;
-  o.shm.enabled = false;
+  o.shm.enabled = a.transport == "shm";
+  o.shm.name = "sp_probe" + a.suffix;
   o.queue_capacity = 4096;  // the test wants every message: never drop at the hand-off
   if (a.transport == "lcm") {
     o.lcm.enabled = true;
     o.lcm.url = a.url;
     o.lcm.pose_channel += a.suffix;
     o.lcm.status_channel += a.suffix;
-  } else {
+  } else if (a.transport == "dds") {
     o.dds.enabled = true;
     o.dds.domain_id = a.domain;
     o.dds.config = a.dds_config;
@@ -121,8 +123,10 @@ int runPub(const Args& a) {
     std::cerr << "ipc_probe pub: subscriber never became ready (" << a.ready_file << ")\n";
     return 1;
   }
-  // DDS best-effort writers only send to readers they have matched.
+  // DDS best-effort writers only send to readers they have matched. Without a ready
+  // file nobody is waiting yet (the late-joiner test): publish at once.
   for (const auto& t : transports.value()) {
+    if (a.ready_file.empty()) break;
     while (t->matchedReaders() == 0) {
       if (Clock::now() > deadline) {
         std::cerr << "ipc_probe pub: no " << t->name() << " reader matched\n";

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# stillpoint-echo: usage errors (exit 2), a missing ring (exit 1, says so), and poses
+# read from a ring that a separate publisher process fills.
+# usage: echo_cli_test.sh BIN_DIR
+set -uo pipefail
+bin=$1
+echo_=$bin/stillpoint-echo
+fail() { echo "FAIL: $*"; exit 1; }
+work=$(mktemp -d)
+suffix="_echo$$"
+pub=
+cleanup() { [[ -n $pub ]] && kill "$pub" 2>/dev/null; wait 2>/dev/null; rm -rf "$work"; rm -f "/dev/shm/sp_probe$suffix"; }
+trap cleanup EXIT
+
+expect() {  # expected_exit expected_stderr_text args...
+  local want=$1 text=$2; shift 2
+  "$echo_" "$@" >"$work/out" 2>"$work/err"; local rc=$?
+  [[ $rc -eq $want ]] || { cat "$work/err"; fail "stillpoint-echo $* exited $rc, expected $want"; }
+  grep -qF -- "$text" "$work/err" || { cat "$work/err"; fail "stillpoint-echo $*: stderr lacks '$text'"; }
+}
+expect 2 "choose a transport" 
+expect 2 "choose one of" --shm --lcm
+expect 2 "unknown argument '--bogus'" --shm --bogus
+expect 2 "bad number 'abc' for --count" --shm --count abc
+expect 2 "--domain out of range" --dds --domain 999
+expect 2 "--seconds needs a value" --shm --seconds
+expect 1 "no pose ring of that name" --shm --name "sp_missing_$$"
+expect 1 "ipc.shm.name must be" --shm --name "../x"
+expect 1 "cannot be opened" --shm --config "$work/nonexistent.yaml"
+expect 1 "not of the form provider://" --lcm --url "239.255.76.67:7667"
+echo "usage and error cases: ok"
+
+"$bin/ipc_probe" pub --transport shm --suffix "$suffix" --count 2000 --rate 200 --timeout 30 >/dev/null 2>&1 &
+pub=$!
+for _ in $(seq 100); do [[ -e /dev/shm/sp_probe$suffix ]] && break; sleep 0.05; done
+timeout 20 "$echo_" --shm --name "sp_probe$suffix" --count 5 >"$work/out" 2>"$work/err" \
+  || { cat "$work/err"; fail "stillpoint-echo --shm failed"; }
+cat "$work/out"
+[[ $(grep -c '^pose frame=' "$work/out") -ge 5 ]] || fail "expected 5 pose lines"
+grep -q 'map=c0ffee' "$work/out" || fail "pose line lacks the map id"
+echo "PASS"
