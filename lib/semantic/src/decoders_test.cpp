@@ -251,3 +251,38 @@ TEST(PostFilter, DropsSmallWeakAndRelabelledInstancesVisibly) {
 
 }  // namespace
 }  // namespace stillpoint::semantic
+
+// ---- ONNX input reader ----------------------------------------------------
+#include <fstream>
+#include <random>
+
+#include "onnx_info.hpp"
+
+namespace stillpoint::semantic {
+namespace {
+
+TEST(OnnxInputs, ReadsDeclaredShapesAndSurvivesCorruptFiles) {
+  std::ifstream in(std::string(STILLPOINT_PROJECT_MODELS_DIR) + "/person_selfie_256.onnx", std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_GT(bytes.size(), 100000u);
+  auto inputs = parseOnnxInputs(bytes);
+  ASSERT_TRUE(inputs.ok()) << inputs.error();
+  ASSERT_EQ(inputs->size(), 1u);
+  EXPECT_EQ((*inputs)[0].name, "input_1");
+  EXPECT_EQ((*inputs)[0].dims, (std::vector<std::int64_t>{1, 3, 256, 256}));
+  // Truncated and bit-flipped copies: an error or a result, never a crash.
+  std::mt19937 rng(7);
+  for (int i = 0; i < 200; ++i) {
+    std::string broken = bytes.substr(0, rng() % bytes.size());
+    for (int k = 0; k < 4 && !broken.empty(); ++k) broken[rng() % broken.size()] ^= char(1 << (rng() % 8));
+    auto r = parseOnnxInputs(broken);
+    if (r.ok()) {
+      EXPECT_FALSE(r->empty());
+    }
+  }
+  EXPECT_FALSE(parseOnnxInputs("").ok());
+  EXPECT_FALSE(parseOnnxInputs(std::string(64, '\xff')).ok());
+}
+
+}  // namespace
+}  // namespace stillpoint::semantic

@@ -49,6 +49,17 @@ class DnnSegmenter final : public Segmenter {
   }
 
   Result<Segmentation> segment(const cv::Mat& bgr) override {
+    try {
+      return segmentOrThrow(bgr);
+    } catch (const cv::Exception& e) {
+      return Error{"segment: OpenCV error: " + std::string(e.what())};
+    } catch (const std::exception& e) {
+      return Error{"segment: " + std::string(e.what())};
+    }
+  }
+
+ private:
+  Result<Segmentation> segmentOrThrow(const cv::Mat& bgr) {
     const auto t0 = std::chrono::steady_clock::now();
     if (bgr.empty()) return Error{"segment: empty image"};
     if (bgr.type() != CV_8UC3)
@@ -72,7 +83,6 @@ class DnnSegmenter final : public Segmenter {
     return seg;
   }
 
- private:
   Status decode(const std::vector<cv::Mat>& outs, const InputGeometry& geometry, Segmentation* seg) const {
     const std::string where = "model '" + card_.name + "': ";
     const DecoderSpec& spec = card_.decoder;
@@ -201,7 +211,17 @@ Status SegmenterOptions::validate() const {
   return Status::success();
 }
 
+Result<std::unique_ptr<Segmenter>> createSegmenterOrThrow(const ModelCard& card, const SegmenterOptions& options);
+
 Result<std::unique_ptr<Segmenter>> createSegmenter(const ModelCard& card, const SegmenterOptions& options) {
+  try {
+    return createSegmenterOrThrow(card, options);
+  } catch (const std::exception& e) {
+    return Error{"model card '" + card.card_path.string() + "': cannot create the segmenter: " + e.what()};
+  }
+}
+
+Result<std::unique_ptr<Segmenter>> createSegmenterOrThrow(const ModelCard& card, const SegmenterOptions& options) {
   if (Status s = card.validate(); !s) return Error{s.error()};
   if (Status s = options.validate(); !s) return Error{s.error()};
   const std::string where = "model card '" + card.card_path.string() + "': ";
