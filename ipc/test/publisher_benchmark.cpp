@@ -4,6 +4,9 @@
 #include <benchmark/benchmark.h>
 #include <unistd.h>
 
+#include <chrono>
+#include <thread>
+
 #include "stillpoint/ipc/publisher.hpp"
 #include "stillpoint/ipc/shm_writer.hpp"
 
@@ -31,6 +34,31 @@ void BM_PublishPoseHandoff(benchmark::State& state) {
   (void)ShmPoseWriter::remove(o.shm.name);
 }
 BENCHMARK(BM_PublishPoseHandoff);
+
+// The camera-rate case: the publisher thread is asleep on an empty queue when the pose
+// arrives, so the call includes the futex wake-up. Waiting for the drain is not timed.
+void BM_PublishPoseHandoffIdleThread(benchmark::State& state) {
+  IpcOptions o;
+  o.shm.name = "sp_bench_idle_" + std::to_string(::getpid());
+  auto pub = Publisher::create(o);
+  if (!pub) {
+    state.SkipWithError(pub.error().c_str());
+    return;
+  }
+  PoseMessage p;
+  std::uint64_t k = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    while ((*pub)->stats().sent < k) std::this_thread::yield();
+    std::this_thread::sleep_for(std::chrono::microseconds(200));  // let the thread block again
+    state.ResumeTiming();
+    p.frame_counter = ++k;
+    (*pub)->publishPose(p);
+  }
+  pub.value().reset();
+  (void)ShmPoseWriter::remove(o.shm.name);
+}
+BENCHMARK(BM_PublishPoseHandoffIdleThread)->Iterations(5000);
 
 void BM_PublishStatusHandoff(benchmark::State& state) {
   std::vector<std::unique_ptr<Transport>> none;
