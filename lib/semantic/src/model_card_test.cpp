@@ -81,11 +81,11 @@ TEST_F(CardFile, ErrorsNameTheFieldAndLine) {
       {"  layout: NHWC", "  layout: CHW", "input.layout", "line 6"},        // bad enum, lists choices
       {"  pad_value: 0", "  pad_valu: 0", "input.pad_valu", "line 12"},     // unknown key (typo)
       {"  type: semantic_argmax", "  type: yolo", "decoder.type", "line 14"},
-      {"movable: [person]", "movable: [dog]", "movable", ""},
-      {"  std: [4, 5, 6]", "  std: [4, 0, 6]", "input.std", ""},
+      {"movable: [person]", "movable: [dog]", "movable", "line 18"},
+      {"  std: [4, 5, 6]", "  std: [4, 0, 6]", "input.std", "line 10"},
       {"  outputs: [out]", "  outputs: out", "decoder.outputs", "line 15"},
-      {"  width: 32", "  width: 0", "input.width", ""},
-      {"  background_class: bg", "  background_class: sky", "decoder.background_class", ""},
+      {"  width: 32", "  width: 0", "input.width", "line 4"},
+      {"  background_class: bg", "  background_class: sky", "decoder.background_class", "line 16"},
       {"classes: [bg, person, chair]", "classes: [bg, person, person]", "classes", ""},
       {"model: net.onnx\n", "", "model", ""},
   };
