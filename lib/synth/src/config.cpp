@@ -287,7 +287,7 @@ Result<SynthConfig> loadSynthConfig(const std::string& path) {
 
 std::vector<std::string> presetNames() {
   return {"poster-walk", "poster-oscillate", "poster-static-then-move", "poster-big", "book",
-          "chair-push", "walker", "mix", "room-walker", "room-walkers", "room-static"};
+          "chair-push", "walker", "mix", "room-walker", "room-walker-near", "room-walkers", "room-static"};
 }
 
 Result<SynthConfig> synthPreset(const std::string& name, const std::string& photo_dir) {
@@ -340,6 +340,8 @@ Result<SynthConfig> synthPreset(const std::string& name, const std::string& phot
     c.movers = {walk_poster, book_box, chair};
   } else if (name == "room-walker") {
     c.movers = {walker("walker", path(kWalk, {-1.8, 2.3, 0.0}, {1.8, 2.3, 0.0}, 0.7))};
+  } else if (name == "room-walker-near") {
+    c.movers = {walker("walker", path(kWalk, {-1.4, 1.3, 0.0}, {1.4, 1.3, 0.0}, 0.6))};
   } else if (name == "room-walkers") {
     PathSpec p2 = path(kStopAndGo, {1.5, 3.2, 0.0}, {-1.5, 2.6, 0.0}, 0.6);
     p2.go_s = 2.0;
