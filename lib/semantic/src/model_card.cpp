@@ -246,11 +246,13 @@ Result<ModelCard> loadModelCard(const std::filesystem::path& path) {
     const auto at = msg.find("field '");
     if (at == std::string::npos) return Error{msg};
     const auto start = at + 7, end = msg.find('\'', start);
-    YAML::Node node = root;
+    // reset(), not operator=: assigning a yaml-cpp node overwrites the node it refers to.
+    YAML::Node node;
+    node.reset(root);
     std::string field = msg.substr(start, end - start);
     for (std::size_t dot; (dot = field.find('.')) != std::string::npos; field.erase(0, dot + 1))
-      if (node.IsMap()) node = node[field.substr(0, dot)];
-    if (node.IsMap()) node = node[field];
+      if (node.IsMap()) node.reset(node[field.substr(0, dot)]);
+    if (node.IsMap()) node.reset(node[field]);
     if (!node.IsDefined() || node.IsNull() || node.Mark().line < 0) return Error{msg};
     const std::string prefix = "model card '" + file + "': ";
     return Error{prefix + "line " + std::to_string(node.Mark().line + 1) + ": " + msg.substr(prefix.size())};

@@ -88,6 +88,7 @@ TEST_F(CardFile, ErrorsNameTheFieldAndLine) {
       {"  background_class: bg", "  background_class: sky", "decoder.background_class", "line 16"},
       {"classes: [bg, person, chair]", "classes: [bg, person, person]", "classes", ""},
       {"model: net.onnx\n", "", "model", ""},
+      {"  background_class: bg", "  background_class: bg\n  threshold: 3", "decoder.threshold", "line 17"},
   };
   for (const BadCase& c : cases) {
     std::string text = kGood;
