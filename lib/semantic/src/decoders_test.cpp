@@ -286,3 +286,45 @@ TEST(OnnxInputs, ReadsDeclaredShapesAndSurvivesCorruptFiles) {
 
 }  // namespace
 }  // namespace stillpoint::semantic
+
+// ---- Depth agreement ------------------------------------------------------
+#include "stillpoint/semantic/depth_agreement.hpp"
+
+namespace stillpoint::semantic {
+namespace {
+
+TEST(DepthAgreement, CutsBackgroundOutOfTheMaskAndKeepsPixelsWithoutDepth) {
+  // A person at 2 m whose mask bleeds 10 columns onto a wall at 4 m; some
+  // mask pixels have no depth.
+  Segmentation seg;
+  seg.movable_mask = cv::Mat(60, 80, CV_8U, cv::Scalar(0));
+  Instance person;
+  person.class_name = "person";
+  person.movable = true;
+  person.box = cv::Rect(10, 10, 40, 40);
+  person.mask = cv::Mat(40, 40, CV_8U, cv::Scalar(255));
+  person.area = 1600;
+  seg.instances = {person};
+  seg.movable_mask(person.box).setTo(255);
+  cv::Mat depth(60, 80, CV_16U, cv::Scalar(4.0 * 5000));     // wall
+  depth(cv::Rect(10, 10, 30, 40)).setTo(2.0 * 5000);         // the person: columns 10..39
+  depth(cv::Rect(12, 12, 4, 4)).setTo(0);                    // no measurement
+  auto r = applyDepthAgreement(depth, {}, &seg);
+  ASSERT_TRUE(r.ok()) << r.error();
+  ASSERT_EQ(r->size(), 1u);
+  EXPECT_FLOAT_EQ((*r)[0].median_m, 2.0f);
+  EXPECT_EQ((*r)[0].removed_pixels, 10 * 40);
+  EXPECT_EQ(seg.instances[0].area, 1200);
+  EXPECT_EQ(seg.movable_pixels, 1200);
+  EXPECT_EQ(seg.movable_mask.at<uchar>(30, 45), 0);    // wall
+  EXPECT_EQ(seg.movable_mask.at<uchar>(30, 20), 255);  // person
+  EXPECT_EQ(seg.movable_mask.at<uchar>(13, 13), 255);  // no depth: kept
+
+  auto wrong = applyDepthAgreement(cv::Mat(10, 10, CV_16U), {}, &seg);
+  ASSERT_FALSE(wrong.ok());
+  EXPECT_NE(wrong.error().find("10x10"), std::string::npos) << wrong.error();
+  EXPECT_FALSE(applyDepthAgreement(cv::Mat(60, 80, CV_8U), {}, &seg).ok());
+}
+
+}  // namespace
+}  // namespace stillpoint::semantic

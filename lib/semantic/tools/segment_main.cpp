@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -13,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "stillpoint/semantic/depth_agreement.hpp"
 #include "stillpoint/semantic/segmenter.hpp"
 
 namespace fs = std::filesystem;
@@ -26,9 +28,10 @@ const char* kUsage =
     "                          [--out DIR] [--threshold P] [--score-threshold S]\n"
     "                          [--min-area FRACTION] [--min-confidence P] [--static-overlap IOU]\n"
     "                          [--furniture] [--threads N]\n"
-    "                          (IMAGE... | --tum DATASET_DIR [--from I] [--to J])\n"
+    "                          (IMAGE... | --tum DATASET_DIR [--from I] [--to J] [--depth])\n"
     "Prints one line per image and a summary line; --out writes <name>_overlay.png\n"
-    "(movable pixels red, pixels the post-filter dropped yellow, boxes with class and score).\n";
+    "(movable pixels red, pixels the post-filter dropped yellow, boxes with class and score).\n"
+    "--depth (with --tum): cut mask pixels that disagree with the instance's depth (TUM depth, /5000).\n";
 
 int usage(const std::string& why) {
   std::cerr << "stillpoint-segment: " << why << "\n" << kUsage;
@@ -43,6 +46,30 @@ bool parseNumber(const std::string& text, double* out) {
   } catch (...) {
     return false;
   }
+}
+
+// Timestamped file list (rgb.txt / depth.txt layout).
+std::vector<std::pair<double, fs::path>> readList(const fs::path& dir, const char* name) {
+  std::vector<std::pair<double, fs::path>> out;
+  std::ifstream in(dir / name);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream ss(line);
+    double t;
+    std::string file;
+    if (ss >> t >> file) out.emplace_back(t, dir / file);
+  }
+  return out;
+}
+
+// The depth image closest in time (within 20 ms), or an empty path.
+fs::path nearestDepth(const std::vector<std::pair<double, fs::path>>& depths, double t) {
+  fs::path best;
+  double best_dt = 0.02;
+  for (const auto& [td, path] : depths)
+    if (std::abs(td - t) <= best_dt) best_dt = std::abs(td - t), best = path;
+  return best;
 }
 
 Result<std::vector<fs::path>> tumFrames(const fs::path& dir, int from, int to) {
@@ -90,7 +117,7 @@ cv::Mat overlay(const cv::Mat& bgr, const Segmentation& seg) {
 int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
   fs::path card_path, out_dir, tum_dir;
-  bool recommended = false;
+  bool recommended = false, use_depth = false;
   ModelLookup lookup;
   SegmenterOptions options;
   int from = 0, to = -1;
@@ -118,6 +145,8 @@ int main(int argc, char** argv) {
     } else if (a == "--tum") {
       if (!value(&v)) return usage("--tum needs a folder");
       tum_dir = v;
+    } else if (a == "--depth") {
+      use_depth = true;
     } else if (a == "--furniture") {
       options.movable_furniture = true;
     } else if (a == "--threshold" || a == "--score-threshold" || a == "--min-area" || a == "--min-confidence" || a == "--static-overlap" ||
@@ -139,6 +168,7 @@ int main(int argc, char** argv) {
   }
   if (card_path.empty() == !recommended) return usage("give exactly one of --card and --recommended");
   if (images.empty() == tum_dir.empty()) return usage("give images or --tum, not both or neither");
+  if (use_depth && tum_dir.empty()) return usage("--depth needs --tum");
 
   ModelCard card;
   if (recommended) {
@@ -162,6 +192,12 @@ int main(int argc, char** argv) {
   if (!segmenter) return std::cerr << "stillpoint-segment: " << segmenter.error() << "\n", 1;
   if (!out_dir.empty()) fs::create_directories(out_dir);
 
+  std::vector<std::pair<double, fs::path>> depths, rgbs;
+  if (use_depth) {
+    depths = readList(tum_dir, "depth.txt");
+    rgbs = readList(tum_dir, "rgb.txt");
+  }
+  long depth_removed = 0;
   int processed = 0, with_movable = 0, failed = 0;
   double sum_pct = 0, max_pct = 0, sum_filtered_pct = 0;
   std::vector<double> times;
@@ -177,6 +213,18 @@ int main(int argc, char** argv) {
       std::cerr << "stillpoint-segment: '" << path.string() << "': " << seg.error() << "\n";
       ++failed;
       continue;
+    }
+    if (use_depth) {
+      fs::path depth_path;
+      for (const auto& [t, p] : rgbs)
+        if (p == path) depth_path = nearestDepth(depths, t);
+      const cv::Mat depth = depth_path.empty() ? cv::Mat() : cv::imread(depth_path.string(), cv::IMREAD_UNCHANGED);
+      auto agreement = applyDepthAgreement(depth, DepthAgreementOptions{}, &*seg);
+      if (!agreement) {
+        std::cerr << "stillpoint-segment: '" << path.string() << "': no usable depth: " << agreement.error() << "\n";
+      } else {
+        for (const auto& d : *agreement) depth_removed += d.removed_pixels;
+      }
     }
     ++processed;
     const double pct = 100.0 * seg->movableFraction();
@@ -202,8 +250,10 @@ int main(int argc, char** argv) {
   if (processed == 0) return std::cerr << "stillpoint-segment: no image could be processed\n", 1;
   std::sort(times.begin(), times.end());
   std::printf("model=%s images=%d failed=%d with_movable=%d frac_with_movable=%.3f mean_movable_pct=%.2f "
-              "max_movable_pct=%.2f mean_filtered_pct=%.2f ms_median=%.1f\n",
+              "max_movable_pct=%.2f mean_filtered_pct=%.2f ms_median=%.1f",
               card.name.c_str(), processed, failed, with_movable, with_movable / double(processed),
               sum_pct / processed, max_pct, sum_filtered_pct / processed, times[times.size() / 2]);
+  if (use_depth) std::printf(" depth_removed_pixels=%ld", depth_removed);
+  std::printf("\n");
   return 0;
 }
