@@ -240,16 +240,19 @@ Result<std::unique_ptr<Segmenter>> createSegmenterOrThrow(const ModelCard& card,
   std::error_code ec;
   if (!std::filesystem::is_regular_file(card.model_path, ec))
     return Error{where + "field 'model': file '" + card.model_path.string() + "' does not exist"};
-  std::ifstream in(card.model_path, std::ios::binary);
-  std::vector<uchar> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (!in.good() && !in.eof()) return Error{where + "cannot read model '" + card.model_path.string() + "'"};
-  auto inputs = parseOnnxInputs(std::string(bytes.begin(), bytes.end()));
+  std::ifstream in(card.model_path, std::ios::binary | std::ios::ate);
+  const std::streamoff size = in ? std::streamoff(in.tellg()) : -1;
+  std::string bytes(size > 0 ? std::size_t(size) : 0, '\0');
+  in.seekg(0);
+  if (size <= 0 || !in.read(bytes.data(), size))
+    return Error{where + "cannot read model '" + card.model_path.string() + "' (empty or unreadable)"};
+  auto inputs = parseOnnxInputs(bytes);
   if (!inputs) return Error{where + "model '" + card.model_path.string() + "': " + inputs.error()};
   if (Status s = checkDeclaredInput(card, *inputs); !s) return Error{s.error()};
 
   cv::dnn::Net net;
   try {
-    net = cv::dnn::readNetFromONNX(bytes);
+    net = cv::dnn::readNetFromONNX(bytes.data(), bytes.size());
   } catch (const cv::Exception& e) {
     return Error{where + "OpenCV cannot load model '" + card.model_path.string() + "': " + e.what()};
   }

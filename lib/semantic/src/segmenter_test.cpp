@@ -130,9 +130,12 @@ TEST(StartUpErrors, MissingCorruptOrMismatchedModels) {
   };
   const fs::path garbage = tempDir("garbage") / "garbage.onnx";
   std::ofstream(garbage) << "this is not a network";
+  const fs::path empty = tempDir("garbage") / "empty.onnx";
+  std::ofstream{empty};
   const std::vector<Case> cases = {
       {tiny_card, {}, "/nonexistent/model.onnx", "does not exist"},
       {tiny_card, {}, garbage, "not a valid ONNX"},
+      {tiny_card, {}, empty, "empty or unreadable"},
       {person_card, {{"width: 256", "width: 320"}}, person_model, "'input.width'/'input.height' (320x256)"},
       {person_card, {{"layout: NCHW", "layout: NHWC"}}, person_model, "input.layout"},
       {person_card, {{"name: input_1", "name: input_2"}}, person_model, "no input 'input_2'"},
