@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <thread>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -85,6 +86,23 @@ TEST(TinySemantic, PostFilterDropsSmallRegionsVisibly) {
   ASSERT_EQ(r->instances.size(), 2u);
   EXPECT_FALSE(r->instances[0].kept);
   EXPECT_EQ(r->labels.at<uchar>(24, 10), 1);  // labels stay raw
+}
+
+// The intended use: created on one thread, used from one worker thread.
+TEST(TinySemantic, RunsOnAWorkerThread) {
+  auto seg = createSegmenter(kTestData / "tiny_semantic.yaml");
+  ASSERT_TRUE(seg.ok()) << seg.error();
+  std::unique_ptr<Segmenter> segmenter = std::move(seg).value();
+  int movable = -1;
+  {
+    std::jthread worker([s = segmenter.get(), &movable] {
+      for (int i = 0; i < 3; ++i) {
+        auto r = s->segment(bands());
+        movable = r.ok() ? r->movable_pixels : -1;
+      }
+    });
+  }
+  EXPECT_GT(movable, 0);
 }
 
 TEST(TinySemantic, BadImagesAreErrors) {
