@@ -136,16 +136,18 @@ cv::Mat makeTexture(TextureStyle style, int width, int height, std::uint64_t see
       return img;
     }
     case TextureStyle::kFabric: {
-      cv::Mat img = tint(valueNoise(width, height, rng, 6, 7, 0.6), randomColour(rng, 20, 90),
-                         randomColour(rng, 120, 240));
-      // Stripes or checks, like printed cloth.
-      const int step = std::max(6, static_cast<int>(size / rng.uniform(10, 30)));
-      const cv::Scalar stripe = randomColour(rng, 20, 240);
-      for (int x = 0; x < width; x += step) cv::line(img, {x, 0}, {x, height}, stripe, std::max(1, step / 6));
+      // Printed cloth: contrasting stripes or checks, patches and a few printed words,
+      // so that clothes carry corners the way patterned real clothes do.
+      cv::Mat img = tint(valueNoise(width, height, rng, 6, 7, 0.6), randomColour(rng, 10, 70),
+                         randomColour(rng, 140, 250));
+      const int step = std::max(6, static_cast<int>(size / rng.uniform(8, 16)));
+      const cv::Scalar stripe = randomColour(rng, 0, 255);
+      for (int x = 0; x < width; x += step) cv::line(img, {x, 0}, {x, height}, stripe, std::max(2, step / 4));
       if (rng.uniform(0, 2)) {
-        for (int y = 0; y < height; y += step) cv::line(img, {0, y}, {width, y}, stripe, std::max(1, step / 6));
+        for (int y = 0; y < height; y += step) cv::line(img, {0, y}, {width, y}, stripe, std::max(2, step / 4));
       }
-      drawBlocks(&img, rng, static_cast<int>(size / 60), static_cast<int>(size / 50), static_cast<int>(size / 10));
+      drawBlocks(&img, rng, static_cast<int>(size / 25), static_cast<int>(size / 20), static_cast<int>(size / 6));
+      drawText(&img, rng, static_cast<int>(size / 60) + 2, size / 700.0, size / 350.0);
       return img;
     }
     case TextureStyle::kStone: {
