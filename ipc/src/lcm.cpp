@@ -140,8 +140,10 @@ class LcmSubscriber final : public Subscriber {
     if (!lcm_.good()) return Error{"lcm: cannot open URL '" + options_.url + "'"};
     // Raw callbacks: decode failures (another schema on our channel) become errors
     // returned from poll() instead of being dropped silently.
-    lcm_.subscribeFunction(options_.pose_channel, &LcmSubscriber::onRawPose, this);
-    lcm_.subscribeFunction(options_.status_channel, &LcmSubscriber::onRawStatus, this);
+    // LCM drops messages beyond a subscription's queue capacity (default 30) when the
+    // caller polls late; a subscriber descheduled for 30 ms at 1 kHz would lose poses.
+    lcm_.subscribeFunction(options_.pose_channel, &LcmSubscriber::onRawPose, this)->setQueueCapacity(1024);
+    lcm_.subscribeFunction(options_.status_channel, &LcmSubscriber::onRawStatus, this)->setQueueCapacity(64);
     return Status::success();
   }
 

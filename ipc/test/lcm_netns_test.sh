@@ -5,16 +5,17 @@
 #   2. lcm-logger records our channels, lcm-logplayer replays them into a subscriber,
 #      and the same recording reads back through our file:// subscriber.
 # Skips (exit 77) when not root or when `ip netns` is unavailable.
-# usage: lcm_netns_test.sh BIN_DIR WORK_DIR
+# usage: lcm_netns_test.sh BIN_DIR WORK_DIR [LCM_TOOLS_DIR]
 set -uo pipefail
 bin=$1
 work=$2
+lcm_tools=${3:-/usr/bin}
 skip() { echo "SKIP: $*"; exit 77; }
 fail() { echo "FAIL: $*"; exit 1; }
 
 [[ $(id -u) -eq 0 ]] || skip "needs root to create a network namespace (ip netns add)"
 command -v ip >/dev/null || skip "iproute2 (ip) is not installed"
-command -v lcm-logger >/dev/null && command -v lcm-logplayer >/dev/null || fail "lcm-logger/lcm-logplayer missing (liblcm-bin)"
+[[ -x $lcm_tools/lcm-logger && -x $lcm_tools/lcm-logplayer ]] || fail "lcm-logger/lcm-logplayer missing in $lcm_tools (liblcm-bin)"
 
 ns="sp-ipc-lcm-$$-$RANDOM"
 pids=()
@@ -48,22 +49,25 @@ cat "$work/sub.out"
 echo "== lcm-logger recording, lcm-logplayer replay"
 log="$work/rec.lcmlog"
 # `ip netns exec` forks: record the logger's own pid to signal it, not ip's.
-in_ns sh -c 'echo $$ >"$1"; exec lcm-logger -q -f -c "STILLPOINT_.*_REC" --flush-interval=10 "$2"' sh \
-  "$work/logger.pid" "$log" &
+in_ns sh -c 'echo $$ >"$1"; exec "$3/lcm-logger" -q -f -c "STILLPOINT_.*_REC" --flush-interval=10 "$2"' sh \
+  "$work/logger.pid" "$log" "$lcm_tools" &
 pids+=($!)
 for _ in $(seq 100); do [[ -s $work/logger.pid ]] && break; sleep 0.01; done
 logger=$(cat "$work/logger.pid")
 sleep 0.5  # the logger must have joined the group before we publish
 in_ns "$bin/ipc_probe" pub --transport lcm --url "$url" --suffix _REC --count 300 --rate 1000 --status-every 30 \
   --timeout 20 || fail "publisher (recording) failed"
+# lcm-logger flushes its file and notices SIGTERM only when a message arrives, so keep a
+# filler stream going on a channel it records but our subscribers ignore
+# (STILLPOINT_POSE_FLUSH_REC) until it has exited cleanly.
+in_ns "$bin/ipc_probe" pub --transport lcm --url "$url" --suffix _FLUSH_REC --count 500 --rate 100 \
+  --timeout 20 >/dev/null 2>&1 &
+filler=$!; pids+=($filler)
 sleep 0.3
-# lcm-logger flushes every 10 ms; it may only notice SIGTERM when the next message
-# arrives, so fall back to SIGKILL (everything is on disk by now). It must be gone
-# before the replay, or it would record the replayed messages too.
 kill -TERM $logger
-for _ in $(seq 20); do kill -0 $logger 2>/dev/null || break; sleep 0.05; done
-kill -KILL $logger 2>/dev/null
-for _ in $(seq 20); do kill -0 $logger 2>/dev/null || break; sleep 0.05; done
+for _ in $(seq 100); do kill -0 $logger 2>/dev/null || break; sleep 0.05; done
+kill -0 $logger 2>/dev/null && fail "lcm-logger did not exit on SIGTERM"
+kill $filler 2>/dev/null; wait $filler 2>/dev/null
 [[ -s $log ]] || fail "lcm-logger wrote nothing"
 
 echo "== the recording through our file:// subscriber"
@@ -74,7 +78,7 @@ in_ns "$bin/ipc_probe" sub --transport lcm --url "$url" --suffix _REC --count 30
   --ready-file "$work/ready2" --timeout 20 >"$work/replay.out" 2>&1 &
 sub=$!; pids+=($sub)
 for _ in $(seq 200); do [[ -e $work/ready2 ]] && break; sleep 0.05; done
-in_ns lcm-logplayer -s 1 "$log" >/dev/null || fail "lcm-logplayer failed"
+in_ns "$lcm_tools/lcm-logplayer" -s 1 "$log" >/dev/null || fail "lcm-logplayer failed"
 wait $sub; rc=$?
 cat "$work/replay.out"
 [[ $rc -eq 0 ]] || fail "replayed log: messages missing or wrong"

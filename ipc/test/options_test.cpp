@@ -72,3 +72,27 @@ TEST(IpcOptions, LoadsTheIpcSectionOfAFile) {
 }
 
 }  // namespace stillpoint::ipc
+
+namespace stillpoint::ipc {
+
+// config/ipc.yaml documents every option with its default: keep the two in step.
+TEST(IpcOptions, ShippedConfigEqualsTheDefaults) {
+  auto o = loadIpcOptions(std::string(STILLPOINT_SOURCE_DIR) + "/config/ipc.yaml");
+  ASSERT_TRUE(o.ok()) << o.error();
+  const IpcOptions d;
+  EXPECT_EQ(o->queue_capacity, d.queue_capacity);
+  EXPECT_EQ(o->shm.enabled, d.shm.enabled);
+  EXPECT_EQ(o->shm.name, d.shm.name);
+  EXPECT_EQ(o->shm.capacity, d.shm.capacity);
+  EXPECT_EQ(o->lcm.enabled, d.lcm.enabled);
+  EXPECT_EQ(o->lcm.url, d.lcm.url);
+  EXPECT_EQ(o->lcm.pose_channel, d.lcm.pose_channel);
+  EXPECT_EQ(o->lcm.status_channel, d.lcm.status_channel);
+  EXPECT_EQ(o->dds.enabled, d.dds.enabled);
+  EXPECT_EQ(o->dds.domain_id, d.dds.domain_id);
+  EXPECT_EQ(o->dds.config, d.dds.config);
+  EXPECT_EQ(o->dds.pose_topic, d.dds.pose_topic);
+  EXPECT_EQ(o->dds.status_topic, d.dds.status_topic);
+}
+
+}  // namespace stillpoint::ipc

@@ -1,0 +1,96 @@
+#!/usr/bin/env python3
+"""Python LCM subscriber for stillpoint's messages (PyPI `lcm` + the lcm-gen Python types).
+
+    lcm_python_check.py GEN_PYTHON_DIR URL COUNT STATUSES [SUFFIX] [READY_FILE]
+
+Subscribes to STILLPOINT_POSE<SUFFIX> and STILLPOINT_STATUS<SUFFIX> on URL (udpm:// or
+file://...?speed=0), decodes with stillpoint_lcm.pose_t/status_t and checks every pose
+against the formula of ipc/tools/probe_messages.cpp (testPose), bit for bit. Exit 0 when
+COUNT poses and STATUSES statuses arrived exactly; 77 when the lcm module is missing."""
+import math
+import os
+import sys
+import time
+
+try:
+    import lcm
+except ImportError:
+    print("SKIP: Python module lcm not installed (pip install lcm)")
+    sys.exit(77)
+
+gen_dir, url, count, statuses = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+suffix = sys.argv[5] if len(sys.argv) > 5 else ""
+ready = sys.argv[6] if len(sys.argv) > 6 else ""
+sys.path.insert(0, gen_dir)
+from stillpoint_lcm import pose_t, status_t  # noqa: E402
+
+
+def expected_pose(k):
+    """Same arithmetic as probe::testPose(k): CPython's math calls the C library."""
+    a = k * 0.001
+    half = 0.5 * math.fmod(a * 7.0, 6.28318530717958)
+    ax = (0.267261241912424, 0.534522483824849, 0.801783725737273)
+    s = math.sin(half)
+    map_id = 0xC0FFEE0000000000 | (k // 100)
+    return {
+        "schema_version": 1,
+        "sensor_stamp_ns": 1700000000123456789 + k * 33333333,
+        "frame_counter": k,
+        "position": [math.sin(a) * 3.14159265358979, -math.ldexp(float(k), -7) / 3.0, 1.0 / (k + 3.0)],
+        "orientation": [ax[0] * s, ax[1] * s, ax[2] * s, math.cos(half)],
+        "tracking_state": k % 4,
+        "tracked_features": 400 + k % 700,
+        "dynamic_rejected_features": k % 37,
+        "keyframes": k // 10,
+        "map_id": map_id - (1 << 64),  # LCM int64 carries the unsigned bits
+    }
+
+
+seen = set()
+problems = []
+n_status = 0
+
+
+def on_pose(channel, data):
+    m = pose_t.decode(data)
+    want = expected_pose(m.frame_counter)
+    for field, value in want.items():
+        got = getattr(m, field)
+        if list(got) != value if isinstance(value, list) else got != value:
+            problems.append(f"pose {m.frame_counter}: {field} = {got!r}, expected {value!r}")
+    if m.frame_counter in seen:
+        problems.append(f"pose {m.frame_counter} twice")
+    seen.add(m.frame_counter)
+
+
+def on_status(channel, data):
+    global n_status
+    m = status_t.decode(data)
+    n_status += 1
+    j = m.frames_received // 30
+    if m.num_threads != len(m.threads) or [t.name for t in m.threads] != ["tracking", "local_mapping", "publisher"]:
+        problems.append(f"status {j}: threads {[t.name for t in m.threads]}")
+    if m.uptime_s != 0.25 * j + 1.0 / 3.0 or m.queues[1].dropped != 0xFFFFFFFFFFFFFFF0 - (1 << 64):
+        problems.append(f"status {j}: fields differ")
+
+
+lc = lcm.LCM(url)
+# LCM drops messages beyond a subscription's queue capacity (default 30) when the
+# handler falls behind; a slow Python handler on a busy machine needs more.
+for channel, handler in (("STILLPOINT_POSE", on_pose), ("STILLPOINT_STATUS", on_status)):
+    lc.subscribe(channel + suffix, handler).set_queue_capacity(4096)
+if ready:
+    open(ready, "w").write("ready\n")
+deadline = time.monotonic() + 20
+while (len(seen) < count or n_status < statuses) and time.monotonic() < deadline:
+    try:
+        lc.handle_timeout(100)
+    except Exception:  # file:// provider at the end of the log
+        break
+missing = count - len(seen & set(range(1, count + 1)))
+print(f"python received={len(seen)} missing={missing} statuses={n_status} problems={len(problems)}")
+if missing:
+    print("  missing: " + " ".join(str(k) for k in sorted(set(range(1, count + 1)) - seen)[:20]))
+for p in problems[:5]:
+    print("  " + p)
+sys.exit(0 if missing == 0 and n_status == statuses and not problems else 1)
