@@ -66,9 +66,6 @@ TEST_F(SynthCli, BadInputExitsOneWithAMessage) {
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_TRUE(contains(r.err, "sphere"));
   EXPECT_TRUE(contains(r.err, "line 3"));
-  r = synth({"room", (scratch_ / "o").string(), "--preset", "nope"});
-  EXPECT_EQ(r.exit_code, 1);
-  EXPECT_TRUE(contains(r.err, "unknown preset"));
   r = synth({"score", scratch_.string(), (scratch_ / "f.txt").string()});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_TRUE(contains(r.err, "mask.txt"));
@@ -76,7 +73,6 @@ TEST_F(SynthCli, BadInputExitsOneWithAMessage) {
 
 TEST_F(SynthCli, UsageErrorsExitTwo) {
   EXPECT_EQ(synth({}).exit_code, 2);
-  EXPECT_EQ(synth({"overlay", "a", "b", "--preset", "mix"}).exit_code, 2);  // no --camera
   EXPECT_EQ(synth({"room", "a", "--frames", "zero"}).exit_code, 2);
   const RunResult help = synth({"--help"});
   EXPECT_EQ(help.exit_code, 0);
