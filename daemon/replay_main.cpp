@@ -26,17 +26,21 @@ using namespace stillpoint;
 constexpr const char* kUsage =
     "usage: stillpoint-replay DATASET_DIR --camera fr1|fr2|fr3|CAMERA.yaml --output TRAJ.txt\n"
     "                         [--config SLAM.yaml] [--sequential] [--paced]\n"
-    "                         [--modules none] [--max-frames N] [--log-level debug|info|warn|error]\n"
+    "                         [--modules none|geometry] [--features-out FEATURES.txt]\n"
+    "                         [--max-frames N] [--log-level debug|info|warn|error]\n"
     "       stillpoint-replay --help | --version\n"
     "\n"
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
     "as it can (--paced: at the recorded rate), writes the camera trajectory in TUM format and\n"
     "prints a summary. When the folder has groundtruth.txt, ATE/RPE are printed too.\n"
     "--sequential runs local mapping inline on one thread (deterministic).\n"
+    "--modules picks the dynamic-object modules (default: as the config enables them; 'none'\n"
+    "turns all off). --features-out writes every feature the geometry module judged, one line\n"
+    "'timestamp u v dynamic(0|1)', for stillpoint-synth score.\n"
     "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n";
 
 struct Args {
-  std::string dataset, camera, output, config, modules = "none", log_level = "warn";
+  std::string dataset, camera, output, config, modules, features_out, log_level = "warn";
   bool sequential = false, paced = false;
   long max_frames = -1;
 };
@@ -60,6 +64,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       if (!value(&args->config)) return false;
     } else if (a == "--modules") {
       if (!value(&args->modules)) return false;
+    } else if (a == "--features-out") {
+      if (!value(&args->features_out)) return false;
     } else if (a == "--log-level") {
       if (!value(&args->log_level)) return false;
     } else if (a == "--max-frames") {
@@ -88,7 +94,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
   if (args->dataset.empty()) *error = "missing DATASET_DIR";
   else if (args->camera.empty()) *error = "missing --camera";
   else if (args->output.empty()) *error = "missing --output";
-  else if (args->modules != "none") *error = "--modules: only 'none' is available in this build";
+  else if (!args->modules.empty() && args->modules != "none" && args->modules != "geometry")
+    *error = "--modules: expected 'none' or 'geometry', got '" + args->modules + "'";
   return error->empty();
 }
 
@@ -152,6 +159,17 @@ int main(int argc, char** argv) {
     options = *loaded;
   }
   if (args.sequential) options.sequential = true;
+  if (!args.modules.empty()) options.geometry.enabled = args.modules == "geometry";
+  std::FILE* features_out = nullptr;
+  if (!args.features_out.empty()) {
+    features_out = std::fopen(args.features_out.c_str(), "w");
+    if (!features_out) {
+      std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.features_out.c_str());
+      return 1;
+    }
+    std::fputs("# timestamp u v dynamic: features matched in tracking stage 1, judged by the geometry module\n",
+               features_out);
+  }
 
   dataset::DatasetOptions dataset_options;
   dataset_options.expected_width = camera->width;
@@ -170,6 +188,8 @@ int main(int argc, char** argv) {
 
   std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0;
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
+  std::vector<double> geometry_ms, clustering_ms;
+  std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0;
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
   const auto start = std::chrono::steady_clock::now();
   Timestamp first_stamp;
@@ -198,6 +218,18 @@ int main(int argc, char** argv) {
     local_map_ms.push_back(out->stages.local_map);
     pose_opt_ms.push_back(out->stages.pose_optimisation);
     keyframe_ms.push_back(out->stages.keyframe);
+    const slam::GeometryOutput& g = out->geometry;
+    if (g.ran || g.deadline_missed) geometry_ms.push_back(out->stages.geometry);
+    geometry_misses += g.deadline_missed;
+    if (g.ran) {
+      ++geometry_frames;
+      clustering_ms.push_back(g.clustering_ms);
+      dynamic_clusters += g.dynamic_clusters;
+      dynamic_features += g.dynamic_features;
+      if (features_out)
+        for (const slam::JudgedFeature& f : g.judged)
+          std::fprintf(features_out, "%s %.2f %.2f %d\n", frame->stamp.toSecondsString().c_str(), f.u, f.v, f.dynamic);
+    }
     switch (out->state) {
       case slam::TrackingState::kOk:
       case slam::TrackingState::kRelocalised: ++tracked; break;
@@ -206,6 +238,7 @@ int main(int argc, char** argv) {
     }
   }
   (*system)->finish();
+  if (features_out) std::fclose(features_out);
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   eval::Trajectory trajectory;
@@ -234,9 +267,23 @@ int main(int argc, char** argv) {
     std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", name, st.mean, st.median,
                 st.p95, st.max);
   }
+  if (options.geometry.enabled) {
+    const Stats gm = stats(geometry_ms), cl = stats(clustering_ms);
+    std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "geometry (tracking)", gm.mean,
+                gm.median, gm.p95, gm.max);
+    std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "K-Means (own thread)",
+                cl.mean, cl.median, cl.p95, cl.max);
+  }
   std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "tracking (incl. ORB)",
               tr.mean, tr.median, tr.p95, tr.max);
   std::printf("              %-24s %.1f fps over %.2f s wall\n", "throughput", frames / wall_s, wall_s);
+  if (options.geometry.enabled)
+    std::printf("geometry:     %zu frames judged, %zu deadline misses, %.2f dynamic clusters and %.1f dynamic "
+                "features per frame, %d map points culled\n",
+                geometry_frames, geometry_misses, geometry_frames ? double(dynamic_clusters) / geometry_frames : 0.0,
+                geometry_frames ? double(dynamic_features) / geometry_frames : 0.0, map.dynamic_points_culled);
+  else
+    std::printf("geometry:     off\n");
   std::printf("trajectory:   %zu poses -> %s\n", trajectory.size(), args.output.c_str());
   if (data->hasGroundTruth()) {
     auto gt = eval::readTumTrajectory(data->groundTruthPath());

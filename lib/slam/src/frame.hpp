@@ -52,6 +52,10 @@ struct Frame {
 
   std::vector<std::shared_ptr<MapPoint>> points;  // matched map point or null
   std::vector<char> outlier;
+  // Set by the geometry module: the feature lies on a moving surface and is
+  // kept out of pose estimation and mapping.
+  std::vector<char> dynamic;
+  std::vector<std::int16_t> cluster;  // depth cluster, -1 when unknown
 
   SE3 T_c_w = SE3::Identity();
 

@@ -24,6 +24,7 @@ void LocalMapper::process(KeyFrame* kf) {
     for (const auto& p : kf->frame.points)
       if (p && !p->bad && p->first_keyframe_id == kf->id) recent_points_.push_back(p);
     cullRecentPoints(kf);
+    cullDynamicPoints(kf);
     if (options_.mapping.fuse)
       fuseWithNeighbours(kf);
     else
@@ -62,6 +63,20 @@ void LocalMapper::cullRecentPoints(KeyFrame* kf) {
       ++it;
     }
   }
+}
+
+void LocalMapper::cullDynamicPoints(KeyFrame* kf) {
+  // Points tracking kept finding on moving surfaces leave the map: a mover
+  // that was static when mapped must not anchor the pose once it moves.
+  int culled = 0;
+  for (const auto& p : kf->dynamic_suspects) {
+    if (p->bad || p->dynamic_score.load(std::memory_order_relaxed) <= 0.5f) continue;
+    map_->erasePoint(p);
+    ++culled;
+  }
+  kf->dynamic_suspects.clear();
+  dynamic_points_culled_ += culled;
+  if (culled > 0) SP_DEBUG(logger, "keyframe " << kf->id << ": culled " << culled << " dynamic points");
 }
 
 void LocalMapper::fuseWithNeighbours(KeyFrame* kf) {

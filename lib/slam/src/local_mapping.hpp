@@ -31,10 +31,12 @@ class LocalMapper {
 
   int baRuns() const { return ba_runs_; }
   double totalMs() const { return total_ms_; }
+  int dynamicPointsCulled() const { return dynamic_points_culled_.load(); }
 
  private:
   void run(std::stop_token stop);
   void cullRecentPoints(KeyFrame* kf);
+  void cullDynamicPoints(KeyFrame* kf);
   void fuseWithNeighbours(KeyFrame* kf);
   void cullKeyFrames(KeyFrame* kf);
 
@@ -53,6 +55,7 @@ class LocalMapper {
   std::jthread worker_;
   int ba_runs_ = 0;
   double total_ms_ = 0;
+  std::atomic<int> dynamic_points_culled_{0};
 };
 
 }  // namespace stillpoint::slam

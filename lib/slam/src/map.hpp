@@ -2,6 +2,7 @@
 // Keyframes, map points and the covisibility graph. All mutation happens with
 // Map::mutex() held exclusively; tracking reads under a shared lock.
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -36,9 +37,15 @@ class MapPoint {
   int visible = 1;  // times it was inside a tracked frame's view
   int found = 1;    // times it was matched there
   bool bad = false;
+  // Exponentially weighted share of recent observations that fell in dynamic
+  // depth clusters; written by tracking only, read by local mapping.
+  std::atomic<float> dynamic_score{0.0f};
   std::shared_ptr<MapPoint> replaced_by;
   std::int64_t local_for_frame = -1;  // tracking's local-map bookkeeping
   bool isTemporary() const { return id < 0; }
+  // Temporary point of a feature the geometry module found moving in the
+  // previous frame: matched for evidence only, never used for the pose.
+  bool moving = false;
 
   double foundRatio() const { return static_cast<double>(found) / visible; }
   // Level at which a feature of this point is expected at distance d.
@@ -74,6 +81,10 @@ class KeyFrame {
   // Bookkeeping of the local-map search.
   std::int64_t local_for_frame = -1;
   std::int64_t ba_local_for = -1, ba_fixed_for = -1;
+
+  // Points tracking found on moving surfaces since the previous keyframe;
+  // local mapping culls those that stay dynamic.
+  std::vector<std::shared_ptr<MapPoint>> dynamic_suspects;
 
   int trackedPoints(int min_observations) const;
   void addObservation(const std::shared_ptr<MapPoint>& point, int index);

@@ -104,6 +104,8 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
   for (std::size_t k = 0; k < points.size(); ++k) {
     const auto& point = points[k];
     if (point->bad) continue;
+    // Points that the geometry module keeps seeing on moving surfaces.
+    if (point->dynamic_score.load(std::memory_order_relaxed) > 0.5f) continue;
     Vec3 p_c;
     Vec2 uv;
     if (!projectIntoFrame(*current, point->position, &p_c, &uv)) continue;
@@ -121,6 +123,7 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
     int best = 256, second = 256, best_idx = -1, best_level = -1, second_level = -1;
     for (int j : candidates) {
       if (current->points[j] && !current->points[j]->bad && current->points[j]->observations.size() > 0) continue;
+      if (current->dynamic[j]) continue;
       if (current->u_right[j] >= 0 && std::abs(ur_pred - current->u_right[j]) > r) continue;
       const int d = hammingDistance(point->descriptor.data(), current->descriptor(j));
       if (d < best) {
@@ -143,22 +146,22 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
   return matches;
 }
 
-int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio) {
+std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const KeyFrame& keyframe, float ratio) {
   // Frame keypoints by level so a map point only meets candidates of nearby
   // scale; brute force is affordable at ~1000 x ~1000 with popcount.
   std::vector<float> rotations;
   std::vector<int> matched;
-  std::vector<int> best_for_frame(current->size(), 256);
-  std::vector<int> owner(current->size(), -1);
+  std::vector<int> best_for_frame(current.size(), 256);
+  std::vector<int> owner(current.size(), -1);
   const Frame& kf = keyframe.frame;
   for (int i = 0; i < kf.size(); ++i) {
     const auto& point = kf.points[i];
     if (!point || point->bad) continue;
     const std::uint8_t* d_kf = kf.descriptor(i);
     int best = 256, second = 256, best_idx = -1;
-    for (int j = 0; j < current->size(); ++j) {
-      if (std::abs(current->keys[j].octave - kf.keys[i].octave) > 2) continue;
-      const int d = hammingDistance(d_kf, current->descriptor(j));
+    for (int j = 0; j < current.size(); ++j) {
+      if (std::abs(current.keys[j].octave - kf.keys[i].octave) > 2) continue;
+      const int d = hammingDistance(d_kf, current.descriptor(j));
       if (d < best) {
         second = best;
         best = d;
@@ -172,17 +175,25 @@ int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio) {
     best_for_frame[best_idx] = best;
     owner[best_idx] = i;
   }
-  for (int j = 0; j < current->size(); ++j) {
+  for (int j = 0; j < current.size(); ++j) {
     if (owner[j] < 0) continue;
     matched.push_back(j);
-    rotations.push_back(kf.keys[owner[j]].angle - current->keys[j].angle);
+    rotations.push_back(kf.keys[owner[j]].angle - current.keys[j].angle);
   }
   filterByOrientation(rotations, &matched);
-  for (int j : matched) {
-    current->points[j] = kf.points[owner[j]];
+  std::vector<std::pair<int, int>> out;
+  out.reserve(matched.size());
+  for (int j : matched) out.emplace_back(j, owner[j]);
+  return out;
+}
+
+int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio) {
+  const auto matches = matchByDescriptor(*current, keyframe, ratio);
+  for (const auto& [j, i] : matches) {
+    current->points[j] = keyframe.frame.points[i];
     current->outlier[j] = 0;
   }
-  return static_cast<int>(matched.size());
+  return static_cast<int>(matches.size());
 }
 
 int fuse(Map* map, KeyFrame* kf, const std::vector<std::shared_ptr<MapPoint>>& points, float radius) {
@@ -206,6 +217,7 @@ int fuse(Map* map, KeyFrame* kf, const std::vector<std::shared_ptr<MapPoint>>& p
     const double ur_pred = uv.x() - f.camera->bf() / p_c.z();
     int best = 256, best_idx = -1;
     for (int j : candidates) {
+      if (f.dynamic[j]) continue;
       const int kl = f.keys[j].octave;
       // Reprojection gate at the candidate's own scale (chi2, 3 or 2 dof).
       const double ex = uv.x() - f.un[j].x, ey = uv.y() - f.un[j].y;

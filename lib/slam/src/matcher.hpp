@@ -1,6 +1,7 @@
 #pragma once
 // Descriptor matching between frames, keyframes and map points.
 #include <memory>
+#include <utility>
 #include <vector>
 
 #include "map.hpp"
@@ -22,6 +23,9 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
 // needed): nearest neighbour with ratio test and orientation consistency.
 // Returns matches as pairs (frame keypoint, map point) written into current->points.
 int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio);
+// The same matching, returned as (frame keypoint, keyframe keypoint) pairs
+// without touching the frame.
+std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const KeyFrame& keyframe, float ratio);
 
 // Projects `points` into `kf` and fuses: adds observations for unmatched
 // keypoints, merges duplicates. Returns the number fused or added.

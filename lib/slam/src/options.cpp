@@ -39,8 +39,18 @@ Status MappingOptions::validate() const {
   return Status::success();
 }
 
+Status GeometryOptions::validate() const {
+  if (Status s = clustering.validate(); !s) return s;
+  if (Status s = verdict.validate(); !s) return s;
+  if (!(deadline_ms > 0 && deadline_ms <= 1000)) return Error{"geometry.deadline_ms must be in (0, 1000]"};
+  if (!(point_dynamic_weight > 0 && point_dynamic_weight <= 1))
+    return Error{"geometry.point_dynamic_weight must be in (0, 1]"};
+  return Status::success();
+}
+
 Status SlamOptions::validate() const {
-  for (const Status& s : {orb.validate(), tracking.validate(), keyframes.validate(), mapping.validate()})
+  for (const Status& s :
+       {orb.validate(), tracking.validate(), keyframes.validate(), mapping.validate(), geometry.validate()})
     if (!s) return s;
   return Status::success();
 }
@@ -76,6 +86,19 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("mapping", "redundant_min_observers", o.mapping.redundant_min_observers);
   v("mapping", "point_found_ratio", o.mapping.point_found_ratio);
   v("mapping", "fuse_neighbours", o.mapping.fuse_neighbours);
+  v("geometry", "enabled", o.geometry.enabled);
+  v("geometry", "clusters", o.geometry.clustering.clusters_at_vga);
+  v("geometry", "sample_step", o.geometry.clustering.sample_step_at_vga);
+  v("geometry", "kmeans_iterations", o.geometry.clustering.max_iterations);
+  v("geometry", "kmeans_converged_fraction", o.geometry.clustering.converged_fraction);
+  v("geometry", "warm_start", o.geometry.clustering.warm_start);
+  v("geometry", "cauchy_c2", o.geometry.verdict.cauchy_c2);
+  v("geometry", "min_features", o.geometry.verdict.min_features);
+  v("geometry", "reference_quantile", o.geometry.verdict.reference_quantile);
+  v("geometry", "relative_factor", o.geometry.verdict.relative_factor);
+  v("geometry", "absolute_floor", o.geometry.verdict.absolute_floor);
+  v("geometry", "deadline_ms", o.geometry.deadline_ms);
+  v("geometry", "point_dynamic_weight", o.geometry.point_dynamic_weight);
   v("", "sequential", o.sequential);
 }
 

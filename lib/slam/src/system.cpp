@@ -26,7 +26,10 @@ struct SlamSystem::Impl {
         options(opts),
         orb(opts.orb),
         levels(LevelInfo::from(orb)),
-        tracker(camera, options, levels, &map),
+        clustering(opts.geometry.enabled ? std::make_unique<geometry::ClusteringWorker>(
+                                               cam, opts.geometry.clustering, !opts.sequential)
+                                         : nullptr),
+        tracker(camera, options, levels, &map, clustering.get()),
         mapper(options, options.tracking.close_depth_baselines * camera.baseline, &map) {}
 
   CameraModel camera;
@@ -34,6 +37,7 @@ struct SlamSystem::Impl {
   features::OrbExtractor orb;
   LevelInfo levels;
   Map map;
+  std::unique_ptr<geometry::ClusteringWorker> clustering;
   Tracker tracker;
   LocalMapper mapper;
   bool finished = false;
@@ -73,12 +77,16 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   frame.stamp = input.stamp;
   frame.camera = &s.camera;
   frame.levels = &s.levels;
+  // Clustering runs in its own thread while features are extracted; the
+  // worker gets its own copy (the caller may reuse its buffer after track()).
+  const bool clusters_pending = s.clustering && !input.depth_m.empty();
+  if (clusters_pending) s.clustering->submit(frame.id, s.options.sequential ? input.depth_m : input.depth_m.clone());
   buildFrame(&frame, input.gray, input.depth_m, &s.orb);
   const auto t1 = std::chrono::steady_clock::now();
 
   TrackOutput out;
   const bool idle = s.options.sequential || s.mapper.idle();
-  KeyFrame* kf = s.tracker.track(std::move(frame), idle, &out);
+  KeyFrame* kf = s.tracker.track(std::move(frame), idle, clusters_pending, &out);
   const auto t2 = std::chrono::steady_clock::now();
   out.extract_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stages.extract = out.extract_ms;
@@ -119,6 +127,8 @@ MapStats SlamSystem::mapStats() const {
   stats.points = impl_->map.pointCount();
   stats.local_ba_runs = impl_->mapper.baRuns();
   stats.local_mapping_ms_total = impl_->mapper.totalMs();
+  stats.dynamic_points_culled = impl_->mapper.dynamicPointsCulled();
+  if (impl_->clustering) stats.geometry_deadline_misses = impl_->clustering->deadlineMisses();
   return stats;
 }
 

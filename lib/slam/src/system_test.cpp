@@ -69,12 +69,23 @@ class RoomScene {
     return cam;
   }
 
-  // Grey image and depth (metres) seen from T_w_c.
-  RgbdInput render(const CameraModel& cam, const SE3& T_w_c, Timestamp stamp) const {
+  // A textured board (a moving object) with its lower-left corner at `origin`
+  // facing the camera; render() shifts it by its `mover_offset`.
+  void addMovingBoard(const Vec3& origin, double width, double height, std::uint64_t seed) {
+    cv::RNG rng(seed);
+    addPlane(origin, Vec3(1, 0, 0), Vec3(0, 1, 0), width, height, rng);
+    planes_.back().moving = true;
+  }
+
+  // Grey image and depth (metres) seen from T_w_c; `mover_mask` (optional)
+  // receives 255 where a moving board is seen.
+  RgbdInput render(const CameraModel& cam, const SE3& T_w_c, Timestamp stamp, const Vec3& mover_offset = Vec3::Zero(),
+                   cv::Mat* mover_mask = nullptr) const {
     RgbdInput out;
     out.stamp = stamp;
     out.gray.create(cam.height, cam.width, CV_8UC1);
     out.depth_m.create(cam.height, cam.width, CV_32FC1);
+    if (mover_mask) *mover_mask = cv::Mat::zeros(cam.height, cam.width, CV_8UC1);
     const Mat3 R = T_w_c.linear();
     const Vec3 c = T_w_c.translation();
     for (int v = 0; v < cam.height; ++v) {
@@ -86,9 +97,10 @@ class RoomScene {
         for (const Plane& p : planes_) {
           const double denom = p.normal.dot(ray);
           if (std::abs(denom) < 1e-9) continue;
-          const double t = p.normal.dot(p.origin - c) / denom;
+          const Vec3 origin = p.moving ? Vec3(p.origin + mover_offset) : p.origin;
+          const double t = p.normal.dot(origin - c) / denom;
           if (t <= 0 || t >= best_t) continue;
-          const Vec3 rel = c + t * ray - p.origin;
+          const Vec3 rel = c + t * ray - origin;
           const double a = rel.dot(p.a), b = rel.dot(p.b);
           if (a < 0 || b < 0 || a > p.extent.x() || b > p.extent.y()) continue;
           best_t = t;
@@ -98,6 +110,7 @@ class RoomScene {
         // t is the camera depth because the ray has unit camera z.
         out.depth_m.at<float>(v, u) = hit ? static_cast<float>(best_t) : 0.0f;
         out.gray.at<std::uint8_t>(v, u) = hit ? sample(hit->texture, hit_ab / kTexel) : 0;
+        if (mover_mask && hit && hit->moving) mover_mask->at<std::uint8_t>(v, u) = 255;
       }
     }
     return out;
@@ -111,10 +124,11 @@ class RoomScene {
     Vec3 origin, a, b, normal;
     Vec2 extent;
     cv::Mat texture;  // CV_8UC1, kTexel per texel
+    bool moving = false;
   };
 
   void addPlane(const Vec3& origin, const Vec3& a, const Vec3& b, double extent_a, double extent_b, cv::RNG& rng) {
-    Plane p{origin, a, b, a.cross(b).normalized(), Vec2(extent_a, extent_b), {}};
+    Plane p{origin, a, b, a.cross(b).normalized(), Vec2(extent_a, extent_b), {}, false};
     const int cols = static_cast<int>(std::ceil(extent_a / kTexel)) + 2;
     const int rows = static_cast<int>(std::ceil(extent_b / kTexel)) + 2;
     cv::Mat coarse((rows + kBlock - 1) / kBlock, (cols + kBlock - 1) / kBlock, CV_8UC1);
@@ -477,6 +491,78 @@ TEST(SlamSystemTracking, RoomSequenceFollowsTheTrueMotion) {
   EXPECT_LT(degrees(a.trajectory.max_rotation), 0.3);
   EXPECT_LT(a.frame_to_frame.max_translation, 0.007);
   EXPECT_LT(degrees(a.frame_to_frame.max_rotation), 0.15);
+}
+
+// A board in front of the camera moves sideways at 0.45 m/s while the camera
+// moves slowly: the geometry module must flag the board's features (and only
+// them) and keep the pose on the static room.
+struct MovingBoardSequence {
+  Sequence seq;
+  std::vector<cv::Mat> masks;
+};
+
+MovingBoardSequence movingBoardSequence(int n_frames) {
+  RoomScene scene(5);
+  scene.addMovingBoard(Vec3(-0.9, -0.5, 1.3), 0.6, 0.7, 77);
+  MovingBoardSequence out;
+  out.seq.camera = RoomScene::camera();
+  for (int k = 0; k < n_frames; ++k) {
+    const double s = static_cast<double>(k) / 30.0;
+    const SE3 T_w_c = pose(Vec3(0.02 * std::sin(2 * s), 0.05 * std::sin(1.5 * s), 0), Vec3(0.15 * s, 0.02 * s, 0.05 * s));
+    // Still for the first 10 frames (it enters the map), then it moves.
+    const Vec3 offset(k < 10 ? 0.0 : 0.015 * (k - 10), 0, 0);
+    cv::Mat mask;
+    out.seq.T_w_c.push_back(T_w_c);
+    out.seq.frames.push_back(scene.render(out.seq.camera, T_w_c, frameStamp(k), offset, &mask));
+    out.masks.push_back(mask);
+  }
+  return out;
+}
+
+TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  const Sequence& seq = data.seq;
+  std::vector<SE3> online[2];
+  int true_positive = 0, false_positive = 0, false_negative = 0, static_flags_before_motion = 0;
+  for (int module = 0; module < 2; ++module) {
+    SlamOptions options = sequentialOptions();
+    options.geometry.enabled = module == 1;
+    auto system = makeSystem(seq.camera, options);
+    ASSERT_TRUE(system);
+    for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+      const auto out = system->track(seq.frames[i]);
+      ASSERT_TRUE(out.ok()) << out.error();
+      ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+      online[module].push_back(out->T_w_c);
+      if (!module) continue;
+      EXPECT_EQ(out->geometry.ran, i > 0) << "frame " << i;
+      if (i > 0) {
+        EXPECT_EQ(out->geometry.clusters, 24);
+      }
+      for (const JudgedFeature& f : out->geometry.judged) {
+        const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
+        if (i < 10) {
+          static_flags_before_motion += f.dynamic;
+          continue;
+        }
+        true_positive += on_board && f.dynamic;
+        false_positive += !on_board && f.dynamic;
+        false_negative += on_board && !f.dynamic;
+      }
+    }
+    system->finish();
+  }
+  const double precision = true_positive / std::max(1.0, double(true_positive + false_positive));
+  const double recall = true_positive / std::max(1.0, double(true_positive + false_negative));
+  const PoseErrors off = compare(online[0], seq.T_w_c), on = compare(online[1], seq.T_w_c);
+  std::printf("moving board: precision %.3f recall %.3f (%d/%d/%d), flags while still %d\n", precision, recall,
+              true_positive, false_positive, false_negative, static_flags_before_motion);
+  std::printf("  online error: module off max %.2f mm rms %.2f mm; on max %.2f mm rms %.2f mm\n",
+              off.max_translation * 1e3, off.rms_translation * 1e3, on.max_translation * 1e3,
+              on.rms_translation * 1e3);
+  EXPECT_GE(recall, 0.9);
+  EXPECT_GE(precision, 0.9);
+  EXPECT_LT(on.rms_translation, off.rms_translation);
 }
 
 // The sequence other modules' tests use, read back through TumDataset (the

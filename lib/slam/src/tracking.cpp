@@ -32,16 +32,20 @@ class ScopedStageTimer {
 };
 }  // namespace
 
-Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map)
+Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map,
+                 geometry::ClusteringWorker* clustering)
     : camera_(camera),
       options_(options),
       levels_(levels),
       map_(map),
+      clustering_(clustering),
       close_depth_(options.tracking.close_depth_baselines * camera.baseline) {}
 
-KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
+KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, TrackOutput* out) {
   current_ = std::move(frame);
   times_ = StageTimes{};
+  geometry_ = GeometryOutput{};
+  carried_.clear();
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
   if (state_ == TrackingState::kInitialising) {
@@ -52,12 +56,15 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
     std::shared_lock lock(map_->mutex());
     const bool was_lost = state_ == TrackingState::kLost;
     if (!was_lost) {
-      ScopedStageTimer timer(&times_.initial_pose);
-      refreshLastFrame();
-      if (has_velocity_ && current_.id > last_reloc_frame_id_ + 2) ok = trackWithMotionModel();
-      if (!ok) ok = trackReferenceKeyFrame();
-    }
-    if (!was_lost) {
+      {
+        ScopedStageTimer timer(&times_.initial_pose);
+        refreshLastFrame();
+        if (has_velocity_ && current_.id > last_reloc_frame_id_ + 2) ok = trackWithMotionModel();
+        if (!ok) ok = trackReferenceKeyFrame();
+      }
+      // Stage 1 keeps its outliers so the geometry module sees every match.
+      if (ok && clusters_pending) removeDynamicFeatures();
+      if (ok) discardOutliers();
       if (ok) ok = trackLocalMap(options_.tracking.min_inliers_local_map);
     } else {
       ScopedStageTimer timer(&times_.initial_pose);
@@ -98,6 +105,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, TrackOutput* out) {
   out->features = current_.size();
   out->tracked = ok ? inliers_ : 0;
   out->new_keyframe = new_keyframe != nullptr;
+  out->geometry = std::move(geometry_);
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
@@ -144,8 +152,19 @@ void Tracker::refreshLastFrame() {
     last_.T_c_w = renormalized(r.T_c_ref * r.reference->resolvedT_c_w());
   }
   std::vector<std::pair<float, int>> by_depth;
-  for (int i = 0; i < last_.size(); ++i)
-    if (last_.depth[i] > 0) by_depth.emplace_back(last_.depth[i], i);
+  for (int i = 0; i < last_.size(); ++i) {
+    if (last_.depth[i] <= 0) continue;
+    if (!last_.dynamic[i]) {
+      by_depth.emplace_back(last_.depth[i], i);
+      continue;
+    }
+    // Moving features are carried over as evidence for the geometry module.
+    auto p = std::make_shared<MapPoint>(-1, last_.unprojectToWorld(i), nullptr);
+    std::copy(last_.descriptor(i), last_.descriptor(i) + 32, p->descriptor.begin());
+    p->moving = true;
+    last_.points[i] = std::move(p);
+    last_.outlier[i] = 0;
+  }
   std::sort(by_depth.begin(), by_depth.end());
   int added = 0;
   for (const auto& [z, i] : by_depth) {
@@ -175,20 +194,117 @@ int Tracker::discardOutliers() {
   return map_matches;
 }
 
+int Tracker::countMapInliers() const {
+  int n = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    n += p && !current_.outlier[i] && !p->isTemporary() && !p->observations.empty();
+  }
+  return n;
+}
+
+void Tracker::removeDynamicFeatures() {
+  ScopedStageTimer timer(&times_.geometry);
+  const auto deadline = std::chrono::microseconds(static_cast<std::int64_t>(options_.geometry.deadline_ms * 1000));
+  const auto clusters = clustering_->result(current_.id, deadline);
+  if (!clusters) {
+    geometry_.deadline_missed = true;
+    return;
+  }
+  geometry_.clustering_ms = clustering_->lastClusteringMs();
+  geometry_.clusters = clusters->clusters;
+  geometry_.labels = clusters;
+  if (clusters->clusters == 0) return;
+
+  // Evidence per feature: its match to the reference keyframe by descriptor
+  // alone (no search window, so an object that moved since the keyframe still
+  // matches, and its error is the whole displacement), else its stage-1 match
+  // (last frame or local map: only the motion of one frame).
+  std::vector<std::shared_ptr<MapPoint>> evidence(current_.points);
+  for (std::size_t i = 0; i < carried_.size(); ++i)
+    if (!evidence[i] && carried_[i]) evidence[i] = carried_[i];
+  // Only where stage 1 has no map point: a map-point match already measures
+  // the motion since mapping, and window-free matching has more mismatches.
+  if (reference_ && !reference_->bad)
+    for (const auto& [j, i] : matchByDescriptor(current_, *reference_, 0.7f))
+      if (!evidence[j] || evidence[j]->isTemporary()) evidence[j] = reference_->frame.points[i];
+  std::vector<geometry::FeatureResidual> residuals;
+  std::vector<int> matched;
+  for (int i = 0; i < current_.size(); ++i) {
+    const cv::Point2f& px = current_.keys[i].pt;
+    current_.cluster[i] = static_cast<std::int16_t>(clusters->labelAt(camera_, px.x, px.y, current_.depth[i]));
+    const auto& p = evidence[i];
+    if (!p || p->bad || current_.cluster[i] < 0) continue;
+    Observation obs;
+    obs.u = current_.un[i].x;
+    obs.v = current_.un[i].y;
+    obs.u_right = current_.u_right[i];
+    obs.inv_sigma = 1.0 / levels_.scales[current_.keys[i].octave];
+    bool behind = false;
+    double chi2 = reprojectionChi2(camera_, current_.T_c_w, p->position, obs, &behind);
+    if (behind) chi2 = 1e6;
+    residuals.push_back({current_.cluster[i], chi2});
+    matched.push_back(i);
+  }
+  const geometry::ClusterVerdict verdict =
+      geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
+  geometry_.ran = true;
+  geometry_.scores = verdict.clusters;
+  geometry_.threshold = verdict.threshold;
+  geometry_.dynamic_clusters = verdict.dynamic_clusters;
+
+  const float w = static_cast<float>(options_.geometry.point_dynamic_weight);
+  for (std::size_t k = 0; k < matched.size(); ++k) {
+    const int i = matched[k];
+    const bool dynamic = verdict.clusters[current_.cluster[i]].dynamic;
+    geometry_.judged.push_back({current_.keys[i].pt.x, current_.keys[i].pt.y, dynamic, current_.cluster[i],
+                                static_cast<float>(residuals[k].chi2)});
+    const auto& p = evidence[i];
+    if (p->isTemporary()) continue;
+    const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
+    p->dynamic_score.store(score, std::memory_order_relaxed);
+    if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
+  }
+  if (verdict.dynamic_clusters == 0) return;
+  for (int i = 0; i < current_.size(); ++i) {
+    if (current_.cluster[i] < 0 || !verdict.clusters[current_.cluster[i]].dynamic) continue;
+    current_.dynamic[i] = 1;
+    current_.points[i] = nullptr;
+    current_.outlier[i] = 0;
+    ++geometry_.dynamic_features;
+  }
+  // The initial pose again, from the static features only.
+  if (countMapInliers() >= 10) timedOptimizePose();
+}
+
+int Tracker::setAsideCarried() {
+  int carried = 0;
+  carried_.assign(current_.size(), nullptr);
+  for (int i = 0; i < current_.size(); ++i) {
+    if (!current_.points[i] || !current_.points[i]->moving) continue;
+    carried_[i] = std::move(current_.points[i]);
+    current_.points[i] = nullptr;
+    ++carried;
+  }
+  return carried;
+}
+
 bool Tracker::trackWithMotionModel() {
   current_.T_c_w = renormalized(velocity_ * last_.T_c_w);
   current_.clearMatches();
   int matches = searchByProjection(&current_, last_, 7.0f);
+  matches -= setAsideCarried();
   if (matches < 20) {
     current_.clearMatches();
     matches = searchByProjection(&current_, last_, 14.0f);
+    matches -= setAsideCarried();
   }
   if (matches < 20) {
     SP_DEBUG(logger, "frame " << current_.id << ": motion model found " << matches << " matches");
     return false;
   }
   timedOptimizePose();
-  const int kept = discardOutliers();
+  const int kept = countMapInliers();
   SP_DEBUG(logger, "frame " << current_.id << ": motion model " << matches << " matches, " << kept << " map inliers");
   return kept >= 10;
 }
@@ -202,7 +318,7 @@ bool Tracker::trackReferenceKeyFrame() {
   if (matches < 15) return false;
   current_.T_c_w = last_.T_c_w;
   timedOptimizePose();
-  return discardOutliers() >= 10;
+  return countMapInliers() >= 10;
 }
 
 bool Tracker::relocalise() {
@@ -393,7 +509,8 @@ KeyFrame* Tracker::createKeyFrame() {
   // New points from depth: all close ones, and at least the nearest N.
   std::vector<std::pair<float, int>> by_depth;
   for (int i = 0; i < kf->frame.size(); ++i)
-    if (kf->frame.depth[i] > 0 && !kf->frame.points[i]) by_depth.emplace_back(kf->frame.depth[i], i);
+    if (kf->frame.depth[i] > 0 && !kf->frame.points[i] && !kf->frame.dynamic[i])
+      by_depth.emplace_back(kf->frame.depth[i], i);
   std::sort(by_depth.begin(), by_depth.end());
   int created = 0;
   for (const auto& [z, i] : by_depth) {
@@ -406,6 +523,8 @@ KeyFrame* Tracker::createKeyFrame() {
     ++created;
   }
   kf->updateConnections();
+  kf->dynamic_suspects = std::move(dynamic_suspects_);
+  dynamic_suspects_.clear();
   reference_ = last_keyframe_ = kf;
   last_keyframe_frame_id_ = current_.id;
   return kf;

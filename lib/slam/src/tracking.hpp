@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "map.hpp"
+#include "stillpoint/geometry/clustering_worker.hpp"
 #include "stillpoint/slam/options.hpp"
 #include "stillpoint/slam/system.hpp"
 
@@ -18,11 +19,15 @@ struct TrajectoryRecord {
 
 class Tracker {
  public:
-  Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map);
+  // `clustering` (may be null: geometry module off) delivers the depth
+  // clusters of frames submitted to it.
+  Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map,
+          geometry::ClusteringWorker* clustering);
 
   // Tracks `frame` (features built, pose unset). `mapping_idle` tells whether
-  // local mapping can take a keyframe now. Returns the new keyframe or null.
-  KeyFrame* track(Frame frame, bool mapping_idle, TrackOutput* out);
+  // local mapping can take a keyframe now; `clusters_pending` whether the
+  // frame's depth went to the clustering worker. Returns the new keyframe or null.
+  KeyFrame* track(Frame frame, bool mapping_idle, bool clusters_pending, TrackOutput* out);
 
   const std::vector<TrajectoryRecord>& records() const { return records_; }
   TrackingState state() const { return state_; }
@@ -36,6 +41,11 @@ class Tracker {
   void updateLocalMap();
   void refreshLastFrame();
   int discardOutliers();
+  int countMapInliers() const;
+  // Geometry module, between the two stages: judges the depth clusters by the
+  // reprojection errors of the stage-1 matches, drops dynamic features and
+  // re-estimates the initial pose without them.
+  void removeDynamicFeatures();
   int timedOptimizePose();
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
@@ -44,6 +54,7 @@ class Tracker {
   SlamOptions options_;
   const LevelInfo& levels_;
   Map* map_;
+  geometry::ClusteringWorker* clustering_;
   double close_depth_;
 
   TrackingState state_ = TrackingState::kInitialising;
@@ -60,6 +71,11 @@ class Tracker {
   std::vector<std::shared_ptr<MapPoint>> local_points_;
   std::vector<TrajectoryRecord> records_;
   StageTimes times_;
+  GeometryOutput geometry_;
+  std::vector<std::shared_ptr<MapPoint>> dynamic_suspects_;
+  // Stage-1 matches to last frame's moving features (evidence only).
+  std::vector<std::shared_ptr<MapPoint>> carried_;
+  int setAsideCarried();
 };
 
 }  // namespace stillpoint::slam

@@ -5,6 +5,8 @@
 
 #include "stillpoint/core/result.hpp"
 #include "stillpoint/features/orb_extractor.hpp"
+#include "stillpoint/geometry/depth_clustering.hpp"
+#include "stillpoint/geometry/dynamic_clusters.hpp"
 
 namespace stillpoint::slam {
 
@@ -44,11 +46,29 @@ struct MappingOptions {
   Status validate() const;
 };
 
+// The geometry module: two-stage tracking that drops the features of depth
+// clusters moving against the initial pose (see lib/geometry).
+struct GeometryOptions {
+  // Off by default until it stops flagging static surfaces: on synthetic
+  // static scenes it still drops some good features (see issue 4's notes).
+  bool enabled = false;
+  geometry::ClusteringOptions clustering;
+  geometry::DynamicClusterOptions verdict;
+  // Longest the tracking thread waits for the frame's clusters; on a miss the
+  // frame is tracked without the module (and the miss is counted).
+  double deadline_ms = 10.0;
+  // A map point whose recent observations (exponentially weighted, each new
+  // one counting this much) lie mostly in dynamic clusters is culled.
+  double point_dynamic_weight = 0.5;
+  Status validate() const;
+};
+
 struct SlamOptions {
   features::OrbOptions orb;
   TrackingOptions tracking;
   KeyframeOptions keyframes;
   MappingOptions mapping;
+  GeometryOptions geometry;
   bool sequential = false;  // one thread, deterministic (tests, evaluation)
   Status validate() const;
 };

@@ -9,6 +9,8 @@
 #include "stillpoint/core/camera.hpp"
 #include "stillpoint/core/result.hpp"
 #include "stillpoint/core/time.hpp"
+#include "stillpoint/geometry/depth_clustering.hpp"
+#include "stillpoint/geometry/dynamic_clusters.hpp"
 #include "stillpoint/slam/options.hpp"
 
 namespace stillpoint::slam {
@@ -29,6 +31,30 @@ struct StageTimes {
   double local_map = 0;       // local map update and projection search
   double pose_optimisation = 0;  // every pose-only optimisation of the frame
   double keyframe = 0;        // keyframe decision and creation
+  double geometry = 0;        // waiting for the clusters and judging them (tracking thread)
+};
+
+// A feature matched in the first tracking stage and judged by the geometry
+// module; (u, v) in distorted image pixels.
+struct JudgedFeature {
+  float u = 0, v = 0;
+  bool dynamic = false;
+  int cluster = -1;
+  float chi2 = 0;  // squared reprojection error / level sigma^2 under the initial pose
+};
+
+// What the geometry module saw in one frame (for visualisation and scoring).
+struct GeometryOutput {
+  bool ran = false;              // clusters arrived in time and were judged
+  bool deadline_missed = false;  // clusters were not ready within deadline_ms
+  int clusters = 0;
+  int dynamic_clusters = 0;
+  int dynamic_features = 0;      // features excluded from pose and mapping
+  double threshold = 0;          // score above which a cluster was dynamic
+  double clustering_ms = 0;      // K-Means time (in the module's thread)
+  std::vector<geometry::ClusterScore> scores;
+  std::shared_ptr<const geometry::DepthClusters> labels;
+  std::vector<JudgedFeature> judged;
 };
 
 struct TrackOutput {
@@ -41,6 +67,7 @@ struct TrackOutput {
   double extract_ms = 0;  // ORB extraction
   double track_ms = 0;    // whole tracking step, extraction included
   StageTimes stages;
+  GeometryOutput geometry;
 };
 
 struct TrajectoryPose {
@@ -53,6 +80,8 @@ struct MapStats {
   std::size_t points = 0;
   int local_ba_runs = 0;
   double local_mapping_ms_total = 0;
+  int dynamic_points_culled = 0;          // map points removed by the geometry module
+  std::int64_t geometry_deadline_misses = 0;
 };
 
 class SlamSystem {
