@@ -34,6 +34,7 @@ packages=(
   liblcm-dev          # ipc/: LCM pose publishing (lcm-gen runs from the host)
   libglib2.0-dev      # lcm.pc requires glib-2.0
   cyclonedds-dev      # ipc/: DDS pose publishing (idlc runs from the host)
+  libsystemd-dev      # stillpointd: sd_notify (libsystemd.pc)
 )
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
