@@ -26,7 +26,8 @@ using namespace stillpoint;
 constexpr const char* kUsage =
     "usage: stillpoint-replay DATASET_DIR --camera fr1|fr2|fr3|CAMERA.yaml --output TRAJ.txt\n"
     "                         [--config SLAM.yaml] [--sequential] [--paced]\n"
-    "                         [--modules none|geometry] [--features-out FEATURES.txt]\n"
+    "                         [--modules none|geometry,semantic] [--features-out FEATURES.txt]\n"
+    "                         [--keyframes-out KEYFRAMES.txt]\n"
     "                         [--max-frames N] [--log-level debug|info|warn|error]\n"
     "       stillpoint-replay --help | --version\n"
     "\n"
@@ -34,14 +35,18 @@ constexpr const char* kUsage =
     "as it can (--paced: at the recorded rate), writes the camera trajectory in TUM format and\n"
     "prints a summary. When the folder has groundtruth.txt, ATE/RPE are printed too.\n"
     "--sequential runs local mapping inline on one thread (deterministic).\n"
-    "--modules picks the dynamic-object modules (default: as the config enables them; 'none'\n"
-    "turns all off). --features-out writes every feature the geometry module judged, one line\n"
+    "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
+    "(default: as the config enables them; listed modules are on, the others off).\n"
+    "--features-out writes every feature the geometry module judged, one line\n"
     "'timestamp u v dynamic(0|1)', for stillpoint-synth score.\n"
+    "--keyframes-out writes the features of every segmented keyframe after the run, one line\n"
+    "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
     "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n";
 
 struct Args {
-  std::string dataset, camera, output, config, modules, features_out, log_level = "warn";
+  std::string dataset, camera, output, config, modules, features_out, keyframes_out, log_level = "warn";
   bool sequential = false, paced = false;
+  bool geometry = false, semantic = false;  // from --modules
   long max_frames = -1;
 };
 
@@ -66,6 +71,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       if (!value(&args->modules)) return false;
     } else if (a == "--features-out") {
       if (!value(&args->features_out)) return false;
+    } else if (a == "--keyframes-out") {
+      if (!value(&args->keyframes_out)) return false;
     } else if (a == "--log-level") {
       if (!value(&args->log_level)) return false;
     } else if (a == "--max-frames") {
@@ -94,8 +101,18 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
   if (args->dataset.empty()) *error = "missing DATASET_DIR";
   else if (args->camera.empty()) *error = "missing --camera";
   else if (args->output.empty()) *error = "missing --output";
-  else if (!args->modules.empty() && args->modules != "none" && args->modules != "geometry")
-    *error = "--modules: expected 'none' or 'geometry', got '" + args->modules + "'";
+  else if (!args->modules.empty() && args->modules != "none") {
+    std::size_t start = 0;
+    while (error->empty()) {
+      const std::size_t comma = args->modules.find(',', start);
+      const std::string name = args->modules.substr(start, comma == std::string::npos ? comma : comma - start);
+      if (name == "geometry") args->geometry = true;
+      else if (name == "semantic") args->semantic = true;
+      else *error = "--modules: expected 'none' or a comma list of geometry, semantic; got '" + args->modules + "'";
+      if (comma == std::string::npos) break;
+      start = comma + 1;
+    }
+  }
   return error->empty();
 }
 
@@ -159,7 +176,10 @@ int main(int argc, char** argv) {
     options = *loaded;
   }
   if (args.sequential) options.sequential = true;
-  if (!args.modules.empty()) options.geometry.enabled = args.modules == "geometry";
+  if (!args.modules.empty()) {
+    options.geometry.enabled = args.geometry;
+    options.semantic.enabled = args.semantic;
+  }
   std::FILE* features_out = nullptr;
   if (!args.features_out.empty()) {
     features_out = std::fopen(args.features_out.c_str(), "w");
@@ -205,7 +225,7 @@ int main(int argc, char** argv) {
       const auto due = start + std::chrono::nanoseconds(frame->stamp.nanoseconds() - first_stamp.nanoseconds());
       std::this_thread::sleep_until(due);
     }
-    auto out = (*system)->track({frame->stamp, frame->gray, frame->depth_m});
+    auto out = (*system)->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
     if (!out) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, out.error().c_str());
       ++skipped;
@@ -248,6 +268,20 @@ int main(int argc, char** argv) {
     return 1;
   }
   const slam::MapStats map = (*system)->mapStats();
+  if (!args.keyframes_out.empty()) {
+    std::FILE* kf_out = std::fopen(args.keyframes_out.c_str(), "w");
+    if (!kf_out) {
+      std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.keyframes_out.c_str());
+      return 1;
+    }
+    std::fputs("# timestamp u v unmapped: features of segmented keyframes; 1 = holds no map point\n", kf_out);
+    for (const slam::KeyFrameView& kf : (*system)->keyframes()) {
+      if (!kf.segmented) continue;
+      for (const slam::KeyFrameFeature& f : kf.features)
+        std::fprintf(kf_out, "%s %.2f %.2f %d\n", kf.stamp.toSecondsString().c_str(), f.u, f.v, f.mapped ? 0 : 1);
+    }
+    std::fclose(kf_out);
+  }
   const Stats ex = stats(extract_ms), tr = stats(track_ms);
   std::printf("sequence:     %s (%zu associated frames, %zu colour frames without depth)\n", args.dataset.c_str(),
               data->size(), data->unassociatedColourFrames());
@@ -284,6 +318,22 @@ int main(int argc, char** argv) {
                 geometry_frames ? double(dynamic_features) / geometry_frames : 0.0, map.dynamic_points_culled);
   else
     std::printf("geometry:     off\n");
+  if (options.semantic.enabled) {
+    std::printf("semantic:     %s\n", map.semantic_model.c_str());
+    std::printf("              %d keyframes segmented, %d dropped (queue full), %d without colour, %d failed\n",
+                map.semantic_keyframes_segmented, map.semantic_keyframes_dropped, map.semantic_keyframes_no_colour,
+                map.semantic_failures);
+    std::printf("              %d instances applied, %d unconfirmed by geometry, %d over the removal cap\n",
+                map.semantic_instances_applied, map.semantic_instances_unconfirmed, map.semantic_instances_capped);
+    std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks)\n",
+                map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled);
+    std::printf("              segmentation per keyframe median %.1f ms p95 %.1f ms; keyframe -> mask applied "
+                "median %.1f ms p95 %.1f ms\n",
+                map.segmentation_ms_median, map.segmentation_ms_p95, map.semantic_latency_ms_median,
+                map.semantic_latency_ms_p95);
+  } else {
+    std::printf("semantic:     off\n");
+  }
   std::printf("trajectory:   %zu poses -> %s\n", trajectory.size(), args.output.c_str());
   if (data->hasGroundTruth()) {
     auto gt = eval::readTumTrajectory(data->groundTruthPath());

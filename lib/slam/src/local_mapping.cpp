@@ -1,5 +1,6 @@
 #include "local_mapping.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <set>
 
@@ -19,6 +20,7 @@ LocalMapper::~LocalMapper() { finish(); }
 
 void LocalMapper::process(KeyFrame* kf) {
   const auto t0 = std::chrono::steady_clock::now();
+  applySemanticResults();
   {
     std::unique_lock lock(map_->mutex());
     for (const auto& p : kf->frame.points)
@@ -145,6 +147,129 @@ void LocalMapper::enqueue(KeyFrame* kf) {
   queue_cv_.notify_all();
 }
 
+void LocalMapper::postSemantic(SemanticResult result) {
+  {
+    std::lock_guard lock(queue_mutex_);
+    mailbox_.push_back(std::move(result));
+  }
+  queue_cv_.notify_all();
+}
+
+void LocalMapper::applySemanticResults() {
+  std::deque<SemanticResult> results;
+  {
+    std::lock_guard lock(queue_mutex_);
+    results.swap(mailbox_);
+  }
+  if (results.empty()) return;
+  std::unique_lock lock(map_->mutex());
+  for (const SemanticResult& r : results) applySemantic(r);
+}
+
+void LocalMapper::applySemantic(const SemanticResult& r) {
+  SemanticStats& st = semantic_stats_;
+  st.segment_ms.push_back(r.segment_ms);
+  if (!r.ok) {
+    ++st.failures;
+    SP_WARN(logger, "keyframe " << r.keyframe_id << ": segmentation failed: " << r.error);
+    return;
+  }
+  const auto& kfs = map_->keyframes();
+  if (r.keyframe_id < 0 || r.keyframe_id >= static_cast<std::int64_t>(kfs.size())) return;
+  KeyFrame* kf = kfs[static_cast<std::size_t>(r.keyframe_id)].get();
+  if (kf->id != r.keyframe_id || kf->segmented) return;
+  Frame& f = kf->frame;
+  const int n_regions = static_cast<int>(r.regions.size());
+
+  // Per region: its features, how many carry a live map point, and what the
+  // geometry module said about them in this keyframe (before we touch `dynamic`).
+  std::vector<std::vector<int>> members(n_regions);
+  std::vector<int> with_point(n_regions, 0), flagged(n_regions, 0), judged(n_regions, 0);
+  std::vector<int> region_of(f.size(), 0);
+  int points_before = 0;
+  for (int i = 0; i < f.size(); ++i) {
+    const bool live = f.points[i] && !f.points[i]->bad;
+    points_before += live;
+    const cv::Point2f& px = f.keys[i].pt;
+    const int x = std::clamp(cvRound(px.x), 0, r.labels.cols - 1), y = std::clamp(cvRound(px.y), 0, r.labels.rows - 1);
+    const int label = r.labels.at<std::uint8_t>(y, x);
+    if (label == 0 || label > n_regions) continue;
+    const int k = label - 1;
+    region_of[i] = label;
+    members[k].push_back(i);
+    with_point[k] += live;
+    flagged[k] += f.dynamic[i] != 0;
+    judged[k] += f.cluster[i] >= 0;
+  }
+  const SemanticOptions& o = options_.semantic;
+  std::vector<char> confirmed(n_regions, 0);
+  std::vector<int> order(n_regions);
+  for (int k = 0; k < n_regions; ++k) {
+    order[k] = n_regions - 1 - k;  // regions come in ascending score
+    confirmed[k] = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
+  }
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return confirmed[a] > confirmed[b]; });
+
+  // Semantic evidence alone may remove at most this many of the keyframe's points.
+  const double budget = o.max_removed_fraction * points_before;
+  int unconfirmed_removed = 0;
+  std::vector<char> applied(n_regions + 1, 0);
+  for (int k : order) {
+    if (semantic_confirm_ && !confirmed[k]) {
+      ++st.instances_unconfirmed;
+      continue;
+    }
+    if (!confirmed[k]) {
+      if (unconfirmed_removed + with_point[k] > budget) {
+        ++st.instances_capped;
+        SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' would remove "
+                                     << with_point[k] << " of " << points_before << " points: left alone");
+        continue;
+      }
+      unconfirmed_removed += with_point[k];
+    }
+    applied[k + 1] = 1;
+    ++st.instances_applied;
+  }
+
+  int features_removed = 0, points_removed = 0, points_culled = 0;
+  for (int i = 0; i < f.size(); ++i) {
+    const std::shared_ptr<MapPoint> p = f.points[i] && !f.points[i]->bad ? f.points[i] : nullptr;
+    if (!applied[region_of[i]]) {
+      if (p) ++p->semantic_checks;
+      continue;
+    }
+    f.dynamic[i] = 1;
+    ++features_removed;
+    if (!p) continue;
+    if (p->first_keyframe_id == kf->id) {
+      map_->erasePoint(p);  // made from a movable object by this keyframe
+      ++points_removed;
+      continue;
+    }
+    ++p->semantic_checks;
+    ++p->semantic_hits;
+    kf->eraseObservation(i);
+    if (p->semantic_hits > o.point_masked_ratio * p->semantic_checks || p->observations.empty()) {
+      map_->erasePoint(p);
+      ++points_culled;
+    } else if (p->reference == kf) {
+      p->reference = p->observations.begin()->first;
+    }
+  }
+  if (features_removed > 0) kf->updateConnections();
+  kf->segmented = true;
+  ++st.segmented;
+  st.features_removed += features_removed;
+  st.points_removed += points_removed;
+  st.points_culled += points_culled;
+  st.latency_ms.push_back(
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - r.created).count());
+  SP_DEBUG(logger, "keyframe " << kf->id << ": " << n_regions << " movable regions, " << features_removed
+                               << " features dropped, " << points_removed << " points removed, " << points_culled
+                               << " culled");
+}
+
 std::size_t LocalMapper::pending() const {
   std::lock_guard lock(queue_mutex_);
   return queue_.size();
@@ -155,7 +280,15 @@ void LocalMapper::run(std::stop_token stop) {
     KeyFrame* kf = nullptr;
     {
       std::unique_lock lock(queue_mutex_);
-      queue_cv_.wait(lock, [&] { return !queue_.empty() || closed_ || stop.stop_requested(); });
+      queue_cv_.wait(lock, [&] {
+        return !queue_.empty() || !mailbox_.empty() || closed_ || stop.stop_requested();
+      });
+      if (queue_.empty() && !mailbox_.empty()) {
+        // No keyframe waiting: apply semantic results now.
+        lock.unlock();
+        applySemanticResults();
+        continue;
+      }
       if (queue_.empty()) return;  // closed and drained
       kf = queue_.front();
       queue_.pop_front();
@@ -174,6 +307,7 @@ void LocalMapper::finish() {
   }
   queue_cv_.notify_all();
   if (worker_.joinable()) worker_.join();
+  applySemanticResults();  // results that arrived after the last keyframe
 }
 
 }  // namespace stillpoint::slam

@@ -10,9 +10,20 @@
 #include <thread>
 
 #include "map.hpp"
+#include "semantic_worker.hpp"
 #include "stillpoint/slam/options.hpp"
 
 namespace stillpoint::slam {
+
+// What the semantic results did to the map (written under the map's
+// exclusive lock, read under a shared one).
+struct SemanticStats {
+  int segmented = 0, failures = 0;
+  int features_removed = 0, points_removed = 0, points_culled = 0;
+  int instances_applied = 0, instances_unconfirmed = 0, instances_capped = 0;
+  std::vector<double> latency_ms;  // keyframe creation -> result applied
+  std::vector<double> segment_ms;
+};
 
 class LocalMapper {
  public:
@@ -33,12 +44,24 @@ class LocalMapper {
   double totalMs() const { return total_ms_; }
   int dynamicPointsCulled() const { return dynamic_points_culled_.load(); }
 
+  // Semantic results arrive from any thread into a mailbox; local mapping (the
+  // map's single writer) applies them under the map's exclusive lock at the
+  // start of process(), or as soon as it is idle, and in finish().
+  void postSemantic(SemanticResult result);
+  // Applies every waiting result now (sequential mode, tests). Caller must
+  // not hold the map lock.
+  void applySemanticResults();
+  // Masks need the geometry module's agreement (confirm_with_geometry).
+  void setSemanticConfirmation(bool required) { semantic_confirm_ = required; }
+  const SemanticStats& semanticStats() const { return semantic_stats_; }
+
  private:
   void run(std::stop_token stop);
   void cullRecentPoints(KeyFrame* kf);
   void cullDynamicPoints(KeyFrame* kf);
   void fuseWithNeighbours(KeyFrame* kf);
   void cullKeyFrames(KeyFrame* kf);
+  void applySemantic(const SemanticResult& result);  // map lock held exclusively
 
   SlamOptions options_;
   double close_depth_;
@@ -56,6 +79,9 @@ class LocalMapper {
   int ba_runs_ = 0;
   double total_ms_ = 0;
   std::atomic<int> dynamic_points_culled_{0};
+  std::deque<SemanticResult> mailbox_;  // guarded by queue_mutex_
+  bool semantic_confirm_ = false;
+  SemanticStats semantic_stats_;
 };
 
 }  // namespace stillpoint::slam

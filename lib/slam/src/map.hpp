@@ -40,6 +40,10 @@ class MapPoint {
   // Exponentially weighted share of recent observations that fell in dynamic
   // depth clusters; written by tracking only, read by local mapping.
   std::atomic<float> dynamic_score{0.0f};
+  // Semantic module (local mapping only): segmented keyframes that observed
+  // this point, and how many of them saw it inside a movable mask.
+  int semantic_checks = 0;
+  int semantic_hits = 0;
   std::shared_ptr<MapPoint> replaced_by;
   std::int64_t local_for_frame = -1;  // tracking's local-map bookkeeping
   bool isTemporary() const { return id < 0; }
@@ -85,6 +89,10 @@ class KeyFrame {
   // Points tracking found on moving surfaces since the previous keyframe;
   // local mapping culls those that stay dynamic.
   std::vector<std::shared_ptr<MapPoint>> dynamic_suspects;
+
+  // The semantic module's result was applied (its features in movable masks
+  // are flagged dynamic and hold no map point).
+  bool segmented = false;
 
   int trackedPoints(int min_observations) const;
   void addObservation(const std::shared_ptr<MapPoint>& point, int index);

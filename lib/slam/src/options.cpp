@@ -48,9 +48,32 @@ Status GeometryOptions::validate() const {
   return Status::success();
 }
 
+Status SemanticOptions::validate() const {
+  if (mask_dilation_px < 0 || mask_dilation_px > 100) return Error{"semantic.mask_dilation_px must be in 0..100"};
+  if (queue_capacity < 1 || queue_capacity > 1000) return Error{"semantic.queue_capacity must be in 1..1000"};
+  if (threads < 0 || threads > 64) return Error{"semantic.threads must be in 0..64"};
+  if (!(min_region_fraction >= 0 && min_region_fraction < 1))
+    return Error{"semantic.min_region_fraction must be in [0, 1)"};
+  if (!(min_region_confidence >= 0 && min_region_confidence <= 1))
+    return Error{"semantic.min_region_confidence must be in [0, 1]"};
+  if (!(static_overlap_iou >= 0 && static_overlap_iou <= 1))
+    return Error{"semantic.static_overlap_iou must be in [0, 1]"};
+  if (confirm_with_geometry != "card" && confirm_with_geometry != "always" && confirm_with_geometry != "never")
+    return Error{"semantic.confirm_with_geometry must be 'card', 'always' or 'never'"};
+  if (confirm_min_flagged < 1) return Error{"semantic.confirm_min_flagged must be >= 1"};
+  if (!(confirm_ratio >= 0 && confirm_ratio <= 1)) return Error{"semantic.confirm_ratio must be in [0, 1]"};
+  if (!(max_removed_fraction >= 0 && max_removed_fraction <= 1))
+    return Error{"semantic.max_removed_fraction must be in [0, 1]"};
+  if (!(point_masked_ratio >= 0 && point_masked_ratio < 1))
+    return Error{"semantic.point_masked_ratio must be in [0, 1)"};
+  for (const std::string& d : model_dirs)
+    if (d.empty()) return Error{"semantic.model_dirs: empty folder name"};
+  return Status::success();
+}
+
 Status SlamOptions::validate() const {
-  for (const Status& s :
-       {orb.validate(), tracking.validate(), keyframes.validate(), mapping.validate(), geometry.validate()})
+  for (const Status& s : {orb.validate(), tracking.validate(), keyframes.validate(), mapping.validate(),
+                          geometry.validate(), semantic.validate()})
     if (!s) return s;
   return Status::success();
 }
@@ -99,6 +122,22 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "absolute_floor", o.geometry.verdict.absolute_floor);
   v("geometry", "deadline_ms", o.geometry.deadline_ms);
   v("geometry", "point_dynamic_weight", o.geometry.point_dynamic_weight);
+  v("semantic", "enabled", o.semantic.enabled);
+  v("semantic", "model_card", o.semantic.model_card);
+  v("semantic", "model_dirs", o.semantic.model_dirs);
+  v("semantic", "movable_furniture", o.semantic.movable_furniture);
+  v("semantic", "mask_dilation_px", o.semantic.mask_dilation_px);
+  v("semantic", "queue_capacity", o.semantic.queue_capacity);
+  v("semantic", "threads", o.semantic.threads);
+  v("semantic", "min_region_fraction", o.semantic.min_region_fraction);
+  v("semantic", "min_region_confidence", o.semantic.min_region_confidence);
+  v("semantic", "static_overlap_iou", o.semantic.static_overlap_iou);
+  v("semantic", "depth_agreement", o.semantic.depth_agreement);
+  v("semantic", "confirm_with_geometry", o.semantic.confirm_with_geometry);
+  v("semantic", "confirm_min_flagged", o.semantic.confirm_min_flagged);
+  v("semantic", "confirm_ratio", o.semantic.confirm_ratio);
+  v("semantic", "max_removed_fraction", o.semantic.max_removed_fraction);
+  v("semantic", "point_masked_ratio", o.semantic.point_masked_ratio);
   v("", "sequential", o.sequential);
 }
 

@@ -1,14 +1,57 @@
 #include "stillpoint/slam/system.hpp"
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <cmath>
+#include <filesystem>
 #include <mutex>
 
 #include "frame.hpp"
 #include "local_mapping.hpp"
 #include "map.hpp"
+#include "semantic_worker.hpp"
+#include "stillpoint/core/log.hpp"
+#include "stillpoint/semantic/segmenter.hpp"
 #include "tracking.hpp"
 
 namespace stillpoint::slam {
+namespace {
+log::Logger logger("slam");
+
+std::pair<double, double> medianP95(std::vector<double> v) {
+  if (v.empty()) return {0.0, 0.0};
+  std::sort(v.begin(), v.end());
+  const double median = v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+  const std::size_t i95 = std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(0.95 * v.size())) - 1);
+  return {median, v[i95]};
+}
+
+// The model card the options ask for: an explicit card (a relative path that
+// does not exist is looked up in the project's models/ folder; the model file
+// is looked up in model_dirs and $STILLPOINT_MODEL_DIR before the card's own
+// folder), or the recommended one.
+Result<semantic::ResolvedModel> resolveModel(const SemanticOptions& o) {
+  namespace fs = std::filesystem;
+  std::vector<fs::path> dirs(o.model_dirs.begin(), o.model_dirs.end());
+  if (o.model_card.empty()) return semantic::resolveRecommendedModel({.card_dir = {}, .model_dirs = dirs});
+  std::error_code ec;
+  fs::path card_path = o.model_card;
+  if (card_path.is_relative() && !fs::exists(card_path, ec) && fs::exists(semantic::defaultModelCardDir() / card_path, ec))
+    card_path = semantic::defaultModelCardDir() / card_path;
+  auto card = semantic::loadModelCard(card_path);
+  if (!card) return Error{"semantic.model_card: " + card.error()};
+  if (const char* env = std::getenv("STILLPOINT_MODEL_DIR"); env && *env) dirs.emplace_back(env);
+  for (const fs::path& d : dirs) {
+    const fs::path candidate = d / card->model_path.filename();
+    if (fs::is_regular_file(candidate, ec)) {
+      card->model_path = candidate;
+      break;
+    }
+  }
+  return semantic::ResolvedModel{*card, "card " + card_path.string()};
+}
+}  // namespace
 
 const char* toString(TrackingState state) {
   switch (state) {
@@ -40,20 +83,64 @@ struct SlamSystem::Impl {
   std::unique_ptr<geometry::ClusteringWorker> clustering;
   Tracker tracker;
   LocalMapper mapper;
+  // After the mapper: its results go into the mapper's mailbox, so it is
+  // stopped (and destroyed) first.
+  std::unique_ptr<SemanticWorker> semantic;
+  std::string semantic_model;
+  std::atomic<int> semantic_no_colour{0};
+  log::RateLimiter no_colour_warning{std::chrono::seconds(10)};
   bool finished = false;
 };
 
 SlamSystem::SlamSystem(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
 SlamSystem::~SlamSystem() {
-  if (impl_) impl_->mapper.finish();
+  if (!impl_) return;
+  if (impl_->semantic) impl_->semantic->finish();
+  impl_->mapper.finish();
 }
 
 Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera, const SlamOptions& options) {
+  if (!options.semantic.enabled) return create(camera, options, nullptr);
+  if (Status s = options.validate(); !s) return Error{s.error()};
+  // The model is loaded and checked (with a warm-up inference) now.
+  auto model = resolveModel(options.semantic);
+  if (!model) return Error{model.error()};
+  semantic::SegmenterOptions so;
+  so.threads = options.semantic.threads;
+  so.movable_furniture = options.semantic.movable_furniture;
+  so.min_region_fraction = options.semantic.min_region_fraction;
+  so.min_region_confidence = options.semantic.min_region_confidence;
+  so.static_overlap_iou = options.semantic.static_overlap_iou;
+  auto segmenter = semantic::createSegmenter(model->card, so);
+  if (!segmenter) return Error{"semantic model '" + model->card.card_path.string() + "': " + segmenter.error()};
+  auto system = create(camera, options, std::move(*segmenter));
+  if (system) (*system)->impl_->semantic_model = model->card.name + " (" + model->reason + ")";
+  return system;
+}
+
+Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera, const SlamOptions& options,
+                                                       std::unique_ptr<semantic::Segmenter> segmenter) {
   if (Status s = camera.validate(); !s) return Error{s.error()};
   if (Status s = options.validate(); !s) return Error{s.error()};
+  if (segmenter && !options.semantic.enabled) return Error{"a segmenter was given but semantic.enabled is false"};
+  if (!segmenter && options.semantic.enabled) return Error{"semantic.enabled is set but no segmenter was given"};
   auto system = std::unique_ptr<SlamSystem>(new SlamSystem(std::make_unique<Impl>(camera, options)));
-  if (!options.sequential) system->impl_->mapper.start();
+  Impl& s = *system->impl_;
+  if (segmenter) {
+    const std::string& confirm = options.semantic.confirm_with_geometry;
+    const bool required = confirm == "always" || (confirm == "card" && segmenter->card().confirm_with_geometry);
+    s.mapper.setSemanticConfirmation(required);
+    if (required && !options.geometry.enabled)
+      SP_WARN(logger, "model '" << segmenter->card().name
+                                << "' needs the geometry module's agreement (confirm_with_geometry) but the geometry "
+                                   "module is off: its masks will remove nothing");
+    s.semantic_model = segmenter->card().name;
+    s.semantic = std::make_unique<SemanticWorker>(std::move(segmenter), options.semantic,
+                                                  [&mapper = s.mapper](SemanticResult r) { mapper.postSemantic(std::move(r)); });
+    if (!options.sequential) s.semantic->start();
+  }
+  if (!options.sequential) s.mapper.start();
   return system;
 }
 
@@ -69,6 +156,10 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   if (!input.depth_m.empty()) {
     if (input.depth_m.type() != CV_32FC1) return Error{"depth image must be CV_32FC1 metres"};
     if (input.depth_m.size() != expected) return Error{"depth image size differs from the camera's"};
+  }
+  if (!input.bgr.empty()) {
+    if (input.bgr.type() != CV_8UC3) return Error{"colour image must be CV_8UC3 (BGR)"};
+    if (input.bgr.size() != expected) return Error{"colour image size differs from the camera's"};
   }
 
   const auto t0 = std::chrono::steady_clock::now();
@@ -91,6 +182,21 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   out.extract_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stages.extract = out.extract_ms;
   out.track_ms = std::chrono::duration<double, std::milli>(t2 - t0).count();
+  if (kf && s.semantic) {
+    if (input.bgr.empty()) {
+      ++s.semantic_no_colour;
+      SP_WARN_EVERY(logger, s.no_colour_warning,
+                    "keyframe " << kf->id << " has no colour image: not segmented (" << s.semantic_no_colour.load()
+                                << " so far)");
+    } else {
+      SemanticJob job{kf->id, s.options.sequential ? input.bgr : input.bgr.clone(),
+                      s.options.sequential ? input.depth_m : input.depth_m.clone(), t2};
+      if (s.options.sequential)
+        s.mapper.postSemantic(s.semantic->process(job));  // applied at the start of process(kf)
+      else
+        s.semantic->submit(std::move(job));
+    }
+  }
   if (kf) {
     if (s.options.sequential)
       s.mapper.process(kf);
@@ -105,7 +211,8 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
 }
 
 void SlamSystem::finish() {
-  impl_->mapper.finish();
+  if (impl_->semantic) impl_->semantic->finish();  // segments what is queued
+  impl_->mapper.finish();                          // then applies it
   impl_->finished = true;
 }
 
@@ -120,6 +227,24 @@ std::vector<TrajectoryPose> SlamSystem::trajectory() const {
   return out;
 }
 
+std::vector<KeyFrameView> SlamSystem::keyframes() const {
+  std::shared_lock lock(impl_->map.mutex());
+  std::vector<KeyFrameView> out;
+  for (const auto& kf : impl_->map.keyframes()) {
+    KeyFrameView v;
+    v.id = kf->id;
+    v.stamp = kf->frame.stamp;
+    v.bad = kf->bad;
+    v.segmented = kf->segmented;
+    const Frame& f = kf->frame;
+    v.features.reserve(f.keys.size());
+    for (int i = 0; i < f.size(); ++i)
+      v.features.push_back({f.keys[i].pt.x, f.keys[i].pt.y, f.points[i] && !f.points[i]->bad, f.dynamic[i] != 0});
+    out.push_back(std::move(v));
+  }
+  return out;
+}
+
 MapStats SlamSystem::mapStats() const {
   std::shared_lock lock(impl_->map.mutex());
   MapStats stats;
@@ -129,6 +254,22 @@ MapStats SlamSystem::mapStats() const {
   stats.local_mapping_ms_total = impl_->mapper.totalMs();
   stats.dynamic_points_culled = impl_->mapper.dynamicPointsCulled();
   if (impl_->clustering) stats.geometry_deadline_misses = impl_->clustering->deadlineMisses();
+  if (impl_->semantic) {
+    const SemanticStats& st = impl_->mapper.semanticStats();
+    stats.semantic_keyframes_segmented = st.segmented;
+    stats.semantic_keyframes_no_colour = impl_->semantic_no_colour.load();
+    stats.semantic_keyframes_dropped = impl_->semantic->dropped();
+    stats.semantic_failures = st.failures;
+    stats.semantic_features_removed = st.features_removed;
+    stats.semantic_points_removed = st.points_removed;
+    stats.semantic_points_culled = st.points_culled;
+    stats.semantic_instances_applied = st.instances_applied;
+    stats.semantic_instances_unconfirmed = st.instances_unconfirmed;
+    stats.semantic_instances_capped = st.instances_capped;
+    std::tie(stats.semantic_latency_ms_median, stats.semantic_latency_ms_p95) = medianP95(st.latency_ms);
+    std::tie(stats.segmentation_ms_median, stats.segmentation_ms_p95) = medianP95(st.segment_ms);
+    stats.semantic_model = impl_->semantic_model;
+  }
   return stats;
 }
 

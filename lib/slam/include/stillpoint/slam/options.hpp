@@ -2,6 +2,7 @@
 // Options of the SLAM core, one plain struct per module, loaded from one YAML
 // file (see config/slam.yaml). validate() names the offending field.
 #include <string>
+#include <vector>
 
 #include "stillpoint/core/result.hpp"
 #include "stillpoint/features/orb_extractor.hpp"
@@ -63,12 +64,54 @@ struct GeometryOptions {
   Status validate() const;
 };
 
+// The semantic module: keyframes are segmented in their own thread and their
+// features on movable objects (people, animals, vehicles; optionally
+// furniture) leave the map. See lib/slam/README.md ("Semantic module").
+struct SemanticOptions {
+  bool enabled = false;
+  // Model card (YAML). Empty = the recommended model (COCO when its ONNX file
+  // is found in model_dirs / $STILLPOINT_MODEL_DIR, else the in-tree person
+  // model). A relative path that does not exist from the working directory is
+  // looked up in the project's models/ folder.
+  std::string model_card;
+  // Folders searched first for the card's model file.
+  std::vector<std::string> model_dirs;
+  bool movable_furniture = false;  // chairs, couches, ... count as movable too
+  int mask_dilation_px = 5;        // instance masks grow by this much before features are dropped
+  // Keyframes waiting for the segmentation thread; when full the oldest
+  // waiting keyframe is left unsegmented (drop-oldest: tracking never waits).
+  int queue_capacity = 4;
+  int threads = 1;  // OpenCV inference threads (process-wide in OpenCV)
+  // Segmenter post-filter (see lib/semantic/README.md).
+  double min_region_fraction = 0.001;
+  double min_region_confidence = 0.0;
+  double static_overlap_iou = 0.6;
+  bool depth_agreement = true;  // cut mask pixels far from their instance's median depth
+  // Geometry confirmation of masks: "card" (as the model card's
+  // confirm_with_geometry says), "always" or "never". A confirmed-only
+  // instance is applied only when the geometry module flagged at least
+  // confirm_min_flagged features and confirm_ratio of its judged features in
+  // that keyframe.
+  std::string confirm_with_geometry = "card";
+  int confirm_min_flagged = 3;
+  double confirm_ratio = 0.3;
+  // Share of a keyframe's map points that semantic evidence alone (instances
+  // the geometry module did not confirm) may remove; larger instances are
+  // left alone (a false positive must not empty the map).
+  double max_removed_fraction = 0.5;
+  // A map point is culled when more than this share of the segmented
+  // keyframes observing it saw it inside a movable mask.
+  double point_masked_ratio = 0.5;
+  Status validate() const;
+};
+
 struct SlamOptions {
   features::OrbOptions orb;
   TrackingOptions tracking;
   KeyframeOptions keyframes;
   MappingOptions mapping;
   GeometryOptions geometry;
+  SemanticOptions semantic;
   bool sequential = false;  // one thread, deterministic (tests, evaluation)
   Status validate() const;
 };

@@ -4,6 +4,7 @@
 // own thread, or inline when options.sequential is set (deterministic).
 #include <memory>
 #include <opencv2/core.hpp>
+#include <string>
 #include <vector>
 
 #include "stillpoint/core/camera.hpp"
@@ -12,6 +13,10 @@
 #include "stillpoint/geometry/depth_clustering.hpp"
 #include "stillpoint/geometry/dynamic_clusters.hpp"
 #include "stillpoint/slam/options.hpp"
+
+namespace stillpoint::semantic {
+class Segmenter;
+}
 
 namespace stillpoint::slam {
 
@@ -22,6 +27,9 @@ struct RgbdInput {
   Timestamp stamp;
   cv::Mat gray;     // CV_8UC1, camera size
   cv::Mat depth_m;  // CV_32FC1 metres, 0 = no measurement, camera size
+  // CV_8UC3 colour image (camera size) for the semantic module; may be empty:
+  // a keyframe made from a frame without colour is not segmented.
+  cv::Mat bgr{};  // (default initialiser: 3-field aggregate initialisation stays warning-free)
 };
 
 // Where one frame's tracking time went (milliseconds).
@@ -82,11 +90,46 @@ struct MapStats {
   double local_mapping_ms_total = 0;
   int dynamic_points_culled = 0;          // map points removed by the geometry module
   std::int64_t geometry_deadline_misses = 0;
+  // Semantic module (all 0 when it is off).
+  int semantic_keyframes_segmented = 0;  // results applied to keyframes
+  int semantic_keyframes_no_colour = 0;  // keyframes from frames without colour (not segmented)
+  int semantic_keyframes_dropped = 0;    // left unsegmented: queue full (drop-oldest)
+  int semantic_failures = 0;             // segment() errors
+  int semantic_features_removed = 0;     // keyframe features dropped inside movable masks
+  int semantic_points_removed = 0;       // map points those features had created
+  int semantic_points_culled = 0;        // older map points seen mostly inside masks
+  int semantic_instances_applied = 0;
+  int semantic_instances_unconfirmed = 0;  // needed geometry's agreement and had none
+  int semantic_instances_capped = 0;       // over max_removed_fraction without confirmation
+  double semantic_latency_ms_median = 0, semantic_latency_ms_p95 = 0;  // keyframe creation -> mask applied
+  double segmentation_ms_median = 0, segmentation_ms_p95 = 0;          // segment() per keyframe
+  std::string semantic_model;  // card name and why it was chosen
+};
+
+// One keyframe's features as the map holds them (inspection, scoring, tests).
+struct KeyFrameFeature {
+  float u = 0, v = 0;    // distorted image pixels
+  bool mapped = false;   // holds a (live) map point
+  bool dynamic = false;  // dropped by the geometry or the semantic module
+};
+
+struct KeyFrameView {
+  std::int64_t id = 0;
+  Timestamp stamp;
+  bool bad = false;        // culled as redundant
+  bool segmented = false;  // the semantic module's result was applied
+  std::vector<KeyFrameFeature> features;
 };
 
 class SlamSystem {
  public:
+  // Loads and checks everything the options need now, the segmentation model
+  // included: a bad model is an error here, not at the first keyframe.
   static Result<std::unique_ptr<SlamSystem>> create(const CameraModel& camera, const SlamOptions& options);
+  // With a segmenter of the caller's (another network backend, or a test
+  // double); options.semantic.enabled must be set, its model fields are ignored.
+  static Result<std::unique_ptr<SlamSystem>> create(const CameraModel& camera, const SlamOptions& options,
+                                                    std::unique_ptr<semantic::Segmenter> segmenter);
   ~SlamSystem();
   SlamSystem(const SlamSystem&) = delete;
   SlamSystem& operator=(const SlamSystem&) = delete;
@@ -100,6 +143,8 @@ class SlamSystem {
   // benefits from bundle adjustment. Call after finish() for final values.
   std::vector<TrajectoryPose> trajectory() const;
   MapStats mapStats() const;
+  // Every keyframe, in creation order (call after finish() for final values).
+  std::vector<KeyFrameView> keyframes() const;
 
  private:
   struct Impl;

@@ -1,0 +1,94 @@
+#pragma once
+// The semantic module's worker: segments keyframes (only keyframes) in its own
+// thread and hands each result to a sink (local mapping's mailbox, which
+// applies it under the map's exclusive lock). Tracking never waits for it.
+//
+// Queue: bounded (SemanticOptions::queue_capacity), drop-oldest. When a new
+// keyframe arrives and the queue is full, the oldest waiting keyframe is left
+// unsegmented (counted): the newest keyframes are the ones tracking matches
+// against, and a live camera cannot wait. process() runs one job on the
+// calling thread (sequential mode, tests).
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "stillpoint/semantic/segmenter.hpp"
+#include "stillpoint/slam/options.hpp"
+
+namespace stillpoint::slam {
+
+using SteadyTime = std::chrono::steady_clock::time_point;
+
+struct SemanticJob {
+  std::int64_t keyframe_id = -1;
+  cv::Mat bgr;      // CV_8UC3, owned by the job
+  cv::Mat depth_m;  // CV_32FC1 or empty (depth agreement skipped)
+  SteadyTime created;
+};
+
+// One kept movable instance, dilated, as a region of the label image.
+struct SemanticRegion {
+  std::string class_name;
+  float score = 0;
+  int pixels = 0;
+};
+
+struct SemanticResult {
+  std::int64_t keyframe_id = -1;
+  bool ok = false;
+  std::string error;
+  // CV_8U, image size: 0 = no movable object, k = regions[k - 1]. Where
+  // dilated instances overlap, the higher-scoring one wins.
+  cv::Mat labels;
+  std::vector<SemanticRegion> regions;
+  double segment_ms = 0;  // segment() + depth agreement + dilation
+  SteadyTime created;
+};
+
+class SemanticWorker {
+ public:
+  using Sink = std::function<void(SemanticResult)>;
+  SemanticWorker(std::unique_ptr<semantic::Segmenter> segmenter, const SemanticOptions& options, Sink sink);
+  ~SemanticWorker();
+  SemanticWorker(const SemanticWorker&) = delete;
+  SemanticWorker& operator=(const SemanticWorker&) = delete;
+
+  const semantic::ModelCard& card() const { return segmenter_->card(); }
+
+  // Segments one keyframe on the calling thread (no queue, no sink).
+  SemanticResult process(const SemanticJob& job);
+
+  // Threaded use.
+  void start();
+  void submit(SemanticJob job);  // never blocks; drop-oldest when full
+  void finish();                 // segments what is queued, then joins
+  int dropped() const;
+
+ private:
+  void run(std::stop_token stop);
+
+  std::unique_ptr<semantic::Segmenter> segmenter_;
+  SemanticOptions options_;
+  Sink sink_;
+  mutable std::mutex mutex_;
+  std::condition_variable_any cv_;
+  std::deque<SemanticJob> queue_;
+  bool closed_ = false;
+  int dropped_ = 0;
+  std::jthread worker_;
+};
+
+// Builds the region label image from a segmentation: kept movable instances,
+// each dilated by `dilation_px`, painted in ascending score order.
+void buildRegions(const semantic::Segmentation& seg, int dilation_px, SemanticResult* out);
+
+}  // namespace stillpoint::slam
