@@ -9,7 +9,7 @@
 //   transport options (shm ring: sp_probe<suffix>): --url URL  --domain ID  --dds-config XML|URI  --suffix S
 //
 // Message k is probe::testPose(k) (frame_counter k = 1..N); the subscriber checks every
-// field bit for bit and that each arrives exactly once, in order. Status messages are
+// field bit for bit and that each arrives exactly once (order is reported, see runSub). Status messages are
 // testStatus(j), j = 1, 2, ... Exit status: 0 all good, 1 check failed or error, 2 usage.
 #include <chrono>
 #include <cstdio>
@@ -222,7 +222,9 @@ int runSub(const Args& a) {
   if (!error.empty()) std::cout << "receive error: " << error << std::endl;
   const bool statuses_ok = a.statuses < 0 || statuses == a.statuses;
   const bool last_ok = a.last_status < 0 || statuses >= 1;
-  return missing == 0 && mismatched == 0 && duplicates == 0 && out_of_order == 0 && unexpected == 0 &&
+  // out_of_order is reported, not a failure: UDP gives no ordering guarantee even on
+  // loopback (two datagrams can sit in different CPUs' backlogs when the sender migrates).
+  return missing == 0 && mismatched == 0 && duplicates == 0 && unexpected == 0 &&
                  bad_status == 0 && statuses_ok && last_ok && (error.empty() || received == a.count)
              ? 0
              : 1;
