@@ -6,16 +6,17 @@
 namespace stillpoint::geometry {
 
 Status DynamicClusterOptions::validate() const {
-  if (!(cauchy_c2 > 0)) return Error{"geometry.cauchy_c2 must be > 0"};
+  if (!(rho_cap > 0)) return Error{"geometry.rho_cap must be > 0"};
   if (min_features < 1) return Error{"geometry.min_features must be >= 1"};
   if (!(reference_quantile >= 0 && reference_quantile <= 1))
     return Error{"geometry.reference_quantile must be in [0, 1]"};
   if (!(relative_factor >= 1)) return Error{"geometry.relative_factor must be >= 1"};
   if (!(absolute_floor >= 0)) return Error{"geometry.absolute_floor must be >= 0"};
+  if (!(ceiling_fraction > 0 && ceiling_fraction <= 1)) return Error{"geometry.ceiling_fraction must be in (0, 1]"};
   return Status::success();
 }
 
-double cauchyRho(double chi2, double c2) { return c2 * std::log1p(chi2 / c2); }
+double truncatedRho(double chi2, double cap) { return std::min(chi2, cap); }
 
 ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, int clusters,
                                 const DynamicClusterOptions& options) {
@@ -25,7 +26,7 @@ ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, i
     if (r.cluster < 0 || r.cluster >= clusters) continue;
     ClusterScore& c = verdict.clusters[r.cluster];
     ++c.features;
-    c.mean_rho += cauchyRho(r.chi2, options.cauchy_c2);
+    c.mean_rho += truncatedRho(r.chi2, options.rho_cap);
   }
   std::vector<double> judged;
   for (ClusterScore& c : verdict.clusters) {
@@ -37,7 +38,8 @@ ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, i
   std::sort(judged.begin(), judged.end());
   const auto q = static_cast<std::size_t>(std::floor(options.reference_quantile * (judged.size() - 1) + 0.5));
   verdict.reference = judged[q];
-  verdict.threshold = std::max(options.absolute_floor, options.relative_factor * verdict.reference);
+  verdict.threshold = std::min(std::max(options.absolute_floor, options.relative_factor * verdict.reference),
+                               std::max(options.absolute_floor, options.ceiling_fraction * options.rho_cap));
   for (ClusterScore& c : verdict.clusters) {
     c.dynamic = c.judged && c.mean_rho > verdict.threshold;
     verdict.dynamic_clusters += c.dynamic;

@@ -115,11 +115,12 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "kmeans_iterations", o.geometry.clustering.max_iterations);
   v("geometry", "kmeans_converged_fraction", o.geometry.clustering.converged_fraction);
   v("geometry", "warm_start", o.geometry.clustering.warm_start);
-  v("geometry", "cauchy_c2", o.geometry.verdict.cauchy_c2);
+  v("geometry", "rho_cap", o.geometry.verdict.rho_cap);
   v("geometry", "min_features", o.geometry.verdict.min_features);
   v("geometry", "reference_quantile", o.geometry.verdict.reference_quantile);
   v("geometry", "relative_factor", o.geometry.verdict.relative_factor);
   v("geometry", "absolute_floor", o.geometry.verdict.absolute_floor);
+  v("geometry", "ceiling_fraction", o.geometry.verdict.ceiling_fraction);
   v("geometry", "deadline_ms", o.geometry.deadline_ms);
   v("geometry", "point_dynamic_weight", o.geometry.point_dynamic_weight);
   v("semantic", "enabled", o.semantic.enabled);

@@ -10,19 +10,28 @@
 namespace stillpoint::geometry {
 
 struct DynamicClusterOptions {
-  // rho(s) = c^2 log(1 + s / c^2) (Cauchy) of the squared, sigma-normalised
-  // reprojection error s. Bounded growth: one gross mismatch cannot make a
-  // static cluster dynamic, yet a cluster whose every feature is off by a few
-  // sigma scores clearly above static ones (whose s follows a chi-square law).
-  double cauchy_c2 = 7.815;  // chi-square 95 % at 3 DoF (u, v, depth)
+  // rho(s) = min(s, rho_cap) (truncated quadratic) of the squared,
+  // sigma-normalised reprojection error s. A cluster's mean rho is then about
+  // rho_cap x (share of its features that disagree with the pose) plus the
+  // static noise (s follows a chi-square law with 3 DoF, mean 3): a mover
+  // scores near rho_cap, while mismatches (7-10 % of stage-1 matches on
+  // repetitive texture) cannot lift a static cluster. Measured against a
+  // Cauchy rho on three generated sequences it gives higher precision at
+  // every recall (README, geometry module).
+  double rho_cap = 7.815;  // chi-square 95 % at 3 DoF (u, v, depth)
   // Clusters with fewer matched features are not judged (stay static).
   int min_features = 4;
-  // Dynamic when mean rho > max(absolute_floor, relative_factor * reference),
+  // Dynamic when mean rho > clamp(relative_factor * reference, absolute_floor,
+  // ceiling_fraction * rho_cap),
   // reference = this quantile of the judged clusters' mean rho. A low
   // quantile keeps the reference static even when movers fill half the view.
   double reference_quantile = 0.3;
   double relative_factor = 2.5;
-  double absolute_floor = 4.0;
+  double absolute_floor = 4.5;
+  // ...and the relative rule never asks more than this share of rho_cap (a
+  // noisy frame would otherwise push the threshold above what any cluster
+  // can score).
+  double ceiling_fraction = 0.75;
   Status validate() const;
 };
 
@@ -45,7 +54,7 @@ struct ClusterVerdict {
   int dynamic_clusters = 0;
 };
 
-double cauchyRho(double chi2, double c2);
+double truncatedRho(double chi2, double cap);
 
 ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, int clusters,
                                 const DynamicClusterOptions& options);
