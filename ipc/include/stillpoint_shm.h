@@ -23,7 +23,11 @@
  * fills it with record n and 2n once complete. A reader copies the payload between two
  * reads of `seq` and keeps the copy only when both reads equal 2n, so it never returns
  * a torn record. Every shared word is accessed through the __atomic builtins (the same
- * code then compiles as C99, which has no <stdatomic.h>, and as C++).
+ * code then compiles as C99, which has no <stdatomic.h>, and as C++). Payload words are
+ * stored with release and loaded with acquire semantics instead of relying on fences:
+ * a reader that sees any word of a newer write is then guaranteed to see that write's
+ * odd `seq` on its second read. This costs nothing on x86, little on ARM (14 words),
+ * and ThreadSanitizer understands it (it does not model fences).
  *
  * A restarting writer builds a fresh ring file and renames it over the old name, with
  * `generation` one higher. Readers notice the new file (different inode) while polling
@@ -312,8 +316,9 @@ static inline int sp_shm_try_read(const sp_shm_reader* r, uint64_t n, sp_pose_re
   int i;
   s1 = __atomic_load_n(&slot->seq, __ATOMIC_ACQUIRE);
   if (s1 != 2 * n) return 0;
-  for (i = 0; i < SP_SHM_POSE_WORDS; ++i) words[i] = __atomic_load_n(&slot->words[i], __ATOMIC_RELAXED);
-  __atomic_thread_fence(__ATOMIC_ACQUIRE);
+  /* Acquire loads: the second read of seq cannot move above them, and reading any word
+   * of a newer write makes that write's odd seq visible to it. */
+  for (i = 0; i < SP_SHM_POSE_WORDS; ++i) words[i] = __atomic_load_n(&slot->words[i], __ATOMIC_ACQUIRE);
   s2 = __atomic_load_n(&slot->seq, __ATOMIC_RELAXED);
   if (s2 != s1) return 0;
   memcpy(out, words, sizeof(*out));

@@ -130,11 +130,11 @@ void ShmPoseWriter::write(const sp_pose_record& record) {
   std::memcpy(words, &record, sizeof(words));
   words[0] = n;  // sp_pose_record::sequence
 
-  // Seqlock write: mark the slot busy (odd), then the release fence orders that mark
-  // before every payload store; the final release store publishes the payload.
+  // Seqlock write: mark the slot busy (odd); each payload store is a release, so a reader
+  // that loads (acquire) any new word also sees the odd mark and discards its copy. The
+  // final release store of 2n publishes the complete record.
   __atomic_store_n(&slot->seq, 2 * n - 1, __ATOMIC_RELAXED);
-  __atomic_thread_fence(__ATOMIC_RELEASE);
-  for (int i = 0; i < SP_SHM_POSE_WORDS; ++i) __atomic_store_n(&slot->words[i], words[i], __ATOMIC_RELAXED);
+  for (int i = 0; i < SP_SHM_POSE_WORDS; ++i) __atomic_store_n(&slot->words[i], words[i], __ATOMIC_RELEASE);
   __atomic_store_n(&slot->seq, 2 * n, __ATOMIC_RELEASE);
   __atomic_store_n(&h->write_count, n, __ATOMIC_RELEASE);
   count_ = n;
