@@ -50,9 +50,9 @@ struct MappingOptions {
 // The geometry module: two-stage tracking that drops the features of depth
 // clusters moving against the initial pose (see lib/geometry).
 struct GeometryOptions {
-  // Off by default until it stops flagging static surfaces: on synthetic
-  // static scenes it still drops some good features (see issue 4's notes).
-  bool enabled = false;
+  // On by default: on generated dynamic sequences it cuts the ATE 3-50x, on
+  // static ones it stays within noise (README, "Geometry module").
+  bool enabled = true;
   geometry::ClusteringOptions clustering;
   geometry::DynamicClusterOptions verdict;
   // Longest the tracking thread waits for the frame's clusters; on a miss the
