@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# Measurements of stillpointd for issue 7 (numbers in README "stillpointd"):
+#   latency  - paced 30 Hz replay of the real excerpt as a live camera (drop-oldest
+#              queue of capacity $QUEUE, default 2): dropped frames, pose latency (frame
+#              in -> pose handed to the publisher) median / p99 / max, from the status file
+#   shutdown - N starts/stops: SIGTERM $WARMUP s (default 5) after the ring appears, time until the process
+#              has exited (measured outside) and the daemon's own shutdown_ms
+#   rss      - looped paced replay for S seconds, VmRSS every 10 s, least-squares slope
+# usage: daemon-measure.sh STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|rss [SECONDS]
+set -euo pipefail
+bin=$1 seq=$2 what=$3
+work=$(mktemp -d /tmp/stillpointd-measure.XXXXXX)
+trap 'rm -rf "$work"' EXIT
+ring=sp_measure_$$
+cfg() {  # paced loop as_live
+  cat > "$work/d.yaml" <<YAML
+camera: fr3
+log_level: warn
+source: {queue_capacity: ${QUEUE:-2}, replay: {path: $seq, paced: $1, loop: $2, as_live: $3}}
+output: {status: $work/status.txt}
+ipc: {shm: {name: $ring}}
+YAML
+}
+case $what in
+  latency)
+    cfg true false true
+    "$bin" --config "$work/d.yaml"
+    grep -E '^(frames_|latency_|publisher_)' "$work/status.txt"
+    ;;
+  shutdown)
+    n=${4:-20}
+    cfg true true false
+    for i in $(seq "$n"); do
+      rm -f "$work/status.txt"
+      "$bin" --config "$work/d.yaml" 2> "$work/err.txt" &
+      pid=$!
+      # Wait for tracking to run (ring present and a few poses in), then stop.
+      for _ in $(seq 200); do [[ -e /dev/shm/$ring ]] && break; sleep 0.05; done
+      sleep "${WARMUP:-5}"
+      t0=$(date +%s%N)
+      kill -TERM $pid
+      wait $pid
+      t1=$(date +%s%N)
+      echo "run $i: exit_ms=$(( (t1 - t0) / 1000000 )) $(grep -E '^(shutdown_ms|frames_processed)' "$work/status.txt" | tr '\n' ' ')"
+    done
+    ;;
+  rss)
+    secs=${4:-600}
+    cfg true true false
+    "$bin" --config "$work/d.yaml" &
+    pid=$!
+    start=$(date +%s)
+    while (( $(date +%s) - start < secs )); do
+      sleep 10
+      echo "$(( $(date +%s) - start )) $(awk '/VmRSS/ {print $2}' /proc/$pid/status)"
+    done | tee "$work/rss.txt"
+    kill -TERM $pid; wait $pid || true
+    awk '{n++; sx+=$1; sy+=$2; sxx+=$1*$1; sxy+=$1*$2} END {s=(n*sxy-sx*sy)/(n*sxx-sx*sx); printf "rss slope %.2f kB/min over %d samples (first %d kB, last %d kB)\n", s*60, n, first, $2} NR==1 {first=$2}' "$work/rss.txt"
+    ;;
+  *) echo "usage: $0 STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|rss [SECONDS]" >&2; exit 2 ;;
+esac
+rm -f /dev/shm/$ring

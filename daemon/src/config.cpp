@@ -1,0 +1,328 @@
+#include "config.hpp"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include <yaml-cpp/yaml.h>
+
+#include "stillpoint/core/log.hpp"
+
+namespace stillpoint::daemon {
+namespace {
+
+// Reads one map section: remembers which keys were read so the rest can be
+// reported as unknown, and turns yaml-cpp type errors into messages with the
+// field and line.
+class Section {
+ public:
+  Section(const YAML::Node& node, std::string prefix, std::string* error)
+      : node_(node), prefix_(std::move(prefix)), error_(error) {}
+
+  std::string field(const std::string& key) const { return prefix_.empty() ? key : prefix_ + "." + key; }
+
+  // Present and not null?
+  bool has(const std::string& key) {
+    known_.insert(key);
+    if (!node_.IsMap()) return false;
+    const YAML::Node v = node_[key];
+    return v.IsDefined() && !v.IsNull();
+  }
+  YAML::Node get(const std::string& key) { return has(key) ? node_[key] : YAML::Node(); }
+
+  template <typename T>
+  void read(const std::string& key, T* out) {
+    if (!error_->empty() || !has(key)) return;
+    const YAML::Node v = node_[key];
+    try {
+      if (!v.IsScalar()) throw YAML::Exception(v.Mark(), "");
+      *out = v.as<T>();
+    } catch (const YAML::Exception&) {
+      fail(v, key, "has the wrong type");
+    }
+  }
+
+  void fail(const YAML::Node& at, const std::string& key, const std::string& what) {
+    if (error_->empty()) *error_ = "line " + std::to_string(at.Mark().line + 1) + ": field '" + field(key) + "' " + what;
+  }
+  // Call after every read: names the first key nobody asked for.
+  void checkUnknown() {
+    if (!error_->empty() || !node_.IsMap()) return;
+    for (const auto& kv : node_) {
+      const std::string key = kv.first.as<std::string>();
+      if (!known_.count(key)) {
+        *error_ = "line " + std::to_string(kv.first.Mark().line + 1) + ": unknown field '" + field(key) + "'";
+        return;
+      }
+    }
+  }
+  const YAML::Node& node() const { return node_; }
+
+ private:
+  YAML::Node node_;
+  std::string prefix_;
+  std::string* error_;
+  std::set<std::string> known_;
+};
+
+// A map section, or an error when the key holds something else.
+bool subsection(Section& parent, const std::string& key, YAML::Node* out, std::string* error) {
+  *out = parent.get(key);
+  if (!error->empty()) return false;
+  if (out->IsDefined() && !out->IsNull() && !out->IsMap()) {
+    parent.fail(*out, key, "must be a mapping");
+    return false;
+  }
+  return true;
+}
+
+void readPlacement(Section& threads, const std::string& name, ThreadPlacement* p, std::string* error) {
+  YAML::Node node;
+  if (!subsection(threads, name, &node, error) || !node.IsDefined() || node.IsNull()) return;
+  Section s(node, threads.field(name), error);
+  if (s.has("cores")) {
+    const YAML::Node cores = node["cores"];
+    if (!cores.IsSequence()) return s.fail(cores, "cores", "must be a list of core numbers, e.g. [2, 3]");
+    p->cores.clear();
+    for (const auto& c : cores) {
+      try {
+        const int core = c.as<int>();
+        if (core < 0 || core > 1023) return s.fail(c, "cores", "holds " + std::to_string(core) + ": expected 0..1023");
+        p->cores.push_back(core);
+      } catch (const YAML::Exception&) {
+        return s.fail(c, "cores", "must be a list of core numbers, e.g. [2, 3]");
+      }
+    }
+  }
+  s.read("priority", &p->priority);
+  if (error->empty() && (p->priority < 0 || p->priority > 99))
+    s.fail(node["priority"], "priority", "must be 0 (normal scheduling) or a SCHED_FIFO priority 1..99");
+  s.checkUnknown();
+}
+
+// loadSlamOptions() reads files only: hand it the inline section through a
+// private temporary file, and put our field path into its messages.
+Result<slam::SlamOptions> inlineSlamOptions(const YAML::Node& node) {
+  char tmpl[] = "/tmp/stillpointd-slam-XXXXXX";
+  const int fd = ::mkstemp(tmpl);
+  if (fd < 0) return Error{"cannot create a temporary file for slam.options"};
+  YAML::Emitter out;
+  out << node;
+  const std::string text = std::string(out.c_str()) + "\n";
+  const bool written = ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size());
+  ::close(fd);
+  if (!written) {
+    ::unlink(tmpl);
+    return Error{"cannot write a temporary file for slam.options"};
+  }
+  auto loaded = slam::loadSlamOptions(tmpl);
+  ::unlink(tmpl);
+  if (loaded) return loaded;
+  std::string message = loaded.error();
+  const std::string prefix = "config '" + std::string(tmpl) + "': ";
+  if (message.rfind(prefix, 0) == 0) message = message.substr(prefix.size());
+  // Lines refer to the emitted copy, not the daemon file: keep only the field.
+  if (message.rfind("line ", 0) == 0) {
+    const auto colon = message.find(": ");
+    if (colon != std::string::npos) message = message.substr(colon + 2);
+  }
+  return Error{"slam.options: " + message};
+}
+
+Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
+  Section top(root, "", error);
+  top.read("camera", &c->camera_spec);
+  top.read("log_level", &c->log_level);
+  top.read("shutdown_timeout_s", &c->shutdown_timeout_s);
+  top.read("status_period_s", &c->status_period_s);
+
+  YAML::Node node;
+  if (subsection(top, "source", &node, error) && node.IsDefined()) {
+    Section s(node, "source", error);
+    s.read("type", &c->source.type);
+    s.read("queue_capacity", &c->source.queue_capacity);
+    YAML::Node replay;
+    if (subsection(s, "replay", &replay, error) && replay.IsDefined()) {
+      Section r(replay, "source.replay", error);
+      r.read("path", &c->source.replay.path);
+      r.read("paced", &c->source.replay.paced);
+      r.read("loop", &c->source.replay.loop);
+      r.read("max_frames", &c->source.replay.max_frames);
+      r.read("as_live", &c->source.replay.as_live);
+      r.checkUnknown();
+    }
+    YAML::Node oni;
+    if (subsection(s, "openni2", &oni, error) && oni.IsDefined()) {
+      Section o(oni, "source.openni2", error);
+      o.read("uri", &c->source.openni2.uri);
+      o.checkUnknown();
+    }
+    s.checkUnknown();
+  }
+  YAML::Node slam_inline;
+  if (subsection(top, "slam", &node, error) && node.IsDefined()) {
+    Section s(node, "slam", error);
+    s.read("options_file", &c->slam_options_file);
+    if (error->empty() && s.has("options")) {
+      slam_inline = node["options"];
+      if (!slam_inline.IsMap()) s.fail(slam_inline, "options", "must be a mapping (the layout of config/slam.yaml)");
+      else if (!c->slam_options_file.empty())
+        s.fail(slam_inline, "options", "and slam.options_file are exclusive: use one");
+    }
+    s.checkUnknown();
+  }
+  if (subsection(top, "modules", &node, error) && node.IsDefined()) {
+    Section s(node, "modules", error);
+    s.read("geometry", &c->modules.geometry);
+    s.read("semantic", &c->modules.semantic);
+    if (error->empty() && c->modules.semantic)
+      s.fail(node["semantic"], "semantic", "cannot be enabled: the semantic module is not wired into stillpointd yet");
+    s.checkUnknown();
+  }
+  if (subsection(top, "threads", &node, error) && node.IsDefined()) {
+    Section s(node, "threads", error);
+    readPlacement(s, "source", &c->threads.source, error);
+    readPlacement(s, "tracking", &c->threads.tracking, error);
+    readPlacement(s, "mapping", &c->threads.mapping, error);
+    readPlacement(s, "publisher", &c->threads.publisher, error);
+    s.checkUnknown();
+  }
+  if (subsection(top, "output", &node, error) && node.IsDefined()) {
+    Section s(node, "output", error);
+    s.read("trajectory", &c->output.trajectory);
+    s.read("status", &c->output.status);
+    s.checkUnknown();
+  }
+  if (error->empty() && top.has("ipc")) {
+    auto ipc = ipc::parseIpcOptions(root["ipc"]);
+    if (!ipc) *error = "ipc: " + ipc.error();
+    else c->ipc = *ipc;
+  }
+  top.checkUnknown();
+  if (!error->empty()) return Error{*error};
+
+  // Values, now that every key is known.
+  log::Level level;
+  if (!log::parseLevel(c->log_level, &level))
+    return Error{"field 'log_level': '" + c->log_level + "' is not one of debug, info, warn, error, off"};
+  if (!(c->shutdown_timeout_s > 0 && c->shutdown_timeout_s <= 300))
+    return Error{"field 'shutdown_timeout_s': must be in (0, 300] seconds"};
+  if (!(c->status_period_s >= 0.05 && c->status_period_s <= 60))
+    return Error{"field 'status_period_s': must be in [0.05, 60] seconds"};
+  if (c->source.type != "replay" && c->source.type != "openni2")
+    return Error{"field 'source.type': '" + c->source.type + "' is not available in this build (expected: replay, openni2)"};
+  if (c->source.queue_capacity < 1 || c->source.queue_capacity > 256)
+    return Error{"field 'source.queue_capacity': must be 1..256"};
+  if (c->source.type == "replay" && c->source.replay.path.empty())
+    return Error{"field 'source.replay.path': required for source.type replay (a TUM-layout folder)"};
+
+  auto camera = loadCamera(c->camera_spec);
+  if (!camera) return Error{"field 'camera': " + camera.error()};
+  c->camera = *camera;
+
+  if (!c->slam_options_file.empty()) {
+    auto loaded = slam::loadSlamOptions(c->slam_options_file);
+    if (!loaded) return Error{"field 'slam.options_file': " + loaded.error()};
+    c->slam = *loaded;
+  } else if (slam_inline.IsDefined()) {
+    auto loaded = inlineSlamOptions(slam_inline);
+    if (!loaded) return Error{loaded.error()};
+    c->slam = *loaded;
+  }
+  c->slam.geometry.enabled = c->modules.geometry;
+  if (Status s = c->ipc.validate(); !s) return Error{"ipc: " + s.error()};
+  return {};
+}
+
+void emitPlacement(YAML::Emitter& out, const char* name, const ThreadPlacement& p) {
+  out << YAML::Key << name << YAML::Value << YAML::Flow << YAML::BeginMap;
+  out << YAML::Key << "cores" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (int c : p.cores) out << c;
+  out << YAML::EndSeq << YAML::Key << "priority" << YAML::Value << p.priority << YAML::EndMap;
+}
+
+}  // namespace
+
+Result<DaemonConfig> loadDaemonConfig(const std::string& path) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    return Error{path + ": cannot be opened"};
+  } catch (const YAML::Exception& e) {
+    return Error{path + ": line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+  }
+  if (!root.IsMap()) return Error{path + ": expected a mapping at the top level"};
+  DaemonConfig config;
+  std::string error;
+  try {
+    if (Status s = parse(root, &config, &error); !s) return Error{path + ": " + s.error()};
+  } catch (const YAML::Exception& e) {
+    return Error{path + ": line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+  }
+  return config;
+}
+
+std::string toYaml(const DaemonConfig& c) {
+  YAML::Emitter out;
+  out << YAML::BeginMap;
+  out << YAML::Key << "camera" << YAML::Value << c.camera_spec;
+  out << YAML::Key << "log_level" << YAML::Value << c.log_level;
+  out << YAML::Key << "shutdown_timeout_s" << YAML::Value << c.shutdown_timeout_s;
+  out << YAML::Key << "status_period_s" << YAML::Value << c.status_period_s;
+  out << YAML::Key << "source" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "type" << YAML::Value << c.source.type;
+  out << YAML::Key << "queue_capacity" << YAML::Value << c.source.queue_capacity;
+  out << YAML::Key << "replay" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "path" << YAML::Value << c.source.replay.path;
+  out << YAML::Key << "paced" << YAML::Value << c.source.replay.paced;
+  out << YAML::Key << "loop" << YAML::Value << c.source.replay.loop;
+  out << YAML::Key << "max_frames" << YAML::Value << c.source.replay.max_frames;
+  out << YAML::Key << "as_live" << YAML::Value << c.source.replay.as_live;
+  out << YAML::EndMap;
+  out << YAML::Key << "openni2" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "uri" << YAML::Value << YAML::DoubleQuoted << c.source.openni2.uri;
+  out << YAML::EndMap << YAML::EndMap;
+  out << YAML::Key << "modules" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "geometry" << YAML::Value << c.modules.geometry;
+  out << YAML::Key << "semantic" << YAML::Value << c.modules.semantic;
+  out << YAML::EndMap;
+  out << YAML::Key << "threads" << YAML::Value << YAML::BeginMap;
+  emitPlacement(out, "source", c.threads.source);
+  emitPlacement(out, "tracking", c.threads.tracking);
+  emitPlacement(out, "mapping", c.threads.mapping);
+  emitPlacement(out, "publisher", c.threads.publisher);
+  out << YAML::EndMap;
+  out << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "trajectory" << YAML::Value << c.output.trajectory;
+  out << YAML::Key << "status" << YAML::Value << c.output.status;
+  out << YAML::EndMap;
+  const auto& i = c.ipc;
+  out << YAML::Key << "ipc" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "queue_capacity" << YAML::Value << i.queue_capacity;
+  out << YAML::Key << "shm" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled" << YAML::Value
+      << i.shm.enabled << YAML::Key << "name" << YAML::Value << i.shm.name << YAML::Key << "capacity" << YAML::Value
+      << i.shm.capacity << YAML::EndMap;
+  out << YAML::Key << "lcm" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled" << YAML::Value
+      << i.lcm.enabled << YAML::Key << "url" << YAML::Value << i.lcm.url << YAML::Key << "pose_channel"
+      << YAML::Value << i.lcm.pose_channel << YAML::Key << "status_channel" << YAML::Value << i.lcm.status_channel
+      << YAML::EndMap;
+  out << YAML::Key << "dds" << YAML::Value << YAML::Flow << YAML::BeginMap << YAML::Key << "enabled" << YAML::Value
+      << i.dds.enabled << YAML::Key << "domain_id" << YAML::Value << i.dds.domain_id << YAML::Key << "config"
+      << YAML::Value << YAML::DoubleQuoted << i.dds.config << YAML::Key << "pose_topic" << YAML::Value
+      << i.dds.pose_topic << YAML::Key << "status_topic" << YAML::Value << i.dds.status_topic << YAML::EndMap;
+  out << YAML::EndMap;
+  out << YAML::EndMap;
+  // The effective SLAM options, in full, as an inline section.
+  std::string text = std::string(out.c_str()) + "\nslam:\n  options:\n";
+  std::istringstream slam_yaml(slam::toYaml(c.slam));
+  for (std::string line; std::getline(slam_yaml, line);)
+    if (!line.empty() && line[0] != '#') text += "    " + line + "\n";
+  return text;
+}
+
+}  // namespace stillpoint::daemon

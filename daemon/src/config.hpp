@@ -1,0 +1,70 @@
+#pragma once
+// stillpointd's configuration: one YAML file (see config/stillpointd.yaml).
+// Every section feeds a plain struct; validate() and the parser name the bad
+// field (and its line). The SLAM options come from a file or inline.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/result.hpp"
+#include "stillpoint/ipc/options.hpp"
+#include "stillpoint/platform/openni2_source.hpp"
+#include "stillpoint/platform/replay_source.hpp"
+#include "stillpoint/slam/options.hpp"
+
+namespace stillpoint::daemon {
+
+// Where one thread runs. Empty cores: no pinning. priority 0: normal
+// scheduling (SCHED_OTHER); 1..99: SCHED_FIFO at that priority.
+struct ThreadPlacement {
+  std::vector<int> cores;
+  int priority = 0;
+};
+
+// The threads the daemon places. "mapping" covers the SLAM core's own threads
+// (local mapping, geometry clustering) and "publisher" the IPC publisher's:
+// those threads are started while the daemon's set-up thread carries that
+// placement, and inherit it.
+struct ThreadMap {
+  ThreadPlacement source, tracking, mapping, publisher;
+};
+
+struct SourceConfig {
+  std::string type = "replay";  // replay | openni2 (v4l2: not in this build)
+  std::uint32_t queue_capacity = 4;  // frames between the source and tracking
+  platform::ReplaySourceOptions replay;
+  platform::OpenNI2SourceOptions openni2;
+};
+
+struct ModulesConfig {
+  bool geometry = slam::GeometryOptions{}.enabled;  // the SLAM core's default
+  bool semantic = false;  // not wired into the daemon yet: must stay false
+};
+
+struct OutputConfig {
+  std::string trajectory;  // TUM trajectory written on stop ("" = none)
+  std::string status;      // key=value summary written on stop ("" = none)
+};
+
+struct DaemonConfig {
+  std::string camera_spec = "fr3";  // preset name or camera YAML path
+  CameraModel camera;               // resolved from camera_spec
+  SourceConfig source;
+  std::string slam_options_file;    // "" = inline `slam.options` or defaults
+  slam::SlamOptions slam;           // effective options
+  ModulesConfig modules;
+  ThreadMap threads;
+  ipc::IpcOptions ipc;
+  OutputConfig output;
+  std::string log_level = "info";
+  double shutdown_timeout_s = 5.0;  // a stop that takes longer forces exit (status 1)
+  double status_period_s = 1.0;     // STATUS= and status messages
+};
+
+// Loads and validates the file; errors read "PATH: line N: field 'a.b': ...".
+Result<DaemonConfig> loadDaemonConfig(const std::string& path);
+// The effective configuration as YAML (--print-config); loading it gives the same config.
+std::string toYaml(const DaemonConfig& config);
+
+}  // namespace stillpoint::daemon

@@ -1,0 +1,389 @@
+#include "daemon.hpp"
+
+#include <opencv2/core.hpp>
+
+#include <algorithm>
+#include <array>
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <optional>
+#include <thread>
+#include <vector>
+
+#include "bounded_queue.hpp"
+#include "stillpoint/core/log.hpp"
+#include "stillpoint/eval/trajectory.hpp"
+#include "stillpoint/ipc/publisher.hpp"
+#include "stillpoint/platform/openni2_source.hpp"
+#include "stillpoint/platform/replay_source.hpp"
+#include "stillpoint/slam/system.hpp"
+#include "threads.hpp"
+
+namespace stillpoint::daemon {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using namespace std::chrono_literals;
+
+const log::Logger logger("stillpointd");
+
+// Pose latency in 0.05 ms bins up to 2 s: fixed memory however long the daemon runs.
+class LatencyHistogram {
+ public:
+  void add(double ms) {
+    const auto bin = static_cast<std::size_t>(std::clamp(ms / kBinMs, 0.0, double(kBins - 1)));
+    std::lock_guard lock(mutex_);
+    ++bins_[bin];
+    ++count_;
+    max_ = std::max(max_, ms);
+  }
+  // Upper edge of the bin holding quantile q (0..1); 0 when empty.
+  double quantile(double q) const {
+    std::lock_guard lock(mutex_);
+    if (count_ == 0) return 0.0;
+    const auto target = static_cast<std::uint64_t>(std::ceil(q * count_));
+    std::uint64_t seen = 0;
+    for (std::size_t i = 0; i < kBins; ++i) {
+      seen += bins_[i];
+      if (seen >= std::max<std::uint64_t>(target, 1)) return (i + 1) * kBinMs;
+    }
+    return max_;
+  }
+  double max() const {
+    std::lock_guard lock(mutex_);
+    return max_;
+  }
+
+ private:
+  static constexpr double kBinMs = 0.05;
+  static constexpr std::size_t kBins = 40000;
+  mutable std::mutex mutex_;
+  std::vector<std::uint32_t> bins_ = std::vector<std::uint32_t>(kBins, 0);
+  std::uint64_t count_ = 0;
+  double max_ = 0;
+};
+
+ipc::TrackingState toIpc(slam::TrackingState s) {
+  switch (s) {
+    case slam::TrackingState::kInitialising: return ipc::TrackingState::kInitialising;
+    case slam::TrackingState::kOk: return ipc::TrackingState::kOk;
+    case slam::TrackingState::kLost: return ipc::TrackingState::kLost;
+    case slam::TrackingState::kRelocalised: return ipc::TrackingState::kRelocalised;
+  }
+  return ipc::TrackingState::kLost;
+}
+
+void logWarnings(const std::vector<std::string>& warnings) {
+  for (const auto& w : warnings) SP_WARN(logger, w);
+}
+
+// Runs `fn` on a short-lived thread that carries `placement`: threads `fn`
+// starts inherit its name, CPU affinity and scheduling policy.
+template <typename Fn>
+void runPlaced(const std::string& name, const ThreadPlacement& placement, const std::vector<int>& available,
+               const std::string& what, Fn&& fn) {
+  std::thread t([&] {
+    logWarnings(placeCurrentThread(name, placement, available, what));
+    fn();
+  });
+  t.join();
+}
+
+}  // namespace
+
+struct Daemon::Impl {
+  DaemonConfig config;
+  std::vector<int> available_cores;
+  SystemdNotifier notifier;
+  std::unique_ptr<platform::RgbdSource> source;
+  std::unique_ptr<slam::SlamSystem> system;
+  std::unique_ptr<ipc::Publisher> publisher;
+  std::unique_ptr<BoundedQueue<platform::CameraFrame>> queue;
+
+  std::mutex mutex;
+  std::condition_variable wake;
+  bool stop_requested = false;
+  bool source_ended = false;
+  bool tracking_done = false;
+  Clock::time_point stop_time;
+  const Clock::time_point start_time = Clock::now();
+
+  std::atomic<bool> ready_sent{false};
+  std::atomic<std::uint64_t> frames_received{0}, frames_bad{0}, frames_tracked{0}, frames_lost{0},
+      frames_processed{0}, reconnects{0}, keyframes{0};
+  std::atomic<int> last_state{-1};
+  std::atomic<bool> device_gone{false};
+  LatencyHistogram latency;
+  ipc::PublisherStats publisher_stats;  // final, taken at stop
+
+  void sourceLoop(std::stop_token stop);
+  void trackingLoop();
+  std::string statusLine(double fps) const;
+  ipc::StatusMessage statusMessage() const;
+  Status writeOutputs(const std::string& reason, double shutdown_ms);
+};
+
+Daemon::Daemon(DaemonConfig config) : impl_(std::make_unique<Impl>()) { impl_->config = std::move(config); }
+Daemon::~Daemon() = default;
+
+void Daemon::requestStop() {
+  std::lock_guard lock(impl_->mutex);
+  if (!impl_->stop_requested) {
+    impl_->stop_requested = true;
+    impl_->stop_time = Clock::now();
+  }
+  impl_->wake.notify_all();
+}
+
+Status Daemon::start() {
+  Impl& d = *impl_;
+  const DaemonConfig& c = d.config;
+  d.available_cores = availableCores();
+  if (c.source.type == "openni2") d.source = std::make_unique<platform::OpenNI2Source>(c.source.openni2, c.camera);
+  else d.source = std::make_unique<platform::ReplaySource>(c.source.replay, c.camera);
+  if (Status s = d.source->open(); !s) return Error{"source: " + s.error()};
+  SP_INFO(logger, "source: " << d.source->describe());
+  d.queue = std::make_unique<BoundedQueue<platform::CameraFrame>>(
+      c.source.queue_capacity, d.source->live() ? BoundedQueue<platform::CameraFrame>::Policy::kDropOldest
+                                                : BoundedQueue<platform::CameraFrame>::Policy::kBlock);
+  Status status;
+  runPlaced("sp-mapping", c.threads.mapping, d.available_cores, "threads.mapping", [&] {
+    auto system = slam::SlamSystem::create(c.camera, c.slam);
+    if (!system) status = Error{"slam: " + system.error()};
+    else d.system = std::move(*system);
+  });
+  if (!status) return status;
+  runPlaced("sp-publisher", c.threads.publisher, d.available_cores, "threads.publisher", [&] {
+    auto publisher = ipc::Publisher::create(c.ipc);
+    if (!publisher) status = Error{"ipc: " + publisher.error()};
+    else d.publisher = std::move(*publisher);
+  });
+  return status;
+}
+
+void Daemon::Impl::sourceLoop(std::stop_token stop) {
+  logWarnings(placeCurrentThread("sp-source", config.threads.source, available_cores, "threads.source"));
+  auto backoff = 100ms;
+  while (!stop.stop_requested()) {
+    platform::CameraFrame frame;
+    const platform::SourceResult r = source->next(frame, 100ms);
+    if (r.event == platform::SourceEvent::kFrame) {
+      ++frames_received;
+      backoff = 100ms;
+      if (!ready_sent.exchange(true)) {
+        notifier.ready();  // the camera delivers: the service is up
+        SP_INFO(logger, "first frame received; ready");
+      }
+      queue->push(std::move(frame));
+    } else if (r.event == platform::SourceEvent::kBadFrame) {
+      ++frames_bad;
+      SP_WARN(logger, "source: skipping " << r.message);
+    } else if (r.event == platform::SourceEvent::kEnd) {
+      SP_INFO(logger, "source: end of recording");
+      break;
+    } else if (r.event == platform::SourceEvent::kDeviceGone) {
+      device_gone = true;
+      SP_WARN(logger, "source: camera gone (" << r.message << "); reconnecting");
+      source->close();
+      for (;;) {
+        std::unique_lock lock(mutex);
+        if (wake.wait_for(lock, backoff, [&] { return stop_requested; })) break;
+        lock.unlock();
+        backoff = std::min<std::chrono::milliseconds>(backoff * 2, 2000ms);
+        if (Status s = source->open(); s) {
+          ++reconnects;
+          device_gone = false;
+          SP_INFO(logger, "source: reconnected");
+          break;
+        } else {
+          SP_WARN(logger, "source: reopen failed: " << s.error());
+        }
+      }
+    }
+  }
+  source->close();
+  std::lock_guard lock(mutex);
+  // A finished recording is drained; a stop request discards what is queued.
+  queue->close(/*drain=*/!stop_requested);
+  source_ended = true;
+  wake.notify_all();
+}
+
+void Daemon::Impl::trackingLoop() {
+  logWarnings(placeCurrentThread("sp-tracking", config.threads.tracking, available_cores, "threads.tracking"));
+  log::RateLimiter limiter(2s);
+  while (!queue->closedAndEmpty()) {
+    std::optional<platform::CameraFrame> frame = queue->pop(100ms);
+    if (!frame) continue;
+    auto out = system->track({frame->stamp, frame->gray, frame->depth_m});
+    if (!out) {
+      ++frames_bad;
+      SP_WARN_EVERY(logger, limiter, "tracking: frame skipped: " << out.error());
+      continue;
+    }
+    ipc::PoseMessage pose;
+    pose.sensor_stamp = frame->stamp;
+    pose.frame_counter = frame->sequence;
+    pose.state = toIpc(out->state);
+    pose.tracked_features = static_cast<std::uint32_t>(std::max(0, out->tracked));
+    pose.dynamic_rejected_features = static_cast<std::uint32_t>(std::max(0, out->geometry.dynamic_features));
+    pose.keyframes = static_cast<std::uint32_t>(out->keyframes);
+    const bool has_pose = out->state == slam::TrackingState::kOk || out->state == slam::TrackingState::kRelocalised;
+    if (has_pose) {
+      const Eigen::Quaterniond q(out->T_w_c.rotation());
+      const Eigen::Vector3d t = out->T_w_c.translation();
+      pose.position = {t.x(), t.y(), t.z()};
+      pose.orientation = {q.x(), q.y(), q.z(), q.w()};
+    }
+    publisher->publishPose(pose);
+    latency.add(std::chrono::duration<double, std::milli>(Clock::now() - frame->arrival).count());
+    ++frames_processed;
+    if (has_pose) ++frames_tracked;
+    if (out->state == slam::TrackingState::kLost) ++frames_lost;
+    keyframes = out->keyframes;
+    last_state = static_cast<int>(out->state);
+  }
+  std::lock_guard lock(mutex);
+  tracking_done = true;
+  wake.notify_all();
+}
+
+std::string Daemon::Impl::statusLine(double fps) const {
+  std::string state;
+  if (!ready_sent) state = "waiting for camera";
+  else if (device_gone) state = "camera gone, reconnecting";
+  else if (last_state < 0) state = "starting";
+  else state = slam::toString(static_cast<slam::TrackingState>(last_state.load()));
+  char buf[256];
+  std::snprintf(buf, sizeof buf, "%s, %.1f fps, %" PRIu64 " frames, %" PRIu64 " lost, %" PRIu64 " dropped", state.c_str(),
+                fps, frames_processed.load(), frames_lost.load(), queue->dropped());
+  return buf;
+}
+
+ipc::StatusMessage Daemon::Impl::statusMessage() const {
+  ipc::StatusMessage m;
+  m.uptime_s = std::chrono::duration<double>(Clock::now() - start_time).count();
+  m.frames_received = frames_received;
+  m.frames_dropped = queue->dropped();
+  ipc::ThreadStats tracking;
+  tracking.name = "tracking";
+  tracking.latency_ms_median = latency.quantile(0.5);
+  tracking.latency_ms_max = latency.max();
+  m.threads.push_back(tracking);
+  ipc::QueueStats frames;
+  frames.name = "frames";
+  frames.depth = static_cast<std::uint32_t>(queue->depth());
+  frames.capacity = static_cast<std::uint32_t>(queue->capacity());
+  frames.dropped = queue->dropped();
+  m.queues.push_back(frames);
+  return m;
+}
+
+Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms) {
+  Status result;
+  if (!config.output.trajectory.empty()) {
+    eval::Trajectory trajectory;
+    for (const auto& p : system->trajectory()) trajectory.push_back({p.stamp, p.T_w_c});
+    if (Status s = eval::writeTumTrajectory(config.output.trajectory, trajectory); !s) result = s;
+  }
+  if (!config.output.status.empty()) {
+    std::FILE* f = std::fopen(config.output.status.c_str(), "w");
+    if (!f) return Error{"cannot write " + config.output.status};
+    const double wall_s = std::chrono::duration<double>(Clock::now() - start_time).count();
+    const ipc::PublisherStats& ps = publisher_stats;
+    std::fprintf(f,
+                 "exit_reason=%s\nframes_received=%" PRIu64 "\nframes_processed=%" PRIu64 "\nframes_tracked=%" PRIu64
+                 "\nframes_lost=%" PRIu64 "\nframes_bad=%" PRIu64 "\nframes_dropped=%" PRIu64
+                 "\nframes_discarded_at_stop=%" PRIu64 "\nkeyframes=%" PRIu64 "\nreconnects=%" PRIu64
+                 "\nlatency_ms_median=%.3f\nlatency_ms_p99=%.3f\nlatency_ms_max=%.3f\npublisher_sent=%" PRIu64
+                 "\npublisher_dropped=%" PRIu64 "\nuptime_s=%.3f\nshutdown_ms=%.1f\n",
+                 reason.c_str(), frames_received.load(), frames_processed.load(), frames_tracked.load(),
+                 frames_lost.load(), frames_bad.load(), queue->dropped(), queue->discarded(), keyframes.load(),
+                 reconnects.load(), latency.quantile(0.5), latency.quantile(0.99), latency.max(), ps.sent, ps.dropped,
+                 wall_s, shutdown_ms);
+    if (std::fclose(f) != 0) result = Error{"cannot write " + config.output.status};
+  }
+  return result;
+}
+
+int Daemon::run() {
+  Impl& d = *impl_;
+  std::jthread source_thread([&d](std::stop_token stop) { d.sourceLoop(stop); });
+  std::jthread tracking_thread([&d] { d.trackingLoop(); });
+
+  // Supervision: STATUS= and status messages every status period; WATCHDOG=1
+  // at half the watchdog interval, but only when tracking processed a frame
+  // since the previous ping.
+  const auto status_period = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(d.config.status_period_s));
+  const auto watchdog_period = d.notifier.watchdogInterval() / 2;
+  auto tick = status_period;
+  if (watchdog_period.count() > 0) tick = std::min<Clock::duration>(tick, watchdog_period);
+  auto next_status = Clock::now() + status_period;
+  auto next_watchdog = Clock::now() + watchdog_period;
+  std::uint64_t frames_at_ping = 0, frames_at_status = 0;
+  auto last_status_time = Clock::now();
+  std::string reason = "end of recording";
+  {
+    std::unique_lock lock(d.mutex);
+    while (true) {
+      d.wake.wait_for(lock, tick, [&] { return d.stop_requested || d.tracking_done; });
+      if (d.stop_requested) {
+        reason = "signal";
+        break;
+      }
+      if (d.tracking_done) break;
+      lock.unlock();
+      const auto now = Clock::now();
+      const std::uint64_t processed = d.frames_processed;
+      if (watchdog_period.count() > 0 && now >= next_watchdog) {
+        if (processed > frames_at_ping) d.notifier.watchdog();
+        frames_at_ping = processed;
+        next_watchdog = now + watchdog_period;
+      }
+      if (now >= next_status) {
+        const double dt = std::chrono::duration<double>(now - last_status_time).count();
+        const std::string line = d.statusLine((processed - frames_at_status) / std::max(dt, 1e-3));
+        d.notifier.status(line);
+        SP_DEBUG(logger, "status: " << line);
+        d.publisher->publishStatus(d.statusMessage());
+        frames_at_status = processed;
+        last_status_time = now;
+        next_status = now + status_period;
+      }
+      lock.lock();
+    }
+  }
+  // Stop in order: source, frame queue (closed by the source thread), tracking,
+  // SLAM core (local mapping), publisher.
+  d.notifier.stopping();
+  d.notifier.status("stopping (" + reason + ")");
+  SP_INFO(logger, "stopping: " << reason);
+  const auto stop_begin = reason == "signal" ? d.stop_time : Clock::now();
+  // Test hook (test/daemon_process_test.cpp): a stop slow enough for a second
+  // signal or the shutdown timeout to be observed. Never set in production.
+  if (const char* slow = std::getenv("STILLPOINTD_TEST_SLOW_STOP_MS"))
+    std::this_thread::sleep_for(std::chrono::milliseconds(std::atol(slow)));
+  source_thread.request_stop();
+  if (reason == "signal") d.queue->close(/*drain=*/false);  // unblocks the source, ends tracking soon
+  source_thread.join();
+  tracking_thread.join();
+  d.system->finish();
+  d.publisher->publishStatus(d.statusMessage());
+  d.publisher->close();
+  d.publisher->flush();
+  d.publisher_stats = d.publisher->stats();
+  d.publisher.reset();  // joins the publisher thread
+  const double shutdown_ms = std::chrono::duration<double, std::milli>(Clock::now() - stop_begin).count();
+  Status written = d.writeOutputs(reason, shutdown_ms);
+  if (!written) {
+    SP_ERROR(logger, written.error());
+    return 1;
+  }
+  SP_INFO(logger, "stopped after " << shutdown_ms << " ms; " << d.frames_processed << " frames processed");
+  return d.frames_processed > 0 || reason == "signal" ? 0 : 1;
+}
+
+}  // namespace stillpoint::daemon

@@ -1,0 +1,68 @@
+#include "threads.hpp"
+
+#include <pthread.h>
+#include <sched.h>
+
+#include <cerrno>
+#include <cstring>
+
+namespace stillpoint::daemon {
+
+std::vector<int> availableCores() {
+  std::vector<int> cores;
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) != 0) return cores;
+  for (int c = 0; c < CPU_SETSIZE; ++c)
+    if (CPU_ISSET(c, &set)) cores.push_back(c);
+  return cores;
+}
+
+namespace {
+std::string list(const std::vector<int>& cores) {
+  std::string s;
+  for (int c : cores) {
+    if (!s.empty()) s += ',';
+    s += std::to_string(c);
+  }
+  return s;
+}
+}  // namespace
+
+std::vector<std::string> placeCurrentThread(const std::string& name, const ThreadPlacement& placement,
+                                            const std::vector<int>& available, const std::string& what) {
+  std::vector<std::string> warnings;
+  const std::string short_name = name.substr(0, 15);
+  pthread_setname_np(pthread_self(), short_name.c_str());
+
+  if (!placement.cores.empty()) {
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    std::vector<int> used, missing;
+    for (int c : placement.cores) {
+      bool ok = false;
+      for (int a : available) ok |= a == c;
+      (ok ? used : missing).push_back(c);
+      if (ok) CPU_SET(c, &set);
+    }
+    if (!missing.empty())
+      warnings.push_back(what + ".cores: core(s) " + list(missing) + " not available on this machine (available: " +
+                         list(available) + ")" + (used.empty() ? "; thread left unpinned" : "; pinned to " + list(used)));
+    if (!used.empty()) {
+      const int rc = pthread_setaffinity_np(pthread_self(), sizeof(set), &set);
+      if (rc != 0) warnings.push_back(what + ".cores: cannot pin to " + list(used) + ": " + std::strerror(rc));
+    }
+  }
+  if (placement.priority > 0) {
+    sched_param param{};
+    param.sched_priority = placement.priority;
+    const int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &param);
+    if (rc != 0)
+      warnings.push_back(what + ".priority: SCHED_FIFO " + std::to_string(placement.priority) +
+                         " not permitted (" + std::strerror(rc) +
+                         "; needs CAP_SYS_NICE or RLIMIT_RTPRIO); normal scheduling kept");
+  }
+  return warnings;
+}
+
+}  // namespace stillpoint::daemon

@@ -1,0 +1,21 @@
+#pragma once
+// Thread naming, pinning and real-time priority. Each call degrades instead of
+// failing: a core the machine lacks is skipped with a warning, and SCHED_FIFO
+// without permission (no CAP_SYS_NICE / RLIMIT_RTPRIO) keeps normal scheduling
+// with a warning. The warnings are returned so callers (and tests) see them.
+#include <string>
+#include <vector>
+
+#include "config.hpp"
+
+namespace stillpoint::daemon {
+
+// Cores this process may run on (sched_getaffinity at start-up), ascending.
+std::vector<int> availableCores();
+
+// Applies `placement` to the calling thread and names it (Linux: at most 15
+// characters). `what` is the config field, e.g. "threads.tracking".
+std::vector<std::string> placeCurrentThread(const std::string& name, const ThreadPlacement& placement,
+                                            const std::vector<int>& available, const std::string& what);
+
+}  // namespace stillpoint::daemon

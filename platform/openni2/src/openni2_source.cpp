@@ -1,0 +1,144 @@
+#include "stillpoint/platform/openni2_source.hpp"
+
+#include <OpenNI.h>
+
+#include <atomic>
+#include <cstdint>
+#include <mutex>
+
+#include <opencv2/imgproc.hpp>
+
+namespace stillpoint::platform {
+namespace {
+
+// OpenNI2 is process-global: initialise once, never shut down while a source may reopen.
+Status initialiseOpenNI() {
+  static std::once_flag once;
+  static openni::Status status = openni::STATUS_OK;
+  std::call_once(once, [] { status = openni::OpenNI::initialize(); });
+  if (status != openni::STATUS_OK)
+    return Error{std::string("openni2: initialize failed: ") + openni::OpenNI::getExtendedError()};
+  return {};
+}
+
+std::string lastError(const std::string& what) {
+  return "openni2: " + what + ": " + openni::OpenNI::getExtendedError();
+}
+
+}  // namespace
+
+struct OpenNI2Source::Impl : public openni::OpenNI::DeviceDisconnectedListener {
+  openni::Device device;
+  openni::VideoStream colour, depth;
+  std::string uri;
+  std::atomic<bool> gone{false};
+  std::uint64_t delivered = 0;
+  // Latest frame of each stream, paired by timestamp.
+  openni::VideoFrameRef last_colour, last_depth;
+
+  void onDeviceDisconnected(const openni::DeviceInfo* info) override {
+    if (uri == info->getUri()) gone = true;
+  }
+};
+
+OpenNI2Source::OpenNI2Source(OpenNI2SourceOptions options, CameraModel camera)
+    : options_(std::move(options)), camera_(std::move(camera)) {}
+
+OpenNI2Source::~OpenNI2Source() { close(); }
+
+std::string OpenNI2Source::describe() const {
+  return "openni2 " + (options_.uri.empty() ? std::string("(first device)") : options_.uri);
+}
+
+Status OpenNI2Source::open() {
+  close();
+  if (Status s = initialiseOpenNI(); !s) return s;
+  auto impl = std::make_unique<Impl>();
+  const char* uri = options_.uri.empty() ? openni::ANY_DEVICE : options_.uri.c_str();
+  if (impl->device.open(uri) != openni::STATUS_OK) return Error{lastError("cannot open device '" + options_.uri + "'")};
+  impl->uri = impl->device.getDeviceInfo().getUri();
+  openni::OpenNI::addDeviceDisconnectedListener(impl.get());
+  auto setUp = [&](openni::VideoStream& stream, openni::SensorType type, openni::PixelFormat format,
+                   const char* name) -> Status {
+    if (stream.create(impl->device, type) != openni::STATUS_OK) return Error{lastError(std::string("no ") + name + " stream")};
+    openni::VideoMode mode;
+    mode.setResolution(camera_.width, camera_.height);
+    mode.setFps(30);
+    mode.setPixelFormat(format);
+    if (stream.setVideoMode(mode) != openni::STATUS_OK)
+      return Error{lastError(std::string(name) + " mode " + std::to_string(camera_.width) + "x" +
+                             std::to_string(camera_.height) + "@30")};
+    stream.setMirroringEnabled(false);
+    return {};
+  };
+  Status s = setUp(impl->colour, openni::SENSOR_COLOR, openni::PIXEL_FORMAT_RGB888, "colour");
+  if (s) s = setUp(impl->depth, openni::SENSOR_DEPTH, openni::PIXEL_FORMAT_DEPTH_1_MM, "depth");
+  if (s && impl->device.isImageRegistrationModeSupported(openni::IMAGE_REGISTRATION_DEPTH_TO_COLOR) &&
+      impl->device.setImageRegistrationMode(openni::IMAGE_REGISTRATION_DEPTH_TO_COLOR) != openni::STATUS_OK)
+    s = Error{lastError("depth-to-colour registration")};
+  // Frame sync is best effort: recordings and some drivers do not offer it;
+  // frames are paired by timestamp below either way.
+  if (s) impl->device.setDepthColorSyncEnabled(true);
+  if (s && impl->colour.start() != openni::STATUS_OK) s = Error{lastError("start colour")};
+  if (s && impl->depth.start() != openni::STATUS_OK) s = Error{lastError("start depth")};
+  if (!s) {
+    openni::OpenNI::removeDeviceDisconnectedListener(impl.get());
+    return s;
+  }
+  impl_ = std::move(impl);
+  return {};
+}
+
+void OpenNI2Source::close() {
+  if (!impl_) return;
+  openni::OpenNI::removeDeviceDisconnectedListener(impl_.get());
+  impl_->colour.stop();
+  impl_->depth.stop();
+  impl_->colour.destroy();
+  impl_->depth.destroy();
+  impl_->device.close();
+  impl_.reset();
+}
+
+SourceResult OpenNI2Source::next(CameraFrame& frame, std::chrono::milliseconds timeout) {
+  if (!impl_) return {SourceEvent::kDeviceGone, "not open"};
+  const auto until = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    if (impl_->gone) return {SourceEvent::kDeviceGone, "device " + impl_->uri + " disconnected"};
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(until - std::chrono::steady_clock::now());
+    if (left.count() <= 0) return {SourceEvent::kTimeout, ""};
+    openni::VideoStream* streams[] = {&impl_->colour, &impl_->depth};
+    int ready = -1;
+    const openni::Status st = openni::OpenNI::waitForAnyStream(streams, 2, &ready, static_cast<int>(left.count()));
+    if (st == openni::STATUS_TIME_OUT) return {SourceEvent::kTimeout, ""};
+    if (st != openni::STATUS_OK || ready < 0) {
+      if (impl_->gone) continue;
+      return {SourceEvent::kDeviceGone, lastError("waitForAnyStream")};
+    }
+    openni::VideoFrameRef& slot = ready == 0 ? impl_->last_colour : impl_->last_depth;
+    if (streams[ready]->readFrame(&slot) != openni::STATUS_OK) return {SourceEvent::kBadFrame, lastError("readFrame")};
+    openni::VideoFrameRef& c = impl_->last_colour;
+    openni::VideoFrameRef& d = impl_->last_depth;
+    if (!c.isValid() || !d.isValid()) continue;
+    const std::int64_t dt_us = static_cast<std::int64_t>(c.getTimestamp()) - static_cast<std::int64_t>(d.getTimestamp());
+    if (dt_us > 20000 || dt_us < -20000) continue;  // not a pair yet (sensor clocks in microseconds)
+    if (c.getWidth() != camera_.width || c.getHeight() != camera_.height || d.getWidth() != camera_.width ||
+        d.getHeight() != camera_.height) {
+      c.release();
+      d.release();
+      return {SourceEvent::kBadFrame, "frame size differs from the camera's"};
+    }
+    const cv::Mat rgb(c.getHeight(), c.getWidth(), CV_8UC3, const_cast<void*>(c.getData()), c.getStrideInBytes());
+    const cv::Mat mm(d.getHeight(), d.getWidth(), CV_16UC1, const_cast<void*>(d.getData()), d.getStrideInBytes());
+    cv::cvtColor(rgb, frame.gray, cv::COLOR_RGB2GRAY);
+    mm.convertTo(frame.depth_m, CV_32FC1, 0.001);
+    frame.stamp = Timestamp::fromNanoseconds(static_cast<std::int64_t>(c.getTimestamp()) * 1000);
+    frame.sequence = impl_->delivered++;
+    frame.arrival = std::chrono::steady_clock::now();
+    c.release();
+    d.release();
+    return {SourceEvent::kFrame, ""};
+  }
+}
+
+}  // namespace stillpoint::platform

@@ -1,0 +1,103 @@
+#include "stillpoint/platform/replay_source.hpp"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "stillpoint/dataset/testing.hpp"
+
+namespace stillpoint::platform {
+namespace {
+
+using namespace std::chrono_literals;
+
+class ReplaySourceTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           ("sp_replay_source_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dataset::testing::SyntheticDatasetOptions o;
+    o.n_frames = 6;
+    o.rate_hz = 5.0;
+    o.jitter_s = 0.001;
+    auto written = dataset::testing::writeSyntheticTumDataset(dir_.string(), o);
+    ASSERT_TRUE(written) << written.error();
+    data_ = *written;
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+
+  ReplaySource make(bool paced, bool loop = false, std::uint64_t max_frames = 0) {
+    ReplaySourceOptions o;
+    o.path = dir_.string();
+    o.paced = paced;
+    o.loop = loop;
+    o.max_frames = max_frames;
+    return ReplaySource(o, data_.camera);
+  }
+
+  std::filesystem::path dir_;
+  dataset::testing::SyntheticDataset data_;
+};
+
+TEST_F(ReplaySourceTest, DeliversEveryFrameInOrderThenEnds) {
+  ReplaySource source = make(false);
+  ASSERT_TRUE(source.open());
+  EXPECT_FALSE(source.live());
+  CameraFrame frame;
+  for (std::size_t k = 0; k < data_.colour_stamps.size(); ++k) {
+    SourceResult r = source.next(frame, 100ms);
+    ASSERT_EQ(r.event, SourceEvent::kFrame) << r.message;
+    EXPECT_EQ(frame.stamp, data_.colour_stamps[k]);
+    EXPECT_EQ(frame.sequence, k);
+    EXPECT_EQ(frame.gray.type(), CV_8UC1);
+    EXPECT_EQ(frame.depth_m.type(), CV_32FC1);
+    EXPECT_EQ(frame.gray.cols, data_.camera.width);
+  }
+  EXPECT_EQ(source.next(frame, 100ms).event, SourceEvent::kEnd);
+  EXPECT_EQ(source.next(frame, 100ms).event, SourceEvent::kEnd);
+}
+
+TEST_F(ReplaySourceTest, MaxFramesAndLoopKeepStampsIncreasing) {
+  ReplaySource source = make(false, true, 15);
+  ASSERT_TRUE(source.open());
+  CameraFrame frame;
+  Timestamp previous;
+  for (int k = 0; k < 15; ++k) {
+    ASSERT_EQ(source.next(frame, 100ms).event, SourceEvent::kFrame);
+    if (k > 0) {
+      EXPECT_GT(frame.stamp, previous);
+    }
+    previous = frame.stamp;
+  }
+  EXPECT_EQ(source.next(frame, 100ms).event, SourceEvent::kEnd);
+}
+
+TEST_F(ReplaySourceTest, PacedTimesOutBeforeTheNextFrameIsDue) {
+  ReplaySource source = make(true);
+  ASSERT_TRUE(source.open());
+  CameraFrame frame;
+  ASSERT_EQ(source.next(frame, 100ms).event, SourceEvent::kFrame);  // first frame: at once
+  // The next frame is due ~200 ms later (5 Hz): a 10 ms wait cannot deliver it.
+  EXPECT_EQ(source.next(frame, 10ms).event, SourceEvent::kTimeout);
+  SourceResult r;
+  for (int tries = 0; tries < 100 && (r = source.next(frame, 50ms)).event == SourceEvent::kTimeout; ++tries) {
+  }
+  ASSERT_EQ(r.event, SourceEvent::kFrame);
+  EXPECT_EQ(frame.stamp, data_.colour_stamps[1]);
+  EXPECT_EQ(frame.sequence, 1u);
+}
+
+TEST_F(ReplaySourceTest, MissingFolderIsAnErrorNamingIt) {
+  ReplaySourceOptions o;
+  o.path = (dir_ / "nope").string();
+  ReplaySource source(o, data_.camera);
+  Status s = source.open();
+  ASSERT_FALSE(s);
+  EXPECT_NE(s.error().find("nope"), std::string::npos) << s.error();
+  o.path.clear();
+  EXPECT_FALSE(ReplaySource(o, data_.camera).open());
+}
+
+}  // namespace
+}  // namespace stillpoint::platform
