@@ -16,11 +16,18 @@ endif()
 
 # /etc/stillpoint when the prefix is /usr (GNUInstallDirs' special case).
 set(STILLPOINT_CONFIG_INSTALL_DIR "${CMAKE_INSTALL_FULL_SYSCONFDIR}/stillpoint")
-install(FILES ${PROJECT_SOURCE_DIR}/config/slam.yaml ${PROJECT_SOURCE_DIR}/config/camera_example.yaml
-        DESTINATION ${STILLPOINT_CONFIG_INSTALL_DIR})
+set(stillpoint_config_files slam.yaml camera_example.yaml)
+foreach(f stillpointd.yaml ipc.yaml)
+  if(EXISTS ${PROJECT_SOURCE_DIR}/config/${f})
+    list(APPEND stillpoint_config_files ${f})
+  endif()
+endforeach()
+list(TRANSFORM stillpoint_config_files PREPEND ${PROJECT_SOURCE_DIR}/config/ OUTPUT_VARIABLE stillpoint_config_paths)
+install(FILES ${stillpoint_config_paths} DESTINATION ${STILLPOINT_CONFIG_INSTALL_DIR})
 if(IS_ABSOLUTE "${STILLPOINT_CONFIG_INSTALL_DIR}")
-  file(WRITE ${CMAKE_BINARY_DIR}/package-control/conffiles
-       "${STILLPOINT_CONFIG_INSTALL_DIR}/slam.yaml\n${STILLPOINT_CONFIG_INSTALL_DIR}/camera_example.yaml\n")
+  list(TRANSFORM stillpoint_config_files PREPEND ${STILLPOINT_CONFIG_INSTALL_DIR}/ OUTPUT_VARIABLE stillpoint_conffiles)
+  list(JOIN stillpoint_conffiles "\n" stillpoint_conffiles)
+  file(WRITE ${CMAKE_BINARY_DIR}/package-control/conffiles "${stillpoint_conffiles}\n")
   set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA ${CMAKE_BINARY_DIR}/package-control/conffiles)
 endif()
 if(EXISTS ${PROJECT_SOURCE_DIR}/systemd/stillpointd.service)
