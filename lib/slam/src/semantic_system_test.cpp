@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -12,6 +13,7 @@
 #include <utility>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
@@ -209,6 +211,37 @@ TEST(SemanticModule, ThreadedRunAppliesEveryResultByFinish) {
   ASSERT_EQ(run.stats.semantic_keyframes_dropped, 0);
   expectMaskApplied(run);
   EXPECT_GT(run.stats.semantic_latency_ms_p95, 0.0);
+}
+
+TEST(SemanticModule, ThreadHookRunsOnTheSegmentationThread) {
+  const Frames& frames = planeFrames();
+  std::atomic<int> calls{0};
+  std::thread::id hook_thread;
+  SlamThreadHooks hooks;
+  hooks.semantic_start = [&] {
+    hook_thread = std::this_thread::get_id();
+    ++calls;
+  };
+  auto system = SlamSystem::create(frames.camera, semanticOptions(false),
+                                   std::make_unique<RectangleSegmenter>(kRect, false), hooks);
+  ASSERT_TRUE(system.ok()) << system.error();
+  for (const RgbdInput& input : frames.inputs) ASSERT_TRUE((*system)->track(input).ok());
+  (*system)->finish();
+  EXPECT_EQ(calls, 1);
+  EXPECT_NE(hook_thread, std::this_thread::get_id());
+  EXPECT_GT((*system)->mapStats().semantic_keyframes_segmented, 0);
+}
+
+TEST(SemanticModule, CheckSemanticModelFindsTheCardAndItsModelFile) {
+  SemanticOptions o;
+  o.model_card = semantic::kPersonCardFile;  // relative: found in models/
+  const auto found = checkSemanticModel(o);
+  ASSERT_TRUE(found.ok()) << found.error();
+  EXPECT_TRUE(std::filesystem::is_regular_file(found->model_path)) << found->model_path;
+  o.model_card = "/nonexistent/card.yaml";
+  const auto missing = checkSemanticModel(o);
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().find("/nonexistent/card.yaml"), std::string::npos) << missing.error();
 }
 
 TEST(SemanticModule, UnconfirmedMasksOfAConfirmCardRemoveNothingWithoutGeometry) {

@@ -71,8 +71,11 @@ SemanticResult SemanticWorker::process(const SemanticJob& job) {
   return out;
 }
 
-void SemanticWorker::start() {
-  worker_ = std::jthread([this](std::stop_token stop) { run(stop); });
+void SemanticWorker::start(std::function<void()> on_thread_start) {
+  worker_ = std::jthread([this, hook = std::move(on_thread_start)](std::stop_token stop) {
+    if (hook) hook();
+    run(stop);
+  });
 }
 
 void SemanticWorker::submit(SemanticJob job) {

@@ -68,7 +68,7 @@ class SemanticWorker {
   SemanticResult process(const SemanticJob& job);
 
   // Threaded use.
-  void start();
+  void start(std::function<void()> on_thread_start = {});  // runs first on the worker thread
   void submit(SemanticJob job);  // never blocks; drop-oldest when full
   void finish();                 // segments what is queued, then joins
   int dropped() const;

@@ -100,8 +100,19 @@ SlamSystem::~SlamSystem() {
   impl_->mapper.finish();
 }
 
-Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera, const SlamOptions& options) {
-  if (!options.semantic.enabled) return create(camera, options, nullptr);
+Result<SemanticModelChoice> checkSemanticModel(const SemanticOptions& options) {
+  auto model = resolveModel(options);
+  if (!model) return Error{model.error()};
+  std::error_code ec;
+  const semantic::ModelCard& card = model->card;
+  if (!std::filesystem::is_regular_file(card.model_path, ec))
+    return Error{"model file " + card.model_path.string() + " of card " + card.card_path.string() + " not found"};
+  return SemanticModelChoice{card.card_path.string(), card.model_path.string(), card.name, model->reason};
+}
+
+Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera, const SlamOptions& options,
+                                                       const SlamThreadHooks& hooks) {
+  if (!options.semantic.enabled) return create(camera, options, nullptr, hooks);
   if (Status s = options.validate(); !s) return Error{s.error()};
   // The model is loaded and checked (with a warm-up inference) now.
   auto model = resolveModel(options.semantic);
@@ -114,13 +125,14 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
   so.static_overlap_iou = options.semantic.static_overlap_iou;
   auto segmenter = semantic::createSegmenter(model->card, so);
   if (!segmenter) return Error{"semantic model '" + model->card.card_path.string() + "': " + segmenter.error()};
-  auto system = create(camera, options, std::move(*segmenter));
+  auto system = create(camera, options, std::move(*segmenter), hooks);
   if (system) (*system)->impl_->semantic_model = model->card.name + " (" + model->reason + ")";
   return system;
 }
 
 Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera, const SlamOptions& options,
-                                                       std::unique_ptr<semantic::Segmenter> segmenter) {
+                                                       std::unique_ptr<semantic::Segmenter> segmenter,
+                                                       const SlamThreadHooks& hooks) {
   if (Status s = camera.validate(); !s) return Error{s.error()};
   if (Status s = options.validate(); !s) return Error{s.error()};
   if (segmenter && !options.semantic.enabled) return Error{"a segmenter was given but semantic.enabled is false"};
@@ -138,7 +150,7 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
     s.semantic_model = segmenter->card().name;
     s.semantic = std::make_unique<SemanticWorker>(std::move(segmenter), options.semantic,
                                                   [&mapper = s.mapper](SemanticResult r) { mapper.postSemantic(std::move(r)); });
-    if (!options.sequential) s.semantic->start();
+    if (!options.sequential) s.semantic->start(hooks.semantic_start);
   }
   if (!options.sequential) s.mapper.start();
   return system;

@@ -2,6 +2,7 @@
 // The SLAM core's public face: feed RGB-D frames, read poses and the
 // trajectory. Tracking runs in the caller's thread; local mapping runs in its
 // own thread, or inline when options.sequential is set (deterministic).
+#include <functional>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <string>
@@ -121,15 +122,36 @@ struct KeyFrameView {
   std::vector<KeyFrameFeature> features;
 };
 
+// Lets the caller place threads the SLAM core starts (name, CPU affinity,
+// scheduling). Each hook runs first on its thread. A thread without a hook
+// inherits the placement of the thread that called create().
+struct SlamThreadHooks {
+  std::function<void()> semantic_start;  // the semantic module's segmentation thread
+};
+
+// The model the semantic options select, checked without loading the network:
+// the card parses and its model file exists. create() does the full check
+// (network loads, a warm-up inference matches the card).
+struct SemanticModelChoice {
+  std::string card_path;
+  std::string model_path;
+  std::string name;
+  std::string reason;  // why this model was chosen
+};
+// Errors name the card or model file (and "semantic.model_card" for a bad card).
+Result<SemanticModelChoice> checkSemanticModel(const SemanticOptions& options);
+
 class SlamSystem {
  public:
   // Loads and checks everything the options need now, the segmentation model
   // included: a bad model is an error here, not at the first keyframe.
-  static Result<std::unique_ptr<SlamSystem>> create(const CameraModel& camera, const SlamOptions& options);
+  static Result<std::unique_ptr<SlamSystem>> create(const CameraModel& camera, const SlamOptions& options,
+                                                    const SlamThreadHooks& hooks = {});
   // With a segmenter of the caller's (another network backend, or a test
   // double); options.semantic.enabled must be set, its model fields are ignored.
   static Result<std::unique_ptr<SlamSystem>> create(const CameraModel& camera, const SlamOptions& options,
-                                                    std::unique_ptr<semantic::Segmenter> segmenter);
+                                                    std::unique_ptr<semantic::Segmenter> segmenter,
+                                                    const SlamThreadHooks& hooks = {});
   ~SlamSystem();
   SlamSystem(const SlamSystem&) = delete;
   SlamSystem& operator=(const SlamSystem&) = delete;
