@@ -82,6 +82,8 @@ SourceResult ReplaySource::next(CameraFrame& frame, std::chrono::milliseconds ti
   frame.stamp = Timestamp::fromNanoseconds(stamp_ns);
   frame.gray = std::move(loaded->gray);
   frame.depth_m = std::move(loaded->depth_m);
+  if (options_.colour) frame.bgr = std::move(loaded->bgr);
+  else frame.bgr.release();
   frame.sequence = delivered_++;
   frame.arrival = std::chrono::steady_clock::now();
   return {SourceEvent::kFrame, ""};

@@ -58,6 +58,24 @@ TEST_F(ReplaySourceTest, DeliversEveryFrameInOrderThenEnds) {
   EXPECT_EQ(source.next(frame, 100ms).event, SourceEvent::kEnd);
 }
 
+TEST_F(ReplaySourceTest, ColourOnlyWhenAskedFor) {
+  ReplaySource grey = make(false);
+  ASSERT_TRUE(grey.open());
+  CameraFrame frame;
+  ASSERT_EQ(grey.next(frame, 100ms).event, SourceEvent::kFrame);
+  EXPECT_TRUE(frame.bgr.empty());
+
+  ReplaySourceOptions o;
+  o.path = dir_.string();
+  o.paced = false;
+  o.colour = true;  // what the daemon sets when the semantic module is on
+  ReplaySource colour(o, data_.camera);
+  ASSERT_TRUE(colour.open());
+  ASSERT_EQ(colour.next(frame, 100ms).event, SourceEvent::kFrame);
+  ASSERT_EQ(frame.bgr.type(), CV_8UC3);
+  EXPECT_EQ(frame.bgr.size(), frame.gray.size());
+}
+
 TEST_F(ReplaySourceTest, MaxFramesAndLoopKeepStampsIncreasing) {
   ReplaySource source = make(false, true, 15);
   ASSERT_TRUE(source.open());

@@ -33,6 +33,11 @@ struct OpenNI2Source::Impl : public openni::OpenNI::DeviceDisconnectedListener {
   std::string uri;
   std::atomic<bool> gone{false};
   std::uint64_t delivered = 0;
+  // A .oni recording: played once (no repeat), ends when every recorded frame was read.
+  bool file = false;
+  int file_colour_frames = 0, file_depth_frames = 0;
+  int colour_read = 0, depth_read = 0;
+  std::chrono::steady_clock::time_point last_read;
   // Latest frame of each stream, paired by timestamp.
   openni::VideoFrameRef last_colour, last_depth;
 
@@ -57,10 +62,22 @@ Status OpenNI2Source::open() {
   const char* uri = options_.uri.empty() ? openni::ANY_DEVICE : options_.uri.c_str();
   if (impl->device.open(uri) != openni::STATUS_OK) return Error{lastError("cannot open device '" + options_.uri + "'")};
   impl->uri = impl->device.getDeviceInfo().getUri();
+  impl->file = impl->device.isFile();
   openni::OpenNI::addDeviceDisconnectedListener(impl.get());
   auto setUp = [&](openni::VideoStream& stream, openni::SensorType type, openni::PixelFormat format,
                    const char* name) -> Status {
     if (stream.create(impl->device, type) != openni::STATUS_OK) return Error{lastError(std::string("no ") + name + " stream")};
+    if (impl->file) {
+      // A recording has the mode it was recorded with: check it, set nothing.
+      const openni::VideoMode m = stream.getVideoMode();
+      if (m.getResolutionX() != camera_.width || m.getResolutionY() != camera_.height || m.getPixelFormat() != format)
+        return Error{"openni2: " + options_.uri + ": the " + name + " stream was recorded at " +
+                     std::to_string(m.getResolutionX()) + "x" + std::to_string(m.getResolutionY()) +
+                     " (pixel format " + std::to_string(int(m.getPixelFormat())) + "), expected " +
+                     std::to_string(camera_.width) + "x" + std::to_string(camera_.height) +
+                     (type == openni::SENSOR_COLOR ? " RGB888" : " depth 1 mm")};
+      return {};
+    }
     openni::VideoMode mode;
     mode.setResolution(camera_.width, camera_.height);
     mode.setFps(30);
@@ -73,9 +90,23 @@ Status OpenNI2Source::open() {
   };
   Status s = setUp(impl->colour, openni::SENSOR_COLOR, openni::PIXEL_FORMAT_RGB888, "colour");
   if (s) s = setUp(impl->depth, openni::SENSOR_DEPTH, openni::PIXEL_FORMAT_DEPTH_1_MM, "depth");
-  if (s && impl->device.isImageRegistrationModeSupported(openni::IMAGE_REGISTRATION_DEPTH_TO_COLOR) &&
+  // A recording holds frames as they were registered when it was made (record with registration on).
+  if (s && !impl->file && impl->device.isImageRegistrationModeSupported(openni::IMAGE_REGISTRATION_DEPTH_TO_COLOR) &&
       impl->device.setImageRegistrationMode(openni::IMAGE_REGISTRATION_DEPTH_TO_COLOR) != openni::STATUS_OK)
     s = Error{lastError("depth-to-colour registration")};
+  if (s && impl->file) {
+    openni::PlaybackControl* playback = impl->device.getPlaybackControl();
+    if (!playback) {
+      s = Error{lastError("no playback control for " + options_.uri)};
+    } else {
+      playback->setRepeatEnabled(false);
+      impl->file_colour_frames = playback->getNumberOfFrames(impl->colour);
+      impl->file_depth_frames = playback->getNumberOfFrames(impl->depth);
+      if (impl->file_colour_frames <= 0 || impl->file_depth_frames <= 0)
+        s = Error{"openni2: " + options_.uri + ": recording holds " + std::to_string(impl->file_colour_frames) +
+                  " colour and " + std::to_string(impl->file_depth_frames) + " depth frames"};
+    }
+  }
   // Frame sync is best effort: recordings and some drivers do not offer it;
   // frames are paired by timestamp below either way.
   if (s) impl->device.setDepthColorSyncEnabled(true);
@@ -105,18 +136,31 @@ SourceResult OpenNI2Source::next(CameraFrame& frame, std::chrono::milliseconds t
   const auto until = std::chrono::steady_clock::now() + timeout;
   for (;;) {
     if (impl_->gone) return {SourceEvent::kDeviceGone, "device " + impl_->uri + " disconnected"};
+    if (impl_->file && impl_->colour_read >= impl_->file_colour_frames && impl_->depth_read >= impl_->file_depth_frames)
+      return {SourceEvent::kEnd, ""};
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(until - std::chrono::steady_clock::now());
     if (left.count() <= 0) return {SourceEvent::kTimeout, ""};
     openni::VideoStream* streams[] = {&impl_->colour, &impl_->depth};
     int ready = -1;
     const openni::Status st = openni::OpenNI::waitForAnyStream(streams, 2, &ready, static_cast<int>(left.count()));
-    if (st == openni::STATUS_TIME_OUT) return {SourceEvent::kTimeout, ""};
+    if (st == openni::STATUS_TIME_OUT) {
+      // Frames the player dropped are never read: a recording silent for a
+      // second after it started has ended too.
+      if (impl_->file && impl_->colour_read + impl_->depth_read > 0 &&
+          std::chrono::steady_clock::now() - impl_->last_read > std::chrono::seconds(1))
+        return {SourceEvent::kEnd, ""};
+      return {SourceEvent::kTimeout, ""};
+    }
     if (st != openni::STATUS_OK || ready < 0) {
       if (impl_->gone) continue;
       return {SourceEvent::kDeviceGone, lastError("waitForAnyStream")};
     }
     openni::VideoFrameRef& slot = ready == 0 ? impl_->last_colour : impl_->last_depth;
     if (streams[ready]->readFrame(&slot) != openni::STATUS_OK) return {SourceEvent::kBadFrame, lastError("readFrame")};
+    if (impl_->file) {
+      ++(ready == 0 ? impl_->colour_read : impl_->depth_read);
+      impl_->last_read = std::chrono::steady_clock::now();
+    }
     openni::VideoFrameRef& c = impl_->last_colour;
     openni::VideoFrameRef& d = impl_->last_depth;
     if (!c.isValid() || !d.isValid()) continue;
@@ -131,6 +175,8 @@ SourceResult OpenNI2Source::next(CameraFrame& frame, std::chrono::milliseconds t
     const cv::Mat rgb(c.getHeight(), c.getWidth(), CV_8UC3, const_cast<void*>(c.getData()), c.getStrideInBytes());
     const cv::Mat mm(d.getHeight(), d.getWidth(), CV_16UC1, const_cast<void*>(d.getData()), d.getStrideInBytes());
     cv::cvtColor(rgb, frame.gray, cv::COLOR_RGB2GRAY);
+    if (options_.colour) cv::cvtColor(rgb, frame.bgr, cv::COLOR_RGB2BGR);
+    else frame.bgr.release();
     mm.convertTo(frame.depth_m, CV_32FC1, 0.001);
     frame.stamp = Timestamp::fromNanoseconds(static_cast<std::int64_t>(c.getTimestamp()) * 1000);
     frame.sequence = impl_->delivered++;

@@ -10,6 +10,8 @@
 #include <cerrno>
 #include <cstring>
 
+#include <opencv2/imgproc.hpp>
+
 namespace stillpoint::platform {
 namespace {
 
@@ -34,6 +36,18 @@ class SystemDevice final : public V4l2Device {
     return r;
   }
 };
+
+std::uint32_t fourcc(V4l2Format f) { return f == V4l2Format::kZ16 ? V4L2_PIX_FMT_Z16 : V4L2_PIX_FMT_YUYV; }
+const char* formatName(V4l2Format f) { return f == V4l2Format::kZ16 ? "Z16" : "YUYV"; }
+std::string fourccText(std::uint32_t code) {
+  std::string s;
+  for (int i = 0; i < 4; ++i) {
+    const char c = static_cast<char>((code >> (8 * i)) & 0xff);
+    s += (c >= 32 && c < 127) ? c : '?';
+  }
+  while (!s.empty() && s.back() == ' ') s.pop_back();
+  return s;
+}
 
 }  // namespace
 
@@ -65,17 +79,35 @@ Status V4l2Capture::open() {
   fmt.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
   fmt.fmt.pix.width = options_.width;
   fmt.fmt.pix.height = options_.height;
-  fmt.fmt.pix.pixelformat = V4L2_PIX_FMT_YUYV;
+  fmt.fmt.pix.pixelformat = fourcc(options_.format);
   fmt.fmt.pix.field = V4L2_FIELD_NONE;
   if (device_->ioctl(fd_, VIDIOC_S_FMT, &fmt) < 0) return fail("VIDIOC_S_FMT");
   // The driver may adjust the format: accept only what we asked for.
-  if (fmt.fmt.pix.pixelformat != V4L2_PIX_FMT_YUYV || int(fmt.fmt.pix.width) != options_.width ||
+  if (fmt.fmt.pix.pixelformat != fourcc(options_.format) || int(fmt.fmt.pix.width) != options_.width ||
       int(fmt.fmt.pix.height) != options_.height) {
     errno = EINVAL;
-    return fail("driver offers " + std::to_string(fmt.fmt.pix.width) + "x" + std::to_string(fmt.fmt.pix.height) +
-                " instead of YUYV " + std::to_string(options_.width) + "x" + std::to_string(options_.height));
+    return fail("driver offers " + fourccText(fmt.fmt.pix.pixelformat) + " " + std::to_string(fmt.fmt.pix.width) +
+                "x" + std::to_string(fmt.fmt.pix.height) + " instead of " + formatName(options_.format) + " " +
+                std::to_string(options_.width) + "x" + std::to_string(options_.height));
   }
+  // Both formats have 2 bytes per pixel.
   bytes_per_line_ = fmt.fmt.pix.bytesperline ? fmt.fmt.pix.bytesperline : 2 * options_.width;
+  if (bytes_per_line_ < 2u * options_.width) {
+    errno = EINVAL;
+    return fail("driver reports " + std::to_string(bytes_per_line_) + " bytes per line for " +
+                std::to_string(options_.width) + " pixels");
+  }
+  granted_fps_ = 0;
+  if (options_.fps > 0) {
+    // Best effort: a driver without frame-interval control runs at its own
+    // rate (ENOTTY / EINVAL); the pairing does not depend on it.
+    v4l2_streamparm parm{};
+    parm.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
+    parm.parm.capture.timeperframe.numerator = 1;
+    parm.parm.capture.timeperframe.denominator = options_.fps;
+    if (device_->ioctl(fd_, VIDIOC_S_PARM, &parm) == 0 && parm.parm.capture.timeperframe.numerator > 0)
+      granted_fps_ = double(parm.parm.capture.timeperframe.denominator) / parm.parm.capture.timeperframe.numerator;
+  }
   v4l2_requestbuffers req{};
   req.count = options_.buffers;
   req.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
@@ -128,13 +160,26 @@ V4l2Event V4l2Capture::next(V4l2Frame& frame, std::chrono::milliseconds timeout,
                " bytes, need " + std::to_string(needed) + ")";
     event = V4l2Event::kError;
   } else {
-    // YUYV: every other byte is luma.
-    const auto* base = static_cast<const std::uint8_t*>(buffers_[buf.index].start);
-    frame.gray.create(options_.height, options_.width, CV_8UC1);
-    for (int y = 0; y < options_.height; ++y) {
-      const std::uint8_t* row = base + std::size_t(y) * bytes_per_line_;
-      std::uint8_t* out = frame.gray.ptr<std::uint8_t>(y);
-      for (int x = 0; x < options_.width; ++x) out[x] = row[2 * x];
+    auto* base = static_cast<std::uint8_t*>(buffers_[buf.index].start);
+    if (options_.format == V4l2Format::kZ16) {
+      // Copied out: the buffer goes back to the driver below.
+      cv::Mat(options_.height, options_.width, CV_16UC1, base, bytes_per_line_).copyTo(frame.depth);
+      frame.gray.release();
+      frame.bgr.release();
+    } else {
+      // YUYV: every other byte is luma.
+      frame.gray.create(options_.height, options_.width, CV_8UC1);
+      for (int y = 0; y < options_.height; ++y) {
+        const std::uint8_t* row = base + std::size_t(y) * bytes_per_line_;
+        std::uint8_t* out = frame.gray.ptr<std::uint8_t>(y);
+        for (int x = 0; x < options_.width; ++x) out[x] = row[2 * x];
+      }
+      if (options_.colour)
+        cv::cvtColor(cv::Mat(options_.height, options_.width, CV_8UC2, base, bytes_per_line_), frame.bgr,
+                     cv::COLOR_YUV2BGR_YUYV);
+      else
+        frame.bgr.release();
+      frame.depth.release();
     }
     frame.stamp = Timestamp::fromNanoseconds(std::int64_t(buf.timestamp.tv_sec) * 1'000'000'000 +
                                              std::int64_t(buf.timestamp.tv_usec) * 1000);

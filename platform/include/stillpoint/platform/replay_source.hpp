@@ -20,6 +20,7 @@ struct ReplaySourceOptions {
   // Behave like a live camera (drop-oldest queue behind it): shows what a
   // real camera at this rate would lose. Only meaningful when paced.
   bool as_live = false;
+  bool colour = false;     // also deliver the BGR image (CameraFrame::bgr); set by the daemon, not a config key
   Status validate() const;
 };
 

@@ -19,6 +19,9 @@ namespace stillpoint::platform {
 struct CameraFrame {
   Timestamp stamp;        // capture time (sensor clock, or the recording's stamp)
   cv::Mat gray;           // CV_8UC1
+  // CV_8UC3 BGR colour image, camera size, for the semantic module; empty
+  // unless the source was asked for colour (each source's `colour` option).
+  cv::Mat bgr;
   cv::Mat depth_m;        // CV_32FC1 metres, 0 = no measurement, registered to colour
   std::uint64_t sequence = 0;  // 0-based count of frames delivered by this source
   // When the frame entered the process (steady clock): start of the pose latency.

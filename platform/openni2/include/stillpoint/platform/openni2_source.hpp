@@ -12,6 +12,7 @@ namespace stillpoint::platform {
 
 struct OpenNI2SourceOptions {
   std::string uri;  // device URI or .oni file; "" = the first device
+  bool colour = false;  // also deliver the BGR image (CameraFrame::bgr); set by the daemon, not a config key
 };
 
 class OpenNI2Source final : public RgbdSource {

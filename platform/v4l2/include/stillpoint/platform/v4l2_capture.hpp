@@ -1,13 +1,12 @@
 #pragma once
-// Colour capture from a V4L2 device (memory-mapped streaming I/O). The kernel
-// calls go through V4l2Device, a thin interface over open/ioctl/mmap/poll, so
-// the capture logic is tested against a fake (no devices in CI).
+// Capture from one V4L2 device (memory-mapped streaming I/O): colour (YUYV ->
+// grey, and BGR on request) or 16-bit depth (Z16, e.g. the depth node of a
+// UVC RGB-D camera). The kernel calls go through V4l2Device, a thin interface
+// over open/ioctl/mmap/poll, so the capture logic is tested against a fake
+// (no devices in CI).
 //
-// Depth: V4L2 delivers colour only. An RGB-D pipeline pairs each colour frame
-// with the depth frame nearest in time from a depth stream (e.g. the OpenNI2
-// depth sensor, or the depth node of a UVC RGB-D camera opened as a second
-// V4l2Capture with a 16-bit format), within 20 ms as the TUM association does.
-// That pairing is not wired into stillpointd yet.
+// An RGB-D camera is two such captures paired by timestamp: V4l2Source
+// (v4l2_source.hpp).
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -39,15 +38,25 @@ class V4l2Device {
 // The real thing (open(2), ioctl(2), mmap(2), poll(2)).
 std::unique_ptr<V4l2Device> systemV4l2Device();
 
+enum class V4l2Format {
+  kYuyv,  // colour, 4:2:2 YUYV: grey from the luma, BGR on request
+  kZ16,   // depth, 16 bits per pixel in the device's unit (V4L2_PIX_FMT_Z16)
+};
+
 struct V4l2Options {
   std::string device = "/dev/video0";
   int width = 640, height = 480;
+  V4l2Format format = V4l2Format::kYuyv;
+  int fps = 0;                // frame interval asked with VIDIOC_S_PARM; 0 = the driver's
+  bool colour = false;        // YUYV: also convert to BGR (V4l2Frame::bgr)
   std::uint32_t buffers = 4;  // driver may grant fewer (at least 2 needed)
 };
 
 struct V4l2Frame {
   Timestamp stamp;  // driver timestamp (CLOCK_MONOTONIC for most drivers)
-  cv::Mat gray;     // CV_8UC1
+  cv::Mat gray;     // CV_8UC1 (YUYV)
+  cv::Mat bgr;      // CV_8UC3 (YUYV with options.colour)
+  cv::Mat depth;    // CV_16UC1 raw device units (Z16)
   std::uint32_t sequence = 0;
 };
 
@@ -57,12 +66,16 @@ class V4l2Capture {
  public:
   V4l2Capture(std::unique_ptr<V4l2Device> device, V4l2Options options);
   ~V4l2Capture();
-  // Opens, checks capabilities, sets YUYV at the size asked for, maps the buffers
-  // and starts streaming. Errors name the device and the step.
+  // Opens, checks capabilities, sets the format at the size asked for (a
+  // driver that offers another format or size is an error), asks for the frame
+  // rate, maps the buffers and starts streaming. Errors name the device and the step.
   Status open();
   V4l2Event next(V4l2Frame& frame, std::chrono::milliseconds timeout, std::string* message);
   // Stops streaming, unmaps, closes. Safe to call twice.
   void close();
+  const V4l2Options& options() const { return options_; }
+  // Frame rate the driver granted (0 when it does not say, or was not asked).
+  double grantedFps() const { return granted_fps_; }
 
  private:
   struct Buffer {
@@ -75,6 +88,7 @@ class V4l2Capture {
   int fd_ = -1;
   bool streaming_ = false;
   std::uint32_t bytes_per_line_ = 0;
+  double granted_fps_ = 0;
   std::vector<Buffer> buffers_;
 };
 
