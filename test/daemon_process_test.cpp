@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -21,7 +22,10 @@
 #include <thread>
 #include <vector>
 
+#include <opencv2/core.hpp>
+
 #include "stillpoint/dataset/testing.hpp"
+#include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/metrics.hpp"
 #include "stillpoint/eval/trajectory.hpp"
 #include "stillpoint_shm.h"
@@ -303,7 +307,7 @@ TEST_F(DaemonProcess, BadConfigsNameTheField) {
   const Case cases[] = {
       {"threads: {tracking: {cores: fast}}\n", "threads.tracking.cores"},
       {"source_typo: 1\n", "unknown field 'source_typo'"},
-      {"modules: {semantic: true}\n", "modules.semantic"},
+      {"modules: {semantic: true, semantic_model_card: /nonexistent/card.yaml}\n", "modules.semantic_model_card"},
       {"status_period_s: -1\n", "status_period_s"},
   };
   for (const auto& c : cases) {
@@ -319,6 +323,12 @@ TEST_F(DaemonProcess, BadConfigsNameTheField) {
     EXPECT_EQ(daemon.waitExit(10s), 1);
     EXPECT_NE(daemon.err().find("ipc"), std::string::npos) << daemon.err();
     EXPECT_NE(daemon.err().find("capacity"), std::string::npos) << daemon.err();
+  }
+  {  // A V4L2 camera that is not there: a start-up error naming the device.
+    Daemon daemon(d, "camera: " + g_camera + "\nsource: {type: v4l2, v4l2: {colour_device: /dev/sp-no-colour, "
+                     "depth_device: /dev/sp-no-depth, depth_registered: true}}\n");
+    EXPECT_EQ(daemon.waitExit(10s), 1);
+    EXPECT_NE(daemon.err().find("/dev/sp-no-colour"), std::string::npos) << daemon.err();
   }
   // A missing sequence is a start-up error naming it.
   Daemon missing(d, config((g_root / "no_such_seq").string(), d, ring("bad2"), false, false));
@@ -394,6 +404,103 @@ TEST_F(DaemonProcess, NoWatchdogWhileTrackingIdles) {
   EXPECT_LE(sock.count("WATCHDOG=1"), 2);
 }
 
+// The semantic module with the in-tree person model over the synthetic
+// sequence: keyframes reach the segmentation thread in colour and are segmented.
+TEST_F(DaemonProcess, SemanticModuleSegmentsKeyframes) {
+  const auto d = dir("semantic");
+  Daemon daemon(d,
+                config(g_fast_seq, d, ring("semantic"), false, false,
+                       "modules: {semantic: true, semantic_model_card: person_selfie_256.yaml}\n"
+                       "threads: {semantic: {cores: [0, 997]}}\n"),
+                {}, {"--max-frames", "30"});
+  ASSERT_EQ(daemon.waitExit(120s), 0) << daemon.err();
+  const auto status = readStatus(d / "status.txt");
+  EXPECT_EQ(status.at("frames_processed"), "30");
+  EXPECT_NE(status.at("semantic_model").find("person_selfie_256"), std::string::npos);
+  EXPECT_GE(std::stoul(status.at("semantic_keyframes_segmented")), 1u) << daemon.err();
+  EXPECT_EQ(status.at("semantic_keyframes_no_colour"), "0");  // the source delivered colour
+  EXPECT_EQ(status.at("semantic_failures"), "0");
+  const std::string err = daemon.err();
+  EXPECT_NE(err.find("semantic module: person_selfie_256"), std::string::npos) << err;
+  // The segmentation thread placed itself: its own field in the warning.
+  EXPECT_NE(err.find("threads.semantic.cores: core(s) 997 not available"), std::string::npos) << err;
+}
+
+TEST_F(DaemonProcess, SemanticModelProblemsFailStartUp) {
+  const auto d = dir("semantic_bad");
+  fs::create_directories(d / "models");
+  // A card whose model file is missing: caught when the configuration loads.
+  fs::copy_file(fs::path(STILLPOINT_SOURCE_DIR) / "models" / "person_selfie_256.yaml", d / "models" / "card.yaml",
+                fs::copy_options::overwrite_existing);
+  const std::string card = (d / "models" / "card.yaml").string();
+  {
+    Daemon daemon(d, config(g_fast_seq, d, ring("semantic_bad"), false, false,
+                            "modules: {semantic: true, semantic_model_card: " + card + "}\n"));
+    EXPECT_EQ(daemon.waitExit(30s), 1);
+    const std::string err = daemon.err();
+    EXPECT_NE(err.find("field 'modules.semantic_model_card'"), std::string::npos) << err;
+    EXPECT_NE(err.find("person_selfie_256.onnx"), std::string::npos) << err;
+    EXPECT_NE(err.find("not found"), std::string::npos) << err;
+  }
+  // A model file that is no network: caught when the network loads at start-up.
+  std::ofstream(d / "models" / "person_selfie_256.onnx") << "not an onnx file";
+  {
+    Daemon daemon(d, config(g_fast_seq, d, ring("semantic_bad2"), false, false,
+                            "modules: {semantic: true, semantic_model_card: " + card + "}\n"));
+    EXPECT_EQ(daemon.waitExit(30s), 1);
+    const std::string err = daemon.err();
+    EXPECT_NE(err.find("field 'modules.semantic_model_card'"), std::string::npos) << err;
+    EXPECT_NE(err.find("card.yaml"), std::string::npos) << err;
+  }
+  EXPECT_FALSE(fs::exists(d / "status.txt"));  // never started
+}
+
+// The semantic module on the real excerpt (COCO model when present beside the
+// data, else the person model): keyframes segmented, poses still accurate.
+TEST_F(DaemonProcess, SemanticModuleRealExcerptMatchesGroundTruth) {
+  const fs::path seq = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
+  if (!fs::exists(seq / "rgb.txt")) GTEST_SKIP() << "no " << seq;
+  const fs::path model_dir = fs::path(STILLPOINT_DATA_DIR) / ".." / "models";
+  const bool coco = fs::exists(model_dir / "coco_yolov5s_seg_320.onnx");
+  const auto d = dir("semantic_teddy");
+  const std::string r = ring("semantic_teddy");
+  Daemon daemon(d, "camera: fr3\nsource: {replay: {path: " + seq.string() +
+                       ", paced: false}}\nmodules: {semantic: true, semantic_model_card: " +
+                       (coco ? "coco_yolov5s_seg_320.yaml" : "person_selfie_256.yaml") + ", semantic_model_dirs: [" +
+                       model_dir.string() + "]}\noutput: {status: " + (d / "status.txt").string() +
+                       "}\nipc: {shm: {name: " + r + ", capacity: 1024}}\n");
+  ASSERT_EQ(daemon.waitExit(300s), 0) << daemon.err();
+  const auto status = readStatus(d / "status.txt");
+  std::printf("semantic (%s): %s keyframes, %s segmented, %s dropped; segmentation median %s ms p95 %s ms; "
+              "keyframe -> mask median %s ms p95 %s ms; pose latency median %s ms\n",
+              status.at("semantic_model").c_str(), status.at("keyframes").c_str(),
+              status.at("semantic_keyframes_segmented").c_str(), status.at("semantic_keyframes_dropped").c_str(),
+              status.at("segmentation_ms_median").c_str(), status.at("segmentation_ms_p95").c_str(),
+              status.at("semantic_latency_ms_median").c_str(), status.at("semantic_latency_ms_p95").c_str(),
+              status.at("latency_ms_median").c_str());
+  EXPECT_NE(status.at("semantic_model").find(coco ? "coco" : "person"), std::string::npos);
+  EXPECT_GE(std::stoul(status.at("semantic_keyframes_segmented")), 10u);
+  EXPECT_EQ(status.at("semantic_keyframes_no_colour"), "0");
+  EXPECT_EQ(status.at("semantic_failures"), "0");
+  const auto poses = readPoses(r, 193, 5s);
+  ASSERT_EQ(poses.size(), 193u);
+  stillpoint::eval::Trajectory est;
+  for (const auto& p : poses) {
+    if (p.tracking_state != SP_TRACKING_OK && p.tracking_state != SP_TRACKING_RELOCALISED) continue;
+    const Eigen::Quaterniond q(p.orientation[3], p.orientation[0], p.orientation[1], p.orientation[2]);
+    est.push_back({stillpoint::Timestamp::fromNanoseconds(p.sensor_stamp_ns),
+                   stillpoint::makeSE3(q, {p.position[0], p.position[1], p.position[2]})});
+  }
+  auto gt = stillpoint::eval::readTumTrajectory((seq / "groundtruth.txt").string());
+  ASSERT_TRUE(gt) << gt.error();
+  auto ev = stillpoint::eval::evaluate(*gt, est);
+  ASSERT_TRUE(ev) << ev.error();
+  std::printf("semantic module on, published poses vs ground truth: ate_rmse_m=%.4f matched=%zu\n", ev->ate_rmse_m,
+              ev->matched);
+  EXPECT_GE(est.size(), 185u);
+  EXPECT_LT(ev->ate_rmse_m, 0.04);
+}
+
 TEST_F(DaemonProcess, RealExcerptPosesMatchGroundTruth) {
   const fs::path seq = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
   if (!fs::exists(seq / "rgb.txt")) GTEST_SKIP() << "no " << seq;
@@ -425,14 +532,22 @@ TEST_F(DaemonProcess, RealExcerptPosesMatchGroundTruth) {
 
 // OpenNI2: a private copy of libOpenNI2.so.0 with our replay driver as its only
 // driver (Debian's loader looks in OpenNI2/Drivers beside the library).
+// The system's .oni player driver (Debian: beside libOpenNI2.so.0).
+fs::path oniFileDriver() {
+  return fs::canonical(STILLPOINT_OPENNI2_LIBRARY).parent_path() / "OpenNI2" / "Drivers" / "libOniFile.so.0";
+}
+
 std::vector<std::string> openni2Env(const fs::path& dir, const std::string& sequence,
-                                    const std::string& gone_after = "") {
+                                    const std::string& gone_after = "", bool file_player = false) {
   const fs::path lib = dir / "oni-lib";
   fs::create_directories(lib / "OpenNI2" / "Drivers");
   fs::copy_file(fs::canonical(STILLPOINT_OPENNI2_LIBRARY), lib / "libOpenNI2.so.0",
                 fs::copy_options::overwrite_existing);
   fs::copy_file(STILLPOINT_ONI_DRIVER, lib / "OpenNI2" / "Drivers" / "libStillpointReplay.so.0",
                 fs::copy_options::overwrite_existing);
+  if (file_player)  // plays .oni files
+    fs::copy_file(oniFileDriver(), lib / "OpenNI2" / "Drivers" / "libOniFile.so.0",
+                  fs::copy_options::overwrite_existing);
   std::vector<std::string> env = {"LD_LIBRARY_PATH=" + lib.string(), "STILLPOINT_ONI_REPLAY_DIR=" + sequence};
   if (!gone_after.empty()) env.push_back("STILLPOINT_ONI_GONE_AFTER=" + gone_after);
   return env;
@@ -504,6 +619,106 @@ TEST_F(DaemonProcess, OpenNI2CameraUnplugReconnects) {
   EXPECT_GE(std::stoul(status.at("reconnects")), 1u);
   EXPECT_GT(std::stoul(status.at("frames_received")), 10u);  // frames came after the replug
   EXPECT_GE(poses.size(), 15u);
+}
+
+// Runs a program to its end with extra environment; stdout and stderr go to
+// files beside `out`. Returns the exit status (-1 when it overran `limit` and was killed).
+int runProgram(const std::vector<std::string>& args, const std::vector<std::string>& env, const fs::path& out,
+               std::chrono::seconds limit) {
+  const std::string out_path = out.string(), err_path = out.string() + ".err";
+  const pid_t pid = fork();
+  if (pid == 0) {
+    const int o = ::open(out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    const int e = ::open(err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(o, 1);
+    dup2(e, 2);
+    for (const auto& kv : env) putenv(const_cast<char*>(kv.c_str()));
+    std::vector<std::string> all = args;
+    std::vector<char*> argv;
+    for (auto& a : all) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    execv(argv[0], argv.data());
+    _exit(127);
+  }
+  const auto until = Clock::now() + limit;
+  while (Clock::now() < until) {
+    int status = 0;
+    if (waitpid(pid, &status, WNOHANG) == pid) return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    std::this_thread::sleep_for(10ms);
+  }
+  kill(pid, SIGKILL);
+  waitpid(pid, nullptr, 0);
+  return -1;
+}
+
+// Record to .oni through openni::Recorder from the replay camera, play it back
+// through OpenNI2Source (file URI) and compare with the sequence, then run
+// stillpointd on the recording. The player needs the streams' cropping
+// property (the replay driver has it) or playback yields no frames.
+TEST_F(DaemonProcess, OniRecordingPlaysBackThroughOpenNI2) {
+  if (!fs::exists(oniFileDriver())) GTEST_SKIP() << "no .oni player driver at " << oniFileDriver();
+  const auto d = dir("oni_record");
+  const auto env = openni2Env(d, g_fast_seq, "", /*file_player=*/true);
+  const std::string oni = (d / "rec.oni").string();
+  constexpr int kFrames = 20;
+  ASSERT_EQ(runProgram({STILLPOINT_ONI_TOOL, "record", oni, std::to_string(kFrames)}, env, d / "record.txt", 60s), 0)
+      << readFile(d / "record.txt.err");
+  ASSERT_GT(fs::file_size(oni), 0u);
+  ASSERT_EQ(runProgram({STILLPOINT_ONI_TOOL, "dump", oni, (d / "dump").string(), g_camera}, env, d / "dump.txt", 60s),
+            0)
+      << readFile(d / "dump.txt.err");
+  EXPECT_EQ(readFile(d / "dump.txt"), "frames=" + std::to_string(kFrames) + "\n");
+
+  // Every frame that came back: colour identical to a frame of the sequence,
+  // the frames consecutive, depth equal within the 1 mm quantisation of
+  // DEPTH_1_MM. The recorder keeps stamps relative to its first frame: the
+  // played stamps are the sequence's minus the first recorded one.
+  stillpoint::dataset::DatasetOptions original_options;
+  original_options.depth_factor = 5000.0;
+  auto original = stillpoint::dataset::TumDataset::open(g_fast_seq, original_options);
+  ASSERT_TRUE(original) << original.error();
+  stillpoint::dataset::DatasetOptions dump_options;
+  dump_options.depth_factor = 1000.0;  // the dump writes 1 mm units
+  auto played = stillpoint::dataset::TumDataset::open((d / "dump").string(), dump_options);
+  ASSERT_TRUE(played) << played.error();
+  ASSERT_EQ(played->size(), static_cast<std::size_t>(kFrames));
+  auto first = played->load(0);
+  ASSERT_TRUE(first) << first.error();
+  std::size_t j0 = 0;
+  while (j0 < original->size() && cv::norm(first->bgr, original->load(j0)->bgr, cv::NORM_INF) != 0) ++j0;
+  ASSERT_LT(j0 + kFrames, original->size() + 1) << "the first played frame is no frame of the sequence";
+  const std::int64_t first_ns = original->load(j0)->stamp.nanoseconds();
+  double max_depth_error = 0;
+  for (std::size_t i = 0; i < played->size(); ++i) {
+    auto p = played->load(i);
+    ASSERT_TRUE(p) << p.error();
+    auto o = original->load(j0 + i);
+    ASSERT_TRUE(o) << o.error();
+    EXPECT_NEAR(p->stamp.nanoseconds(), o->stamp.nanoseconds() - first_ns, 1000) << "stamp of frame " << i;
+    EXPECT_EQ(cv::norm(p->bgr, o->bgr, cv::NORM_INF), 0.0) << "colour of frame " << i;
+    cv::Mat diff;
+    cv::absdiff(p->depth_m, o->depth_m, diff);
+    double worst = 0;
+    cv::minMaxLoc(diff, nullptr, &worst);
+    max_depth_error = std::max(max_depth_error, worst);
+    EXPECT_EQ(cv::countNonZero(p->depth_m > 0), cv::countNonZero(o->depth_m > 0)) << "depth holes of frame " << i;
+  }
+  std::printf(".oni round trip: %d frames, largest depth difference %.6f m\n", kFrames, max_depth_error);
+  EXPECT_LE(max_depth_error, 0.0005 + 1e-6);
+
+  // stillpointd on the recording: it plays once and the daemon stops at its end.
+  const std::string r = ring("oni_record");
+  Daemon daemon(d,
+                "camera: " + g_camera + "\nsource: {type: openni2, openni2: {uri: " + oni +
+                    "}}\noutput: {status: " + (d / "status.txt").string() + "}\nipc: {shm: {name: " + r + "}}\n",
+                env);
+  ASSERT_EQ(daemon.waitExit(60s), 0) << daemon.err();
+  const auto status = readStatus(d / "status.txt");
+  EXPECT_EQ(status.at("exit_reason"), "end of recording");
+  EXPECT_EQ(std::stoul(status.at("frames_received")), static_cast<unsigned long>(kFrames));
+  EXPECT_EQ(std::stoul(status.at("frames_processed")) + std::stoul(status.at("frames_dropped")),
+            static_cast<unsigned long>(kFrames));
+  EXPECT_GE(readPoses(r, 1, 2s).size(), 1u);
 }
 
 }  // namespace

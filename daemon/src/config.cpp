@@ -104,6 +104,17 @@ void readPlacement(Section& threads, const std::string& name, ThreadPlacement* p
   s.checkUnknown();
 }
 
+void readStringList(Section& parent, const std::string& key, std::vector<std::string>* out, std::string* error) {
+  if (!error->empty() || !parent.has(key)) return;
+  const YAML::Node list = parent.node()[key];
+  if (!list.IsSequence()) return parent.fail(list, key, "must be a list of folders, e.g. [/usr/share/stillpoint/models]");
+  out->clear();
+  for (const auto& item : list) {
+    if (!item.IsScalar()) return parent.fail(item, key, "must be a list of folders, e.g. [/usr/share/stillpoint/models]");
+    out->push_back(item.as<std::string>());
+  }
+}
+
 // loadSlamOptions() reads files only: hand it the inline section through a
 // private temporary file, and put our field path into its messages.
 Result<slam::SlamOptions> inlineSlamOptions(const YAML::Node& node) {
@@ -161,6 +172,20 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
       o.read("uri", &c->source.openni2.uri);
       o.checkUnknown();
     }
+    YAML::Node v4l2;
+    if (subsection(s, "v4l2", &v4l2, error) && v4l2.IsDefined()) {
+      Section v(v4l2, "source.v4l2", error);
+      platform::V4l2SourceOptions& o = c->source.v4l2;
+      v.read("colour_device", &o.colour_device);
+      v.read("depth_device", &o.depth_device);
+      v.read("width", &o.width);
+      v.read("height", &o.height);
+      v.read("fps", &o.fps);
+      v.read("depth_scale", &o.depth_scale);
+      v.read("pair_tolerance_ms", &o.pair_tolerance_ms);
+      v.read("depth_registered", &o.depth_registered);
+      v.checkUnknown();
+    }
     s.checkUnknown();
   }
   YAML::Node slam_inline;
@@ -179,8 +204,8 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
     Section s(node, "modules", error);
     s.read("geometry", &c->modules.geometry);
     s.read("semantic", &c->modules.semantic);
-    if (error->empty() && c->modules.semantic)
-      s.fail(node["semantic"], "semantic", "cannot be enabled: the semantic module is not wired into stillpointd yet");
+    s.read("semantic_model_card", &c->modules.semantic_model_card);
+    readStringList(s, "semantic_model_dirs", &c->modules.semantic_model_dirs, error);
     s.checkUnknown();
   }
   if (subsection(top, "threads", &node, error) && node.IsDefined()) {
@@ -189,6 +214,7 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
     readPlacement(s, "tracking", &c->threads.tracking, error);
     readPlacement(s, "mapping", &c->threads.mapping, error);
     readPlacement(s, "publisher", &c->threads.publisher, error);
+    readPlacement(s, "semantic", &c->threads.semantic, error);
     s.checkUnknown();
   }
   if (subsection(top, "output", &node, error) && node.IsDefined()) {
@@ -213,8 +239,8 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
     return Error{"field 'shutdown_timeout_s': must be in (0, 300] seconds"};
   if (!(c->status_period_s >= 0.05 && c->status_period_s <= 60))
     return Error{"field 'status_period_s': must be in [0.05, 60] seconds"};
-  if (c->source.type != "replay" && c->source.type != "openni2")
-    return Error{"field 'source.type': '" + c->source.type + "' is not available in this build (expected: replay, openni2)"};
+  if (c->source.type != "replay" && c->source.type != "openni2" && c->source.type != "v4l2")
+    return Error{"field 'source.type': '" + c->source.type + "' is not one of replay, openni2, v4l2"};
   if (c->source.queue_capacity < 1 || c->source.queue_capacity > 256)
     return Error{"field 'source.queue_capacity': must be 1..256"};
   if (c->source.type == "replay" && c->source.replay.path.empty())
@@ -223,6 +249,18 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
   auto camera = loadCamera(c->camera_spec);
   if (!camera) return Error{"field 'camera': " + camera.error()};
   c->camera = *camera;
+  if (c->source.type == "v4l2") {
+    if (Status s = c->source.v4l2.validate(); !s) {
+      // "source.v4l2.x: message" -> "field 'source.v4l2.x': message"
+      const std::string& m = s.error();
+      const auto colon = m.find(": ");
+      return Error{"field '" + m.substr(0, colon) + "': " + m.substr(colon + 2)};
+    }
+    if (c->source.v4l2.width != c->camera.width || c->source.v4l2.height != c->camera.height)
+      return Error{"field 'source.v4l2.width': " + std::to_string(c->source.v4l2.width) + "x" +
+                   std::to_string(c->source.v4l2.height) + " differs from the camera's " +
+                   std::to_string(c->camera.width) + "x" + std::to_string(c->camera.height) + " (field 'camera')"};
+  }
 
   if (!c->slam_options_file.empty()) {
     auto loaded = slam::loadSlamOptions(c->slam_options_file);
@@ -234,6 +272,31 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
     c->slam = *loaded;
   }
   c->slam.geometry.enabled = c->modules.geometry;
+  c->slam.semantic.enabled = c->modules.semantic;
+  if (!c->modules.semantic_model_card.empty()) c->slam.semantic.model_card = c->modules.semantic_model_card;
+  if (!c->modules.semantic_model_dirs.empty()) c->slam.semantic.model_dirs = c->modules.semantic_model_dirs;
+  if (c->modules.semantic) {
+    // The card and its model file now; the network itself loads (and is
+    // checked by a warm-up inference) when the daemon starts.
+    std::string field = "modules.semantic_model_card", context;
+    if (c->modules.semantic_model_card.empty() && !c->slam.semantic.model_card.empty()) {
+      if (c->slam_options_file.empty()) field = "slam.options.semantic.model_card";
+      else field = "slam.options_file", context = "semantic.model_card: ";
+    }
+    auto model = slam::checkSemanticModel(c->slam.semantic);
+    if (!model) {
+      std::string message = model.error();
+      const std::string own = "semantic.model_card: ";
+      if (message.rfind(own, 0) == 0) message = message.substr(own.size());
+      if (c->slam.semantic.model_card.empty()) context = "no card given and the recommended model is not usable: ";
+      return Error{"field '" + field + "': " + context + message};
+    }
+    c->semantic_model = *model;
+    // Keyframes are segmented in colour: every source delivers BGR too.
+    c->source.replay.colour = true;
+    c->source.openni2.colour = true;
+    c->source.v4l2.colour = true;
+  }
   if (Status s = c->ipc.validate(); !s) return Error{"ipc: " + s.error()};
   return {};
 }
@@ -286,16 +349,32 @@ std::string toYaml(const DaemonConfig& c) {
   out << YAML::EndMap;
   out << YAML::Key << "openni2" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "uri" << YAML::Value << YAML::DoubleQuoted << c.source.openni2.uri;
+  out << YAML::EndMap;
+  const platform::V4l2SourceOptions& v = c.source.v4l2;
+  out << YAML::Key << "v4l2" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "colour_device" << YAML::Value << YAML::DoubleQuoted << v.colour_device;
+  out << YAML::Key << "depth_device" << YAML::Value << YAML::DoubleQuoted << v.depth_device;
+  out << YAML::Key << "width" << YAML::Value << v.width;
+  out << YAML::Key << "height" << YAML::Value << v.height;
+  out << YAML::Key << "fps" << YAML::Value << v.fps;
+  out << YAML::Key << "depth_scale" << YAML::Value << v.depth_scale;
+  out << YAML::Key << "pair_tolerance_ms" << YAML::Value << v.pair_tolerance_ms;
+  out << YAML::Key << "depth_registered" << YAML::Value << v.depth_registered;
   out << YAML::EndMap << YAML::EndMap;
   out << YAML::Key << "modules" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "geometry" << YAML::Value << c.modules.geometry;
   out << YAML::Key << "semantic" << YAML::Value << c.modules.semantic;
+  out << YAML::Key << "semantic_model_card" << YAML::Value << YAML::DoubleQuoted << c.modules.semantic_model_card;
+  out << YAML::Key << "semantic_model_dirs" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+  for (const auto& d : c.modules.semantic_model_dirs) out << d;
+  out << YAML::EndSeq;
   out << YAML::EndMap;
   out << YAML::Key << "threads" << YAML::Value << YAML::BeginMap;
   emitPlacement(out, "source", c.threads.source);
   emitPlacement(out, "tracking", c.threads.tracking);
   emitPlacement(out, "mapping", c.threads.mapping);
   emitPlacement(out, "publisher", c.threads.publisher);
+  emitPlacement(out, "semantic", c.threads.semantic);
   out << YAML::EndMap;
   out << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "trajectory" << YAML::Value << c.output.trajectory;

@@ -11,7 +11,9 @@
 #include "stillpoint/ipc/options.hpp"
 #include "stillpoint/platform/openni2_source.hpp"
 #include "stillpoint/platform/replay_source.hpp"
+#include "stillpoint/platform/v4l2_source.hpp"
 #include "stillpoint/slam/options.hpp"
+#include "stillpoint/slam/system.hpp"
 
 namespace stillpoint::daemon {
 
@@ -25,21 +27,33 @@ struct ThreadPlacement {
 // The threads the daemon places. "mapping" covers the SLAM core's own threads
 // (local mapping, geometry clustering) and "publisher" the IPC publisher's:
 // those threads are started while the daemon's set-up thread carries that
-// placement, and inherit it.
+// placement, and inherit it. "semantic" is the semantic module's segmentation
+// thread, placed by a hook the SLAM core runs on it.
 struct ThreadMap {
-  ThreadPlacement source, tracking, mapping, publisher;
+  ThreadPlacement source, tracking, mapping, publisher, semantic;
 };
 
 struct SourceConfig {
-  std::string type = "replay";  // replay | openni2 (v4l2: not in this build)
+  std::string type = "replay";  // replay | openni2 | v4l2
   std::uint32_t queue_capacity = 4;  // frames between the source and tracking
   platform::ReplaySourceOptions replay;
   platform::OpenNI2SourceOptions openni2;
+  platform::V4l2SourceOptions v4l2;
 };
 
+// The dynamic-object modules. These keys override the matching fields of the
+// SLAM options (geometry.enabled, semantic.enabled, semantic.model_card,
+// semantic.model_dirs); the other module options stay in `slam:`.
 struct ModulesConfig {
   bool geometry = slam::GeometryOptions{}.enabled;  // the SLAM core's default
-  bool semantic = false;  // not wired into the daemon yet: must stay false
+  bool semantic = false;  // keyframe segmentation (needs colour: sources deliver BGR when on)
+  // Model card YAML; "" = the SLAM options' semantic.model_card, and when that
+  // is empty too the recommended model (COCO if its .onnx is found, else the
+  // in-tree person model). A relative path that does not exist is looked up in
+  // the models folder (/usr/share/stillpoint/models when installed).
+  std::string semantic_model_card;
+  // Folders searched first for the card's model file; empty = the SLAM options' semantic.model_dirs.
+  std::vector<std::string> semantic_model_dirs;
 };
 
 struct OutputConfig {
@@ -54,6 +68,7 @@ struct DaemonConfig {
   std::string slam_options_file;    // "" = inline `slam.options` or defaults
   slam::SlamOptions slam;           // effective options
   ModulesConfig modules;
+  slam::SemanticModelChoice semantic_model;  // checked at load when modules.semantic is on
   ThreadMap threads;
   ipc::IpcOptions ipc;
   OutputConfig output;

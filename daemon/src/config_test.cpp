@@ -95,7 +95,9 @@ TEST_F(ConfigTest, ErrorsNameTheField) {
   expectError(src + "slam: {options: {orb: {num_features: -5}}}\n", {"slam.options", "num_features"});
   expectError(src + "slam: {options: {orb: {bogus: 1}}}\n", {"slam.options", "orb.bogus"});
   expectError(src + "slam: {options_file: /nonexistent/slam.yaml}\n", {"'slam.options_file'", "/nonexistent/slam.yaml"});
-  expectError(src + "modules: {semantic: true}\n", {"'modules.semantic'"});
+  expectError(src + "modules: {semantic: maybe}\n", {"'modules.semantic'", "wrong type"});
+  expectError(src + "modules: {semantic: true, semantic_model_dirs: /models}\n", {"'modules.semantic_model_dirs'", "list"});
+  expectError(src + "threads: {semantic: {priority: -1}}\n", {"'threads.semantic.priority'"});
   expectError(src + "ipc: {shm: {capacity: 1000}}\n", {"ipc", "capacity"});
   expectError(src + "log_level: loud\n", {"'log_level'", "loud"});
   expectError(src + "shutdown_timeout_s: 0\n", {"'shutdown_timeout_s'"});
@@ -104,6 +106,90 @@ TEST_F(ConfigTest, ErrorsNameTheField) {
   auto missing = loadDaemonConfig((dir_ / "absent.yaml").string());
   ASSERT_FALSE(missing);
   EXPECT_NE(missing.error().find("absent.yaml"), std::string::npos);
+}
+
+TEST_F(ConfigTest, SemanticModuleWithTheInTreeModel) {
+  // A relative card name is found in the project's models/ folder.
+  auto c = loadDaemonConfig(write(
+      "source: {replay: {path: /d}}\nmodules: {semantic: true, semantic_model_card: person_selfie_256.yaml}\n"
+      "threads: {semantic: {cores: [1], priority: 0}}\n"));
+  ASSERT_TRUE(c) << c.error();
+  EXPECT_TRUE(c->slam.semantic.enabled);
+  EXPECT_EQ(c->slam.semantic.model_card, "person_selfie_256.yaml");
+  EXPECT_NE(c->semantic_model.model_path.find("person_selfie_256.onnx"), std::string::npos);
+  EXPECT_TRUE(c->source.replay.colour);  // keyframes are segmented in colour
+  EXPECT_TRUE(c->source.openni2.colour);
+  EXPECT_EQ(c->threads.semantic.cores, std::vector<int>{1});
+  const std::string printed = toYaml(*c);
+  auto again = loadDaemonConfig(write(printed, "printed.yaml"));
+  ASSERT_TRUE(again) << again.error() << "\n" << printed;
+  EXPECT_EQ(toYaml(*again), printed);
+  EXPECT_EQ(again->modules.semantic_model_card, "person_selfie_256.yaml");
+
+  // Off: no colour asked of the source.
+  auto off = loadDaemonConfig(write("source: {replay: {path: /d}}\n"));
+  ASSERT_TRUE(off) << off.error();
+  EXPECT_FALSE(off->slam.semantic.enabled);
+  EXPECT_FALSE(off->source.replay.colour);
+}
+
+TEST_F(ConfigTest, SemanticModelErrorsNameTheField) {
+  const std::string src = "source: {replay: {path: /d}}\n";
+  const std::string missing_card = (dir_ / "no_such_card.yaml").string();
+  expectError(src + "modules: {semantic: true, semantic_model_card: " + missing_card + "}\n",
+              {"'modules.semantic_model_card'", "no_such_card.yaml", "cannot be opened"});
+  // A card that is not one.
+  const std::string bad_card = write("name: x\nmodel: [\n", "bad_card.yaml");
+  expectError(src + "modules: {semantic: true, semantic_model_card: " + bad_card + "}\n",
+              {"'modules.semantic_model_card'", "bad_card.yaml"});
+  // A valid card whose model file is missing.
+  std::ifstream in(STILLPOINT_SOURCE_DIR "/models/person_selfie_256.yaml");
+  const std::string card_text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string card = write(card_text, "card.yaml");
+  expectError(src + "modules: {semantic: true, semantic_model_card: " + card + "}\n",
+              {"'modules.semantic_model_card'", "person_selfie_256.onnx", "not found"});
+  // The card of the SLAM options, when the modules section names none.
+  expectError(src + "modules: {semantic: true}\nslam: {options: {semantic: {model_card: " + missing_card + "}}}\n",
+              {"'slam.options.semantic.model_card'", "no_such_card.yaml"});
+  // Off: the card is not looked at.
+  auto off = loadDaemonConfig(write(src + "modules: {semantic: false, semantic_model_card: " + missing_card + "}\n"));
+  EXPECT_TRUE(off) << off.error();
+}
+
+TEST_F(ConfigTest, V4l2SourceKeysAndErrors) {
+  const std::string v4l2 =
+      "source:\n  type: v4l2\n  v4l2: {colour_device: /dev/video4, depth_device: /dev/video0, fps: 15, "
+      "depth_scale: 0.0001, pair_tolerance_ms: 10, depth_registered: true}\n";
+  auto c = loadDaemonConfig(write(v4l2));
+  ASSERT_TRUE(c) << c.error();
+  EXPECT_EQ(c->source.v4l2.colour_device, "/dev/video4");
+  EXPECT_EQ(c->source.v4l2.depth_device, "/dev/video0");
+  EXPECT_EQ(c->source.v4l2.fps, 15);
+  EXPECT_DOUBLE_EQ(c->source.v4l2.depth_scale, 0.0001);
+  EXPECT_DOUBLE_EQ(c->source.v4l2.pair_tolerance_ms, 10);
+  EXPECT_EQ(c->source.v4l2.width, 640);
+  const std::string printed = toYaml(*c);
+  auto again = loadDaemonConfig(write(printed, "printed.yaml"));
+  ASSERT_TRUE(again) << again.error() << "\n" << printed;
+  EXPECT_EQ(toYaml(*again), printed);
+  EXPECT_EQ(again->source.v4l2.depth_device, "/dev/video0");
+
+  expectError("source: {type: v4l2}\n", {"'source.v4l2.colour_device'", "required"});
+  expectError("source: {type: v4l2, v4l2: {colour_device: /dev/video4}}\n", {"'source.v4l2.depth_device'"});
+  expectError("source: {type: v4l2, v4l2: {colour_device: /dev/video4, depth_device: /dev/video0}}\n",
+              {"'source.v4l2.depth_registered'", "registered to colour"});
+  const std::string devices = "colour_device: /dev/video4, depth_device: /dev/video0, depth_registered: true";
+  expectError("source: {type: v4l2, v4l2: {" + devices + ", depth_scale: -1}}\n", {"'source.v4l2.depth_scale'"});
+  expectError("source: {type: v4l2, v4l2: {" + devices + ", pair_tolerance_ms: 0}}\n",
+              {"'source.v4l2.pair_tolerance_ms'"});
+  expectError("source: {type: v4l2, v4l2: {" + devices + ", width: 848}}\n",
+              {"'source.v4l2.width'", "848x480", "camera"});
+  expectError("source: {type: v4l2, v4l2: {" + devices + ", fps: fast}}\n", {"'source.v4l2.fps'", "wrong type"});
+  expectError("source: {type: v4l2, v4l2: {" + devices + ", format: Z16}}\n", {"unknown field 'source.v4l2.format'"});
+  // Colour for the semantic module.
+  auto semantic = loadDaemonConfig(write(v4l2 + "modules: {semantic: true, semantic_model_card: person_selfie_256.yaml}\n"));
+  ASSERT_TRUE(semantic) << semantic.error();
+  EXPECT_TRUE(semantic->source.v4l2.colour);
 }
 
 TEST(BoundedQueueTest, DropOldestKeepsTheNewestAndCounts) {

@@ -18,6 +18,7 @@
 #include "stillpoint/ipc/publisher.hpp"
 #include "stillpoint/platform/openni2_source.hpp"
 #include "stillpoint/platform/replay_source.hpp"
+#include "stillpoint/platform/v4l2_source.hpp"
 #include "stillpoint/slam/system.hpp"
 #include "threads.hpp"
 
@@ -142,6 +143,7 @@ Status Daemon::start() {
   const DaemonConfig& c = d.config;
   d.available_cores = availableCores();
   if (c.source.type == "openni2") d.source = std::make_unique<platform::OpenNI2Source>(c.source.openni2, c.camera);
+  else if (c.source.type == "v4l2") d.source = std::make_unique<platform::V4l2Source>(c.source.v4l2, c.camera);
   else d.source = std::make_unique<platform::ReplaySource>(c.source.replay, c.camera);
   if (Status s = d.source->open(); !s) return Error{"source: " + s.error()};
   SP_INFO(logger, "source: " << d.source->describe());
@@ -149,12 +151,29 @@ Status Daemon::start() {
       c.source.queue_capacity, d.source->live() ? BoundedQueue<platform::CameraFrame>::Policy::kDropOldest
                                                 : BoundedQueue<platform::CameraFrame>::Policy::kBlock);
   Status status;
+  // The semantic module's thread places itself through a hook; the other
+  // SLAM threads inherit the set-up thread's placement.
+  slam::SlamThreadHooks hooks;
+  hooks.semantic_start = [&d] {
+    clearInheritedPlacement(d.available_cores);  // not the mapping placement it was started under
+    logWarnings(placeCurrentThread("sp-semantic", d.config.threads.semantic, d.available_cores, "threads.semantic"));
+  };
   runPlaced("sp-mapping", c.threads.mapping, d.available_cores, "threads.mapping", [&] {
-    auto system = slam::SlamSystem::create(c.camera, c.slam);
+    auto system = slam::SlamSystem::create(c.camera, c.slam, hooks);
     if (!system) status = Error{"slam: " + system.error()};
     else d.system = std::move(*system);
   });
-  if (!status) return status;
+  if (!status) {
+    // With the card checked at load, what fails here is the network itself
+    // (not an ONNX file, or not the model the card describes).
+    if (c.modules.semantic && status.error().find("semantic") != std::string::npos)
+      return Error{"field 'modules.semantic_model_card' (card " + c.semantic_model.card_path + ", model " +
+                   c.semantic_model.model_path + "): " + status.error()};
+    return status;
+  }
+  if (c.modules.semantic)
+    SP_INFO(logger, "semantic module: " << c.semantic_model.name << " (" << c.semantic_model.reason << "), model "
+                                        << c.semantic_model.model_path);
   runPlaced("sp-publisher", c.threads.publisher, d.available_cores, "threads.publisher", [&] {
     auto publisher = ipc::Publisher::create(c.ipc);
     if (!publisher) status = Error{"ipc: " + publisher.error()};
@@ -217,7 +236,7 @@ void Daemon::Impl::trackingLoop() {
   while (!queue->closedAndEmpty()) {
     std::optional<platform::CameraFrame> frame = queue->pop(100ms);
     if (!frame) continue;
-    auto out = system->track({frame->stamp, frame->gray, frame->depth_m});
+    auto out = system->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
     if (!out) {
       ++frames_bad;
       SP_WARN_EVERY(logger, limiter, "tracking: frame skipped: " << out.error());
@@ -303,6 +322,20 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
                  frames_lost.load(), frames_bad.load(), queue->dropped(), queue->discarded(), keyframes.load(),
                  reconnects.load(), latency.quantile(0.5), latency.quantile(0.99), latency.max(), ps.sent, ps.dropped,
                  wall_s, shutdown_ms);
+    if (config.modules.semantic) {
+      const slam::MapStats m = system->mapStats();
+      std::fprintf(f,
+                   "semantic_model=%s\nsemantic_keyframes_segmented=%d\nsemantic_keyframes_dropped=%d\n"
+                   "semantic_keyframes_no_colour=%d\nsemantic_failures=%d\nsemantic_instances_applied=%d\n"
+                   "semantic_features_removed=%d\nsemantic_points_removed=%d\nsemantic_points_culled=%d\n"
+                   "segmentation_ms_median=%.1f\nsegmentation_ms_p95=%.1f\nsemantic_latency_ms_median=%.1f\n"
+                   "semantic_latency_ms_p95=%.1f\n",
+                   m.semantic_model.c_str(), m.semantic_keyframes_segmented, m.semantic_keyframes_dropped,
+                   m.semantic_keyframes_no_colour, m.semantic_failures, m.semantic_instances_applied,
+                   m.semantic_features_removed, m.semantic_points_removed, m.semantic_points_culled,
+                   m.segmentation_ms_median, m.segmentation_ms_p95, m.semantic_latency_ms_median,
+                   m.semantic_latency_ms_p95);
+    }
     if (std::fclose(f) != 0) result = Error{"cannot write " + config.output.status};
   }
   return result;
@@ -383,6 +416,13 @@ int Daemon::run() {
     return 1;
   }
   SP_INFO(logger, "stopped after " << shutdown_ms << " ms; " << d.frames_processed << " frames processed");
+  if (d.config.modules.semantic) {
+    const slam::MapStats m = d.system->mapStats();
+    SP_INFO(logger, "semantic: " << m.semantic_keyframes_segmented << " keyframes segmented, "
+                                 << m.semantic_keyframes_dropped << " dropped (queue full), "
+                                 << m.semantic_keyframes_no_colour << " without colour; keyframe -> mask median "
+                                 << m.semantic_latency_ms_median << " ms, p95 " << m.semantic_latency_ms_p95 << " ms");
+  }
   return d.frames_processed > 0 || reason == "signal" ? 0 : 1;
 }
 

@@ -65,4 +65,19 @@ std::vector<std::string> placeCurrentThread(const std::string& name, const Threa
   return warnings;
 }
 
+void clearInheritedPlacement(const std::vector<int>& available) {
+  if (!available.empty()) {
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    for (int c : available) CPU_SET(c, &set);
+    pthread_setaffinity_np(pthread_self(), sizeof(set), &set);
+  }
+  int policy = SCHED_OTHER;
+  sched_param param{};
+  if (pthread_getschedparam(pthread_self(), &policy, &param) == 0 && policy != SCHED_OTHER) {
+    param.sched_priority = 0;
+    pthread_setschedparam(pthread_self(), SCHED_OTHER, &param);
+  }
+}
+
 }  // namespace stillpoint::daemon

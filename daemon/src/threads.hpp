@@ -18,4 +18,9 @@ std::vector<int> availableCores();
 std::vector<std::string> placeCurrentThread(const std::string& name, const ThreadPlacement& placement,
                                             const std::vector<int>& available, const std::string& what);
 
+// For a thread started from a placed thread that is to be placed on its own:
+// undoes what it inherited (runs on every available core again, normal
+// scheduling) so that an empty placement means "not pinned" for it too.
+void clearInheritedPlacement(const std::vector<int>& available);
+
 }  // namespace stillpoint::daemon

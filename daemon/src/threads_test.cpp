@@ -55,5 +55,27 @@ TEST(ThreadsTest, AbsentCoreDegradesWithAWarning) {
   t.join();
 }
 
+TEST(ThreadsTest, ClearingTheInheritedPlacementUnpins) {
+  const std::vector<int> available = availableCores();
+  ASSERT_FALSE(available.empty());
+  std::thread parent([&] {
+    ThreadPlacement p;
+    p.cores = {available.front()};
+    EXPECT_TRUE(placeCurrentThread("sp-parent", p, available, "threads.mapping").empty());
+    std::thread child([&] {  // inherits the parent's single core...
+      cpu_set_t set;
+      CPU_ZERO(&set);
+      sched_getaffinity(0, sizeof set, &set);
+      EXPECT_EQ(CPU_COUNT(&set), 1);
+      clearInheritedPlacement(available);  // ...until it clears it
+      CPU_ZERO(&set);
+      sched_getaffinity(0, sizeof set, &set);
+      EXPECT_EQ(CPU_COUNT(&set), static_cast<int>(available.size()));
+    });
+    child.join();
+  });
+  parent.join();
+}
+
 }  // namespace
 }  // namespace stillpoint::daemon
