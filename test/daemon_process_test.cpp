@@ -655,16 +655,14 @@ int runProgram(const std::vector<std::string>& args, const std::vector<std::stri
 // through OpenNI2Source (file URI) and compare with the sequence, then run
 // stillpointd on the recording. The player needs the streams' cropping
 // property (the replay driver has it) or playback yields no frames.
-TEST_F(DaemonProcess, OniRecordingPlaysBackThroughOpenNI2) {
-  if (!fs::exists(oniFileDriver())) GTEST_SKIP() << "no .oni player driver at " << oniFileDriver();
-  const auto d = dir("oni_record");
-  const auto env = openni2Env(d, g_fast_seq, "", /*file_player=*/true);
+void checkOniRoundTrip(const fs::path& d, const std::string& sequence, const std::string& camera, int kFrames,
+                       const std::string& ring) {
+  const auto env = openni2Env(d, sequence, "", /*file_player=*/true);
   const std::string oni = (d / "rec.oni").string();
-  constexpr int kFrames = 20;
   ASSERT_EQ(runProgram({STILLPOINT_ONI_TOOL, "record", oni, std::to_string(kFrames)}, env, d / "record.txt", 60s), 0)
       << readFile(d / "record.txt.err");
   ASSERT_GT(fs::file_size(oni), 0u);
-  ASSERT_EQ(runProgram({STILLPOINT_ONI_TOOL, "dump", oni, (d / "dump").string(), g_camera}, env, d / "dump.txt", 60s),
+  ASSERT_EQ(runProgram({STILLPOINT_ONI_TOOL, "dump", oni, (d / "dump").string(), camera}, env, d / "dump.txt", 60s),
             0)
       << readFile(d / "dump.txt.err");
   EXPECT_EQ(readFile(d / "dump.txt"), "frames=" + std::to_string(kFrames) + "\n");
@@ -675,7 +673,7 @@ TEST_F(DaemonProcess, OniRecordingPlaysBackThroughOpenNI2) {
   // played stamps are the sequence's minus the first recorded one.
   stillpoint::dataset::DatasetOptions original_options;
   original_options.depth_factor = 5000.0;
-  auto original = stillpoint::dataset::TumDataset::open(g_fast_seq, original_options);
+  auto original = stillpoint::dataset::TumDataset::open(sequence, original_options);
   ASSERT_TRUE(original) << original.error();
   stillpoint::dataset::DatasetOptions dump_options;
   dump_options.depth_factor = 1000.0;  // the dump writes 1 mm units
@@ -703,13 +701,14 @@ TEST_F(DaemonProcess, OniRecordingPlaysBackThroughOpenNI2) {
     max_depth_error = std::max(max_depth_error, worst);
     EXPECT_EQ(cv::countNonZero(p->depth_m > 0), cv::countNonZero(o->depth_m > 0)) << "depth holes of frame " << i;
   }
-  std::printf(".oni round trip: %d frames, largest depth difference %.6f m\n", kFrames, max_depth_error);
+  std::printf(".oni round trip of %s: %d frames, largest depth difference %.6f m\n", sequence.c_str(), kFrames,
+              max_depth_error);
   EXPECT_LE(max_depth_error, 0.0005 + 1e-6);
 
   // stillpointd on the recording: it plays once and the daemon stops at its end.
-  const std::string r = ring("oni_record");
+  const std::string& r = ring;
   Daemon daemon(d,
-                "camera: " + g_camera + "\nsource: {type: openni2, openni2: {uri: " + oni +
+                "camera: " + camera + "\nsource: {type: openni2, openni2: {uri: " + oni +
                     "}}\noutput: {status: " + (d / "status.txt").string() + "}\nipc: {shm: {name: " + r + "}}\n",
                 env);
   ASSERT_EQ(daemon.waitExit(60s), 0) << daemon.err();
@@ -719,6 +718,19 @@ TEST_F(DaemonProcess, OniRecordingPlaysBackThroughOpenNI2) {
   EXPECT_EQ(std::stoul(status.at("frames_processed")) + std::stoul(status.at("frames_dropped")),
             static_cast<unsigned long>(kFrames));
   EXPECT_GE(readPoses(r, 1, 2s).size(), 1u);
+}
+
+TEST_F(DaemonProcess, OniRecordingPlaysBackThroughOpenNI2) {
+  if (!fs::exists(oniFileDriver())) GTEST_SKIP() << "no .oni player driver at " << oniFileDriver();
+  checkOniRoundTrip(dir("oni_record"), g_fast_seq, g_camera, 20, ring("oni_record"));
+}
+
+// The same with the real excerpt's depth (not whole millimetres: the 1 mm quantisation shows).
+TEST_F(DaemonProcess, OniRecordingOfTheRealExcerpt) {
+  if (!fs::exists(oniFileDriver())) GTEST_SKIP() << "no .oni player driver at " << oniFileDriver();
+  const fs::path seq = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
+  if (!fs::exists(seq / "rgb.txt")) GTEST_SKIP() << "no " << seq;
+  checkOniRoundTrip(dir("oni_record_teddy"), seq.string(), "fr3", 60, ring("oni_record_teddy"));
 }
 
 }  // namespace

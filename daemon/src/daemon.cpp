@@ -200,7 +200,7 @@ void Daemon::Impl::sourceLoop(std::stop_token stop) {
       ++frames_bad;
       SP_WARN(logger, "source: skipping " << r.message);
     } else if (r.event == platform::SourceEvent::kEnd) {
-      SP_INFO(logger, "source: end of recording");
+      SP_INFO(logger, "source: end of recording" << (r.message.empty() ? "" : " (" + r.message + ")"));
       break;
     } else if (r.event == platform::SourceEvent::kDeviceGone) {
       device_gone = true;

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cstdint>
 #include <mutex>
+#include <vector>
 
 #include <opencv2/imgproc.hpp>
 
@@ -116,6 +117,7 @@ Status OpenNI2Source::open() {
     openni::OpenNI::removeDeviceDisconnectedListener(impl.get());
     return s;
   }
+  impl->last_read = std::chrono::steady_clock::now();
   impl_ = std::move(impl);
   return {};
 }
@@ -125,6 +127,20 @@ void OpenNI2Source::close() {
   openni::OpenNI::removeDeviceDisconnectedListener(impl_.get());
   impl_->colour.stop();
   impl_->depth.stop();
+  if (impl_->file) {
+    // Debian's .oni player (OniFile, OpenNI2 2.2) walks its stream list in its
+    // player thread without a lock while destroying a stream removes from it:
+    // destroying the streams of a playing file crashed the daemon about once
+    // in ten runs. Stopped streams are safe, so a played recording's device
+    // and streams stay open (idle) until the process exits; OpenNI's own
+    // shutdown stops the player thread before it frees the streams. One
+    // device per opened recording, and the daemon opens a recording once.
+    static std::mutex parked_mutex;
+    static auto* parked = new std::vector<std::unique_ptr<Impl>>();  // never freed; reachable (not a leak to LSan)
+    std::lock_guard lock(parked_mutex);
+    parked->push_back(std::move(impl_));
+    return;
+  }
   impl_->colour.destroy();
   impl_->depth.destroy();
   impl_->device.close();
@@ -145,10 +161,10 @@ SourceResult OpenNI2Source::next(CameraFrame& frame, std::chrono::milliseconds t
     const openni::Status st = openni::OpenNI::waitForAnyStream(streams, 2, &ready, static_cast<int>(left.count()));
     if (st == openni::STATUS_TIME_OUT) {
       // Frames the player dropped are never read: a recording silent for a
-      // second after it started has ended too.
-      if (impl_->file && impl_->colour_read + impl_->depth_read > 0 &&
-          std::chrono::steady_clock::now() - impl_->last_read > std::chrono::seconds(1))
-        return {SourceEvent::kEnd, ""};
+      // second has ended too (or plays nothing: streams without the cropping
+      // property, e.g. recorded from a driver lacking it, yield no frames).
+      if (impl_->file && std::chrono::steady_clock::now() - impl_->last_read > std::chrono::seconds(1))
+        return {SourceEvent::kEnd, impl_->colour_read + impl_->depth_read == 0 ? "the recording yielded no frames" : ""};
       return {SourceEvent::kTimeout, ""};
     }
     if (st != openni::STATUS_OK || ready < 0) {

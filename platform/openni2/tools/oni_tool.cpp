@@ -20,6 +20,7 @@
 #include <fstream>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -103,10 +104,10 @@ int dump(const std::string& in, const fs::path& dir, const std::string& camera_s
     std::fprintf(stderr, "stillpoint-oni: %s\n", s.error().c_str());
     return 1;
   }
-  fs::create_directories(dir / "rgb");
-  fs::create_directories(dir / "depth");
-  std::ofstream rgb_list(dir / "rgb.txt"), depth_list(dir / "depth.txt");
-  int frames = 0;
+  // Frames are kept in memory and written at the end: the player runs at the
+  // recorded rate and a stream holds only its newest frame, so a reader slowed
+  // down by PNG encoding would lose frames.
+  std::vector<stillpoint::platform::CameraFrame> frames;
   const auto until = std::chrono::steady_clock::now() + 120s;
   while (std::chrono::steady_clock::now() < until) {
     stillpoint::platform::CameraFrame frame;
@@ -118,9 +119,16 @@ int dump(const std::string& in, const fs::path& dir, const std::string& camera_s
       return 1;
     }
     if (frame.bgr.empty()) {
-      std::fprintf(stderr, "stillpoint-oni: frame %d without colour\n", frames);
+      std::fprintf(stderr, "stillpoint-oni: frame %zu without colour\n", frames.size());
       return 1;
     }
+    frames.push_back(std::move(frame));
+  }
+  source.close();
+  fs::create_directories(dir / "rgb");
+  fs::create_directories(dir / "depth");
+  std::ofstream rgb_list(dir / "rgb.txt"), depth_list(dir / "depth.txt");
+  for (const auto& frame : frames) {
     const std::string stamp = frame.stamp.toSecondsString();
     cv::Mat mm;
     frame.depth_m.convertTo(mm, CV_16UC1, 1000.0);
@@ -131,10 +139,8 @@ int dump(const std::string& in, const fs::path& dir, const std::string& camera_s
     }
     rgb_list << stamp << " rgb/" << stamp << ".png\n";
     depth_list << stamp << " depth/" << stamp << ".png\n";
-    ++frames;
   }
-  source.close();
-  std::printf("frames=%d\n", frames);
+  std::printf("frames=%zu\n", frames.size());
   return 0;
 }
 
