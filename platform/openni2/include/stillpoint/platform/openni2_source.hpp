@@ -20,7 +20,9 @@ class OpenNI2Source final : public RgbdSource {
   OpenNI2Source(OpenNI2SourceOptions options, CameraModel camera);
   ~OpenNI2Source() override;
   // 640x480@30 colour and depth, depth registered to colour, frame sync on,
-  // mirroring off. Errors carry OpenNI's extended error text.
+  // mirroring off. Errors carry OpenNI's extended error text. A .oni file is
+  // played once with the modes it was recorded with; next() reports kEnd at
+  // its end (see platform/README.md).
   Status open() override;
   SourceResult next(CameraFrame& frame, std::chrono::milliseconds timeout) override;
   void close() override;
