@@ -185,6 +185,9 @@ Status Daemon::start() {
 void Daemon::Impl::sourceLoop(std::stop_token stop) {
   logWarnings(placeCurrentThread("sp-source", config.threads.source, available_cores, "threads.source"));
   auto backoff = 100ms;
+  // A camera can report many bad frames a second (e.g. a stalled depth stream
+  // of the v4l2 source): warn at most every 2 s; frames_bad counts them all.
+  log::RateLimiter bad_frames(2s);
   while (!stop.stop_requested()) {
     platform::CameraFrame frame;
     const platform::SourceResult r = source->next(frame, 100ms);
@@ -198,7 +201,7 @@ void Daemon::Impl::sourceLoop(std::stop_token stop) {
       queue->push(std::move(frame));
     } else if (r.event == platform::SourceEvent::kBadFrame) {
       ++frames_bad;
-      SP_WARN(logger, "source: skipping " << r.message);
+      SP_WARN_EVERY(logger, bad_frames, "source: skipping " << r.message << " (" << frames_bad.load() << " so far)");
     } else if (r.event == platform::SourceEvent::kEnd) {
       SP_INFO(logger, "source: end of recording" << (r.message.empty() ? "" : " (" + r.message + ")"));
       break;
