@@ -38,7 +38,7 @@ constexpr const char* kUsage =
     "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
     "(default: as the config enables them; listed modules are on, the others off).\n"
     "--features-out writes every feature the geometry module judged, one line\n"
-    "'timestamp u v dynamic(0|1)', for stillpoint-synth score.\n"
+    "'timestamp u v dynamic(0|1) cluster chi2', for stillpoint-synth score.\n"
     "--keyframes-out writes the features of every segmented keyframe after the run, one line\n"
     "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
     "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n";
@@ -187,7 +187,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.features_out.c_str());
       return 1;
     }
-    std::fputs("# timestamp u v dynamic: features matched in tracking stage 1, judged by the geometry module\n",
+    std::fputs("# timestamp u v dynamic cluster chi2: features judged by the geometry module (cluster label,\n# squared reprojection error / sigma^2 against the initial pose)\n",
                features_out);
   }
 
@@ -248,7 +248,8 @@ int main(int argc, char** argv) {
       dynamic_features += g.dynamic_features;
       if (features_out)
         for (const slam::JudgedFeature& f : g.judged)
-          std::fprintf(features_out, "%s %.2f %.2f %d\n", frame->stamp.toSecondsString().c_str(), f.u, f.v, f.dynamic);
+          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f\n", frame->stamp.toSecondsString().c_str(), f.u, f.v,
+                       f.dynamic, f.cluster, f.chi2);
     }
     switch (out->state) {
       case slam::TrackingState::kOk:

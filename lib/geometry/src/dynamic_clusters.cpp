@@ -13,6 +13,9 @@ Status DynamicClusterOptions::validate() const {
   if (!(relative_factor >= 1)) return Error{"geometry.relative_factor must be >= 1"};
   if (!(absolute_floor >= 0)) return Error{"geometry.absolute_floor must be >= 0"};
   if (!(ceiling_fraction > 0 && ceiling_fraction <= 1)) return Error{"geometry.ceiling_fraction must be in (0, 1]"};
+  if (!(hold_fraction > 0 && hold_fraction <= 1)) return Error{"geometry.hold_fraction must be in (0, 1] (1: all)"};
+  if (!(hold_factor >= 1)) return Error{"geometry.hold_factor must be >= 1"};
+  if (!(hold_floor >= 0)) return Error{"geometry.hold_floor must be >= 0"};
   return Status::success();
 }
 
@@ -22,15 +25,30 @@ ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, i
                                 const DynamicClusterOptions& options) {
   ClusterVerdict verdict;
   verdict.clusters.assign(std::max(0, clusters), {});
+  std::vector<std::vector<double>> rhos(verdict.clusters.size());
   for (const FeatureResidual& r : residuals) {
     if (r.cluster < 0 || r.cluster >= clusters) continue;
     ClusterScore& c = verdict.clusters[r.cluster];
     ++c.features;
-    c.mean_rho += truncatedRho(r.chi2, options.rho_cap);
+    c.inherited += r.inherited;
+    rhos[r.cluster].push_back(truncatedRho(r.chi2, options.rho_cap));
   }
   std::vector<double> judged;
-  for (ClusterScore& c : verdict.clusters) {
-    if (c.features > 0) c.mean_rho /= c.features;
+  for (std::size_t k = 0; k < verdict.clusters.size(); ++k) {
+    ClusterScore& c = verdict.clusters[k];
+    std::vector<double>& v = rhos[k];
+    if (v.empty()) {
+      c.mean_rho = 0;
+    } else if (options.median) {
+      const auto mid = v.begin() + v.size() / 2;
+      std::nth_element(v.begin(), mid, v.end());
+      c.mean_rho = *mid;
+      if (v.size() % 2 == 0) c.mean_rho = 0.5 * (c.mean_rho + *std::max_element(v.begin(), mid));
+    } else {
+      double sum = 0;
+      for (double x : v) sum += x;
+      c.mean_rho = sum / v.size();
+    }
     c.judged = c.features >= options.min_features;
     if (c.judged) judged.push_back(c.mean_rho);
   }
@@ -40,8 +58,11 @@ ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, i
   verdict.reference = judged[q];
   verdict.threshold = std::min(std::max(options.absolute_floor, options.relative_factor * verdict.reference),
                                std::max(options.absolute_floor, options.ceiling_fraction * options.rho_cap));
+  verdict.hold_threshold =
+      std::min(verdict.threshold, std::max(options.hold_floor, options.hold_factor * verdict.reference));
   for (ClusterScore& c : verdict.clusters) {
-    c.dynamic = c.judged && c.mean_rho > verdict.threshold;
+    const bool held = c.inherited >= options.hold_fraction * c.features && c.mean_rho > verdict.hold_threshold;
+    c.dynamic = c.judged && (c.mean_rho > verdict.threshold || held);
     verdict.dynamic_clusters += c.dynamic;
   }
   return verdict;

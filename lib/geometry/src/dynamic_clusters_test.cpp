@@ -48,6 +48,29 @@ TEST(DynamicClusters, OneMovingClusterIsFlagged) {
   EXPECT_GT(v.clusters[5].mean_rho, v.threshold);
 }
 
+TEST(DynamicClusters, MemoryHoldsASlowingMoverOnly) {
+  // A mover slowing down (1.7 px of error: a mean rho between the static
+  // level and the fresh-mover threshold) stays dynamic while its features
+  // were dynamic before; the same cluster without that history does not, and
+  // a formerly dynamic cluster that now looks static is released.
+  std::mt19937 rng(5);
+  std::vector<FeatureResidual> r;
+  for (int j = 0; j < 24; ++j) {
+    if (j == 3 || j == 4)
+      addMoving(&r, j, 30, 1.7, &rng);
+    else
+      addStatic(&r, j, 30, &rng);
+  }
+  for (FeatureResidual& f : r) f.inherited = f.cluster == 3 || f.cluster == 7;
+  const ClusterVerdict v = classifyClusters(r, 24, {});
+  EXPECT_LT(v.clusters[3].mean_rho, v.threshold);
+  EXPECT_GT(v.clusters[3].mean_rho, v.hold_threshold);
+  EXPECT_TRUE(v.clusters[3].dynamic);   // moving a little, and known to move
+  EXPECT_FALSE(v.clusters[4].dynamic);  // moving a little, no history
+  EXPECT_FALSE(v.clusters[7].dynamic);  // history, but static now
+  EXPECT_EQ(v.dynamic_clusters, 1);
+}
+
 TEST(DynamicClusters, MoverCoveringHalfTheImage) {
   std::mt19937 rng(3);
   std::vector<FeatureResidual> r;

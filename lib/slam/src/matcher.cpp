@@ -147,16 +147,19 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
 }
 
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const KeyFrame& keyframe, float ratio) {
+  return matchByDescriptor(current, keyframe.frame, ratio, true);
+}
+
+std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const Frame& kf, float ratio,
+                                                   bool need_point) {
   // Frame keypoints by level so a map point only meets candidates of nearby
   // scale; brute force is affordable at ~1000 x ~1000 with popcount.
   std::vector<float> rotations;
   std::vector<int> matched;
   std::vector<int> best_for_frame(current.size(), 256);
   std::vector<int> owner(current.size(), -1);
-  const Frame& kf = keyframe.frame;
   for (int i = 0; i < kf.size(); ++i) {
-    const auto& point = kf.points[i];
-    if (!point || point->bad) continue;
+    if (need_point ? !kf.points[i] || kf.points[i]->bad : !(kf.depth[i] > 0)) continue;
     const std::uint8_t* d_kf = kf.descriptor(i);
     int best = 256, second = 256, best_idx = -1;
     for (int j = 0; j < current.size(); ++j) {

@@ -26,6 +26,10 @@ int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio);
 // The same matching, returned as (frame keypoint, keyframe keypoint) pairs
 // without touching the frame.
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const KeyFrame& keyframe, float ratio);
+// The same between two frames: keypoints of `other` take part when they hold
+// a map point (`need_point`) or a depth (otherwise).
+std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const Frame& other, float ratio,
+                                                   bool need_point);
 
 // Projects `points` into `kf` and fuses: adds observations for unmatched
 // keypoints, merges duplicates. Returns the number fused or added.

@@ -45,6 +45,8 @@ Status GeometryOptions::validate() const {
   if (!(deadline_ms > 0 && deadline_ms <= 1000)) return Error{"geometry.deadline_ms must be in (0, 1000]"};
   if (!(point_dynamic_weight > 0 && point_dynamic_weight <= 1))
     return Error{"geometry.point_dynamic_weight must be in (0, 1]"};
+  if (!(depth_sigma_at_1m >= 0 && depth_sigma_at_1m < 1)) return Error{"geometry.depth_sigma_at_1m must be in [0, 1)"};
+  if (anchor_frames < 0 || anchor_frames > 30) return Error{"geometry.anchor_frames must be in [0, 30]"};
   return Status::success();
 }
 
@@ -116,13 +118,19 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "kmeans_converged_fraction", o.geometry.clustering.converged_fraction);
   v("geometry", "warm_start", o.geometry.clustering.warm_start);
   v("geometry", "rho_cap", o.geometry.verdict.rho_cap);
+  v("geometry", "median", o.geometry.verdict.median);
   v("geometry", "min_features", o.geometry.verdict.min_features);
   v("geometry", "reference_quantile", o.geometry.verdict.reference_quantile);
   v("geometry", "relative_factor", o.geometry.verdict.relative_factor);
   v("geometry", "absolute_floor", o.geometry.verdict.absolute_floor);
   v("geometry", "ceiling_fraction", o.geometry.verdict.ceiling_fraction);
+  v("geometry", "hold_fraction", o.geometry.verdict.hold_fraction);
+  v("geometry", "hold_factor", o.geometry.verdict.hold_factor);
+  v("geometry", "hold_floor", o.geometry.verdict.hold_floor);
   v("geometry", "deadline_ms", o.geometry.deadline_ms);
   v("geometry", "point_dynamic_weight", o.geometry.point_dynamic_weight);
+  v("geometry", "anchor_frames", o.geometry.anchor_frames);
+  v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
   v("semantic", "enabled", o.semantic.enabled);
   v("semantic", "model_card", o.semantic.model_card);
   v("semantic", "model_dirs", o.semantic.model_dirs);

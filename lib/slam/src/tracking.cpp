@@ -106,6 +106,10 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   out->tracked = ok ? inliers_ : 0;
   out->new_keyframe = new_keyframe != nullptr;
   out->geometry = std::move(geometry_);
+  if (ok)
+    rememberAnchor();
+  else
+    anchors_.clear();
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
@@ -225,25 +229,44 @@ void Tracker::removeDynamicFeatures() {
     if (!evidence[i] && carried_[i]) evidence[i] = carried_[i];
   // Only where stage 1 has no map point: a map-point match already measures
   // the motion since mapping, and window-free matching has more mismatches.
-  if (reference_ && !reference_->bad)
+  if (anchors_.empty() && reference_ && !reference_->bad)
     for (const auto& [j, i] : matchByDescriptor(current_, *reference_, 0.7f))
       if (!evidence[j] || evidence[j]->isTemporary()) evidence[j] = reference_->frame.points[i];
-  std::vector<geometry::FeatureResidual> residuals;
-  std::vector<int> matched;
+  // The anchor frame's depth point wins over all of these: its baseline is
+  // fixed, so a slow mover's error is not one frame's motion.
+  std::vector<Vec3> anchor_point(current_.size());
+  std::vector<char> has_anchor(current_.size(), 0);
+  // Matched to a feature that lay in a dynamic cluster (anchor or last frame).
+  std::vector<char> inherited(current_.size(), 0);
+  for (std::size_t i = 0; i < carried_.size(); ++i) inherited[i] = carried_[i] != nullptr;
+  if (!anchors_.empty()) {
+    const Frame& anchor = anchors_.front();
+    for (const auto& [j, i] : matchByDescriptor(current_, anchor, 0.7f, false)) {
+      anchor_point[j] = anchor.unprojectToWorld(i);
+      has_anchor[j] = 1;
+      inherited[j] |= anchor.dynamic[i];
+    }
+  }
+  std::vector<int> anchored_in_cluster(clusters->clusters, 0);
   for (int i = 0; i < current_.size(); ++i) {
     const cv::Point2f& px = current_.keys[i].pt;
     current_.cluster[i] = static_cast<std::int16_t>(clusters->labelAt(camera_, px.x, px.y, current_.depth[i]));
+    if (current_.cluster[i] >= 0 && has_anchor[i]) ++anchored_in_cluster[current_.cluster[i]];
+  }
+
+  // A cluster with enough anchor matches is judged by them alone (fixed
+  // baseline); the others by whatever evidence their features have.
+  const int min_features = options_.geometry.verdict.min_features;
+  std::vector<geometry::FeatureResidual> residuals;
+  std::vector<int> matched;
+  for (int i = 0; i < current_.size(); ++i) {
+    const int c = current_.cluster[i];
+    if (c < 0) continue;
     const auto& p = evidence[i];
-    if (!p || p->bad || current_.cluster[i] < 0) continue;
-    Observation obs;
-    obs.u = current_.un[i].x;
-    obs.v = current_.un[i].y;
-    obs.u_right = current_.u_right[i];
-    obs.inv_sigma = 1.0 / levels_.scales[current_.keys[i].octave];
-    bool behind = false;
-    double chi2 = reprojectionChi2(camera_, current_.T_c_w, p->position, obs, &behind);
-    if (behind) chi2 = 1e6;
-    residuals.push_back({current_.cluster[i], chi2});
+    const bool by_anchor = has_anchor[i];
+    if (!by_anchor && (anchored_in_cluster[c] >= min_features || !p || p->bad)) continue;
+    const double chi2 = evidenceChi2(i, by_anchor ? anchor_point[i] : p->position);
+    residuals.push_back({c, chi2, inherited[i] != 0});
     matched.push_back(i);
   }
   const geometry::ClusterVerdict verdict =
@@ -260,7 +283,7 @@ void Tracker::removeDynamicFeatures() {
     geometry_.judged.push_back({current_.keys[i].pt.x, current_.keys[i].pt.y, dynamic, current_.cluster[i],
                                 static_cast<float>(residuals[k].chi2)});
     const auto& p = evidence[i];
-    if (p->isTemporary()) continue;
+    if (!p || p->bad || p->isTemporary()) continue;
     const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
     p->dynamic_score.store(score, std::memory_order_relaxed);
     if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
@@ -275,6 +298,46 @@ void Tracker::removeDynamicFeatures() {
   }
   // The initial pose again, from the static features only.
   if (countMapInliers() >= 10) timedOptimizePose();
+}
+
+double Tracker::evidenceChi2(int i, const Vec3& p_w) const {
+  // Image error at the keypoint's scale plus a depth term: by default the
+  // virtual-stereo coordinate of pose optimisation (a depth error dz counts
+  // bf dz / z^2 pixels: 1 px ~ 5 cm at 1.5 m), optionally the depth error at
+  // the sensor's scale, which sees motion along the ray but, on the real
+  // excerpt's noisy keypoint depths, flagged more static clusters (README).
+  const Vec3 p = current_.T_c_w * p_w;
+  if (p.z() <= 1e-6) return 1e6;
+  const double u = camera_.fx * p.x() / p.z() + camera_.cx, v = camera_.fy * p.y() / p.z() + camera_.cy;
+  const double du = u - current_.un[i].x, dv = v - current_.un[i].y;
+  double chi2 = (du * du + dv * dv) * levels_.inv_sigma2[current_.keys[i].octave];
+  const double z = current_.depth[i];
+  if (z > 0 && options_.geometry.depth_sigma_at_1m > 0) {
+    const double sigma = options_.geometry.depth_sigma_at_1m * z * z;
+    chi2 += (p.z() - z) * (p.z() - z) / (sigma * sigma);
+  } else if (current_.u_right[i] >= 0) {
+    const double ur = u - camera_.bf() / p.z() - current_.u_right[i];
+    chi2 += ur * ur * levels_.inv_sigma2[current_.keys[i].octave];
+  }
+  return chi2;
+}
+
+void Tracker::rememberAnchor() {
+  const auto keep = static_cast<std::size_t>(options_.geometry.anchor_frames);
+  if (!clustering_ || keep == 0) return;
+  Frame a;
+  a.id = current_.id;
+  a.stamp = current_.stamp;
+  a.camera = current_.camera;
+  a.levels = current_.levels;
+  a.keys = current_.keys;
+  a.un = current_.un;
+  a.depth = current_.depth;
+  a.descriptors = current_.descriptors;  // shared, never written after extraction
+  a.dynamic = current_.dynamic;
+  a.T_c_w = current_.T_c_w;
+  anchors_.push_back(std::move(a));
+  while (anchors_.size() > keep) anchors_.pop_front();
 }
 
 int Tracker::setAsideCarried() {

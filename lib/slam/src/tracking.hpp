@@ -1,6 +1,7 @@
 #pragma once
 // Frame-to-map tracking: motion model, reference keyframe, local map,
 // relocalisation, and the keyframe decision.
+#include <deque>
 #include <memory>
 #include <vector>
 
@@ -76,6 +77,14 @@ class Tracker {
   // Stage-1 matches to last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
   int setAsideCarried();
+  // The last geometry.anchor_frames tracked frames (keypoints, descriptors,
+  // depth, final pose; no matches), oldest first: the geometry module's
+  // evidence baseline. Cleared when tracking is lost.
+  std::deque<Frame> anchors_;
+  void rememberAnchor();
+  // Squared error of feature i of the current frame against world point p_w
+  // under the current pose, in units of its measurement sigma (3 dof with depth).
+  double evidenceChi2(int i, const Vec3& p_w) const;
 };
 
 }  // namespace stillpoint::slam

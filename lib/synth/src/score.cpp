@@ -1,6 +1,7 @@
 #include "stillpoint/synth/score.hpp"
 
 #include <cmath>
+#include <cstdlib>
 #include <exception>
 #include <filesystem>
 #include <fstream>
@@ -20,6 +21,12 @@ double ratio(int a, int b) { return b > 0 ? static_cast<double>(a) / b : kNaN; }
 bool isSkippable(const std::string& line) {
   const auto p = line.find_first_not_of(" \t\r");
   return p == std::string::npos || line[p] == '#';
+}
+
+bool isNumber(const std::string& text) {
+  char* end = nullptr;
+  std::strtod(text.c_str(), &end);
+  return end != text.c_str() && *end == '\0';
 }
 
 }  // namespace
@@ -118,7 +125,9 @@ Result<std::map<Timestamp, std::vector<FlaggedFeature>>> readFlaggedFeatures(con
     if (!(ss >> stamp_text >> f.u >> f.v >> flagged)) {
       return Error{where + "expected 'timestamp u v flagged(0/1)'"};
     }
-    if (ss >> extra) return Error{where + "unexpected extra field '" + extra + "'"};
+    // Further numeric columns (stillpoint-replay adds cluster and chi2) are allowed.
+    while (ss >> extra)
+      if (!isNumber(extra)) return Error{where + "unexpected extra field '" + extra + "'"};
     const std::optional<Timestamp> stamp = Timestamp::parseSeconds(stamp_text);
     if (!stamp) return Error{where + "bad timestamp '" + stamp_text + "'"};
     if (flagged != 0 && flagged != 1) return Error{where + "flagged must be 0 or 1"};

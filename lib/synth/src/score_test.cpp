@@ -114,6 +114,12 @@ TEST(Score, BadFilesNameFileAndLine) {
   r = scoreSequence(dir.string(), f, 10);
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.error().find("0 or 1"), std::string::npos) << r.error();
+  std::ofstream(f) << "1.000000 1 1 1 3 x\n";  // trailing columns must be numbers
+  r = scoreSequence(dir.string(), f, 10);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("extra field 'x'"), std::string::npos) << r.error();
+  std::ofstream(f) << "1.000000 1 1 1 3 2.5\n";  // cluster and chi2, as stillpoint-replay writes
+  EXPECT_TRUE(scoreSequence(dir.string(), f, 10).ok());
   std::ofstream(f) << "2.000000 1 1 1\n";
   r = scoreSequence(dir.string(), f, 10);
   ASSERT_FALSE(r.ok());

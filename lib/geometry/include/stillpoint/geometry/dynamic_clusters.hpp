@@ -19,6 +19,11 @@ struct DynamicClusterOptions {
   // Cauchy rho on three generated sequences it gives higher precision at
   // every recall (README, geometry module).
   double rho_cap = 7.815;  // chi-square 95 % at 3 DoF (u, v, depth)
+  // A cluster's score: the median of its features' rho (default), or their
+  // mean. Window-free matches on repetitive texture are 15-40 % gross
+  // mismatches; the mean then lifts static clusters to 0.4 x rho_cap, the
+  // median stays at the static level while a mover still scores rho_cap.
+  bool median = false;
   // Clusters with fewer matched features are not judged (stay static).
   int min_features = 4;
   // Dynamic when mean rho > clamp(relative_factor * reference, absolute_floor,
@@ -32,16 +37,25 @@ struct DynamicClusterOptions {
   // noisy frame would otherwise push the threshold above what any cluster
   // can score).
   double ceiling_fraction = 0.75;
+  // Memory: a cluster most of whose judged features were on a moving surface
+  // in an earlier frame (inherited) stays dynamic while its mean rho is above
+  // max(hold_floor, hold_factor * reference). A mover slowing down, turning
+  // or seen edge-on still shows some error, but less than a fresh one.
+  double hold_fraction = 0.5;
+  double hold_factor = 1.5;
+  double hold_floor = 3.0;
   Status validate() const;
 };
 
 struct FeatureResidual {
   int cluster = -1;  // < 0: no cluster (not counted)
   double chi2 = 0;   // squared reprojection error / sigma^2 of the keypoint's level
+  bool inherited = false;  // the feature it was matched to lay in a dynamic cluster
 };
 
 struct ClusterScore {
   int features = 0;
+  int inherited = 0;
   double mean_rho = 0;
   bool judged = false;   // enough features to decide
   bool dynamic = false;
@@ -51,6 +65,7 @@ struct ClusterVerdict {
   std::vector<ClusterScore> clusters;
   double reference = 0;  // the reference mean rho of this frame
   double threshold = 0;  // mean rho above which a judged cluster is dynamic
+  double hold_threshold = 0;  // ... or, for a mostly inherited cluster, above this
   int dynamic_clusters = 0;
 };
 

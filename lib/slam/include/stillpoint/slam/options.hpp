@@ -61,6 +61,15 @@ struct GeometryOptions {
   // A map point whose recent observations (exponentially weighted, each new
   // one counting this much) lie mostly in dynamic clusters is culled.
   double point_dynamic_weight = 0.5;
+  // Evidence baseline: features are matched (by descriptor, no search window)
+  // to the frame this many frames back and judged by the reprojection error
+  // of that frame's depth point under the initial pose. A mover's error grows
+  // with the baseline, a static point's does not. 0 = judge by the stage-1
+  // matches only (last frame or local map: one frame of motion).
+  int anchor_frames = 0;
+  // Depth part of the evidence error: sigma(z) = depth_sigma_at_1m * z^2.
+  // 0 = the virtual-stereo coordinate of pose optimisation instead.
+  double depth_sigma_at_1m = 0.0;
   Status validate() const;
 };
 
