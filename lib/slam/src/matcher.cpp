@@ -151,7 +151,7 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const K
 }
 
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const Frame& kf, float ratio,
-                                                   bool need_point) {
+                                                   bool need_point, bool mutual) {
   // Frame keypoints by level so a map point only meets candidates of nearby
   // scale; brute force is affordable at ~1000 x ~1000 with popcount.
   std::vector<float> rotations;
@@ -159,7 +159,7 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
   std::vector<int> best_for_frame(current.size(), 256);
   std::vector<int> owner(current.size(), -1);
   for (int i = 0; i < kf.size(); ++i) {
-    if (need_point ? !kf.points[i] || kf.points[i]->bad : !(kf.depth[i] > 0)) continue;
+    if (need_point ? !kf.points[i] || kf.points[i]->bad : !(kf.depth[i] > 0)) continue;  // see eligible below
     const std::uint8_t* d_kf = kf.descriptor(i);
     int best = 256, second = 256, best_idx = -1;
     for (int j = 0; j < current.size(); ++j) {
@@ -178,8 +178,17 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
     best_for_frame[best_idx] = best;
     owner[best_idx] = i;
   }
+  const auto eligible = [&](int i) { return need_point ? kf.points[i] && !kf.points[i]->bad : kf.depth[i] > 0; };
   for (int j = 0; j < current.size(); ++j) {
     if (owner[j] < 0) continue;
+    if (mutual) {
+      int best = best_for_frame[j];
+      bool own = true;
+      for (int i = 0; i < kf.size() && own; ++i)
+        own = i == owner[j] || !eligible(i) || std::abs(current.keys[j].octave - kf.keys[i].octave) > 2 ||
+              hammingDistance(kf.descriptor(i), current.descriptor(j)) >= best;
+      if (!own) continue;
+    }
     matched.push_back(j);
     rotations.push_back(kf.keys[owner[j]].angle - current.keys[j].angle);
   }

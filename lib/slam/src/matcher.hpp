@@ -27,9 +27,11 @@ int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio);
 // without touching the frame.
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const KeyFrame& keyframe, float ratio);
 // The same between two frames: keypoints of `other` take part when they hold
-// a map point (`need_point`) or a depth (otherwise).
+// a map point (`need_point`) or a depth (otherwise). `mutual` also asks that
+// the frame keypoint's own nearest neighbour in `other` is its match (fewer
+// mismatches on repetitive texture, at the cost of a second pass).
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const Frame& other, float ratio,
-                                                   bool need_point);
+                                                   bool need_point, bool mutual = false);
 
 // Projects `points` into `kf` and fuses: adds observations for unmatched
 // keypoints, merges duplicates. Returns the number fused or added.

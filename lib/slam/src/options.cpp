@@ -46,6 +46,8 @@ Status GeometryOptions::validate() const {
   if (!(point_dynamic_weight > 0 && point_dynamic_weight <= 1))
     return Error{"geometry.point_dynamic_weight must be in (0, 1]"};
   if (!(depth_sigma_at_1m >= 0 && depth_sigma_at_1m < 1)) return Error{"geometry.depth_sigma_at_1m must be in [0, 1)"};
+  if (!(max_dynamic_fraction > 0 && max_dynamic_fraction <= 1))
+    return Error{"geometry.max_dynamic_fraction must be in (0, 1]"};
   if (anchor_frames < 0 || anchor_frames > 30) return Error{"geometry.anchor_frames must be in [0, 30]"};
   return Status::success();
 }
@@ -130,6 +132,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "deadline_ms", o.geometry.deadline_ms);
   v("geometry", "point_dynamic_weight", o.geometry.point_dynamic_weight);
   v("geometry", "anchor_frames", o.geometry.anchor_frames);
+  v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
   v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
   v("semantic", "enabled", o.semantic.enabled);
   v("semantic", "model_card", o.semantic.model_card);

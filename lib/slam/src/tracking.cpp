@@ -241,7 +241,7 @@ void Tracker::removeDynamicFeatures() {
   for (std::size_t i = 0; i < carried_.size(); ++i) inherited[i] = carried_[i] != nullptr;
   if (!anchors_.empty()) {
     const Frame& anchor = anchors_.front();
-    for (const auto& [j, i] : matchByDescriptor(current_, anchor, 0.7f, false)) {
+    for (const auto& [j, i] : matchByDescriptor(current_, anchor, 0.7f, false, true)) {
       anchor_point[j] = anchor.unprojectToWorld(i);
       has_anchor[j] = 1;
       inherited[j] |= anchor.dynamic[i];
@@ -259,18 +259,35 @@ void Tracker::removeDynamicFeatures() {
   const int min_features = options_.geometry.verdict.min_features;
   std::vector<geometry::FeatureResidual> residuals;
   std::vector<int> matched;
-  for (int i = 0; i < current_.size(); ++i) {
-    const int c = current_.cluster[i];
-    if (c < 0) continue;
-    const auto& p = evidence[i];
-    const bool by_anchor = has_anchor[i];
-    if (!by_anchor && (anchored_in_cluster[c] >= min_features || !p || p->bad)) continue;
-    const double chi2 = evidenceChi2(i, by_anchor ? anchor_point[i] : p->position);
-    residuals.push_back({c, chi2, inherited[i] != 0});
-    matched.push_back(i);
+  const auto judge = [&](bool anchored) {
+    residuals.clear();
+    matched.clear();
+    for (int i = 0; i < current_.size(); ++i) {
+      const int c = current_.cluster[i];
+      if (c < 0) continue;
+      const auto& p = evidence[i];
+      const bool by_anchor = anchored && has_anchor[i];
+      if (!by_anchor && ((anchored && anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
+      const double chi2 = evidenceChi2(i, by_anchor ? anchor_point[i] : p->position);
+      residuals.push_back({c, chi2, inherited[i] != 0});
+      matched.push_back(i);
+    }
+    return geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
+  };
+  geometry::ClusterVerdict verdict = judge(!anchors_.empty());
+  // Anchor matches measure the initial pose independently of stage 1: when
+  // most of the view disagrees with it, the pose is what is wrong (stage 1
+  // had few map points), not the world; the frame is judged by its stage-1
+  // matches instead, which are consistent with the pose they produced.
+  if (!anchors_.empty()) {
+    int judged = 0, dynamic = 0;
+    for (const geometry::ClusterScore& c : verdict.clusters)
+      if (c.judged) judged += c.features, dynamic += c.dynamic ? c.features : 0;
+    if (dynamic > options_.geometry.max_dynamic_fraction * judged) {
+      verdict = judge(false);
+      geometry_.anchor_fallback = true;
+    }
   }
-  const geometry::ClusterVerdict verdict =
-      geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
   geometry_.ran = true;
   geometry_.scores = verdict.clusters;
   geometry_.threshold = verdict.threshold;

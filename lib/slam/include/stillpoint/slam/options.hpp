@@ -66,7 +66,11 @@ struct GeometryOptions {
   // of that frame's depth point under the initial pose. A mover's error grows
   // with the baseline, a static point's does not. 0 = judge by the stage-1
   // matches only (last frame or local map: one frame of motion).
-  int anchor_frames = 0;
+  int anchor_frames = 5;
+  // When clusters holding more than this share of the judged features come
+  // out dynamic under the anchor evidence, the initial pose is taken to be
+  // wrong and the frame is judged by its stage-1 matches instead.
+  double max_dynamic_fraction = 0.6;
   // Depth part of the evidence error: sigma(z) = depth_sigma_at_1m * z^2.
   // 0 = the virtual-stereo coordinate of pose optimisation instead.
   double depth_sigma_at_1m = 0.0;

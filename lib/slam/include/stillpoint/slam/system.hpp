@@ -59,6 +59,7 @@ struct GeometryOutput {
   int clusters = 0;
   int dynamic_clusters = 0;
   int dynamic_features = 0;      // features excluded from pose and mapping
+  bool anchor_fallback = false;  // judged by stage-1 matches: the anchor evidence disagreed with most of the view
   double threshold = 0;          // score above which a cluster was dynamic
   double clustering_ms = 0;      // K-Means time (in the module's thread)
   std::vector<geometry::ClusterScore> scores;
