@@ -150,6 +150,7 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
   top.read("log_level", &c->log_level);
   top.read("shutdown_timeout_s", &c->shutdown_timeout_s);
   top.read("status_period_s", &c->status_period_s);
+  top.read("lock_memory", &c->lock_memory);
 
   YAML::Node node;
   if (subsection(top, "source", &node, error) && node.IsDefined()) {
@@ -337,6 +338,7 @@ std::string toYaml(const DaemonConfig& c) {
   out << YAML::Key << "log_level" << YAML::Value << c.log_level;
   out << YAML::Key << "shutdown_timeout_s" << YAML::Value << c.shutdown_timeout_s;
   out << YAML::Key << "status_period_s" << YAML::Value << c.status_period_s;
+  out << YAML::Key << "lock_memory" << YAML::Value << c.lock_memory;
   out << YAML::Key << "source" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "type" << YAML::Value << c.source.type;
   out << YAML::Key << "queue_capacity" << YAML::Value << c.source.queue_capacity;

@@ -75,6 +75,7 @@ struct DaemonConfig {
   std::string log_level = "info";
   double shutdown_timeout_s = 5.0;  // a stop that takes longer forces exit (status 1)
   double status_period_s = 1.0;     // STATUS= and status messages
+  bool lock_memory = false;         // mlockall with CAP_IPC_LOCK or unlimited RLIMIT_MEMLOCK (threads.hpp); the shipped config turns it on
 };
 
 // Loads and validates the file; errors read "PATH: line N: field 'a.b': ...".

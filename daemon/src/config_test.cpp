@@ -55,6 +55,10 @@ TEST_F(ConfigTest, ShippedConfigLoads) {
   auto c = loadDaemonConfig(write(text));
   ASSERT_TRUE(c) << c.error();
   EXPECT_EQ(c->threads.tracking.cores, std::vector<int>{1});
+  EXPECT_TRUE(c->lock_memory);  // the robot's setting; the built-in default is off
+  auto bare = loadDaemonConfig(write("source: {replay: {path: /d}}\n"));
+  ASSERT_TRUE(bare) << bare.error();
+  EXPECT_FALSE(bare->lock_memory);
 }
 
 TEST_F(ConfigTest, PrintedConfigLoadsToTheSameConfig) {

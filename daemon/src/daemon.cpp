@@ -142,6 +142,11 @@ Status Daemon::start() {
   Impl& d = *impl_;
   const DaemonConfig& c = d.config;
   d.available_cores = availableCores();
+  if (c.lock_memory) {
+    bool locked = false;
+    logWarnings(lockMemory(&locked));
+    if (locked) SP_INFO(logger, "memory locked (mlockall)");
+  }
   if (c.source.type == "openni2") d.source = std::make_unique<platform::OpenNI2Source>(c.source.openni2, c.camera);
   else if (c.source.type == "v4l2") d.source = std::make_unique<platform::V4l2Source>(c.source.v4l2, c.camera);
   else d.source = std::make_unique<platform::ReplaySource>(c.source.replay, c.camera);

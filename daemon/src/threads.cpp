@@ -1,10 +1,13 @@
 #include "threads.hpp"
 
 #include <pthread.h>
+#include <sys/mman.h>
+#include <sys/resource.h>
 #include <sched.h>
 
 #include <cerrno>
 #include <cstring>
+#include <fstream>
 
 namespace stillpoint::daemon {
 
@@ -78,6 +81,28 @@ void clearInheritedPlacement(const std::vector<int>& available) {
     param.sched_priority = 0;
     pthread_setschedparam(pthread_self(), SCHED_OTHER, &param);
   }
+}
+
+bool hasIpcLockCapability() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("CapEff:", 0) == 0) return (std::stoull(line.substr(7), nullptr, 16) >> 14) & 1;  // CAP_IPC_LOCK
+  return false;
+}
+
+std::vector<std::string> lockMemory(bool* locked) {
+  *locked = false;
+  rlimit limit{};
+  if (getrlimit(RLIMIT_MEMLOCK, &limit) != 0)
+    return {std::string("lock_memory: getrlimit(RLIMIT_MEMLOCK) failed: ") + std::strerror(errno) + "; not locked"};
+  if (limit.rlim_cur != RLIM_INFINITY && !hasIpcLockCapability())
+    return {"lock_memory: RLIMIT_MEMLOCK is " + std::to_string(limit.rlim_cur) +
+            " bytes, not unlimited (systemd: LimitMEMLOCK=infinity); memory not locked"};
+  if (mlockall(MCL_CURRENT | MCL_FUTURE) != 0)
+    return {std::string("lock_memory: mlockall failed: ") + std::strerror(errno) + "; memory not locked"};
+  *locked = true;
+  return {};
 }
 
 }  // namespace stillpoint::daemon

@@ -23,4 +23,14 @@ std::vector<std::string> placeCurrentThread(const std::string& name, const Threa
 // scheduling) so that an empty placement means "not pinned" for it too.
 void clearInheritedPlacement(const std::vector<int>& available);
 
+// Locks the process's pages in RAM, present and future (mlockall), so a page
+// fault never stalls tracking. Only with CAP_IPC_LOCK or an unlimited
+// RLIMIT_MEMLOCK (the unit grants both): under a finite limit future
+// allocations past it would fail, so nothing is locked and a warning says why.
+// Returns the warnings; `locked` tells whether the lock took.
+std::vector<std::string> lockMemory(bool* locked);
+
+// Whether the process holds CAP_IPC_LOCK (effective set).
+bool hasIpcLockCapability();
+
 }  // namespace stillpoint::daemon

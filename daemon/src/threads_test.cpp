@@ -3,7 +3,11 @@
 #include <gtest/gtest.h>
 #include <pthread.h>
 #include <sched.h>
+#include <sys/mman.h>
+#include <sys/resource.h>
 
+#include <fstream>
+#include <string>
 #include <thread>
 
 namespace stillpoint::daemon {
@@ -75,6 +79,43 @@ TEST(ThreadsTest, ClearingTheInheritedPlacementUnpins) {
     child.join();
   });
   parent.join();
+}
+
+long lockedKb() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("VmLck:", 0) == 0) return std::stol(line.substr(6));
+  return -1;
+}
+
+TEST(ThreadsTest, MemoryIsLockedOnlyWithTheCapabilityOrAnUnlimitedLimit) {
+  rlimit saved{};
+  ASSERT_EQ(getrlimit(RLIMIT_MEMLOCK, &saved), 0);
+  // A finite limit: locked only with CAP_IPC_LOCK; otherwise a warning says what to set.
+  rlimit finite = saved;
+  finite.rlim_cur = 64 * 1024;
+  if (finite.rlim_max != RLIM_INFINITY && finite.rlim_max < finite.rlim_cur) finite.rlim_cur = finite.rlim_max;
+  ASSERT_EQ(setrlimit(RLIMIT_MEMLOCK, &finite), 0);
+  bool locked = false;
+  std::vector<std::string> warnings = lockMemory(&locked);
+  EXPECT_EQ(locked, hasIpcLockCapability());
+  if (locked) {
+    EXPECT_GT(lockedKb(), 64);  // all of the test's pages, past the finite limit
+    munlockall();
+  } else {
+    ASSERT_EQ(warnings.size(), 1u);
+    EXPECT_NE(warnings[0].find("LimitMEMLOCK=infinity"), std::string::npos) << warnings[0];
+  }
+  // Unlimited (raising it needs CAP_SYS_RESOURCE): locked.
+  rlimit unlimited{RLIM_INFINITY, RLIM_INFINITY};
+  if (setrlimit(RLIMIT_MEMLOCK, &unlimited) == 0) {
+    warnings = lockMemory(&locked);
+    EXPECT_TRUE(locked) << (warnings.empty() ? "" : warnings[0]);
+    EXPECT_GT(lockedKb(), 0);
+    munlockall();
+  }
+  setrlimit(RLIMIT_MEMLOCK, &saved);
 }
 
 }  // namespace
