@@ -158,13 +158,15 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
   std::vector<int> matched;
   std::vector<int> best_for_frame(current.size(), 256);
   std::vector<int> owner(current.size(), -1);
+  std::vector<int> nearest(current.size(), 256);  // each frame keypoint's nearest distance to any candidate
   for (int i = 0; i < kf.size(); ++i) {
-    if (need_point ? !kf.points[i] || kf.points[i]->bad : !(kf.depth[i] > 0)) continue;  // see eligible below
+    if (need_point ? !kf.points[i] || kf.points[i]->bad : !(kf.depth[i] > 0)) continue;
     const std::uint8_t* d_kf = kf.descriptor(i);
     int best = 256, second = 256, best_idx = -1;
     for (int j = 0; j < current.size(); ++j) {
       if (std::abs(current.keys[j].octave - kf.keys[i].octave) > 2) continue;
       const int d = hammingDistance(d_kf, current.descriptor(j));
+      nearest[j] = std::min(nearest[j], d);
       if (d < best) {
         second = best;
         best = d;
@@ -178,17 +180,10 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
     best_for_frame[best_idx] = best;
     owner[best_idx] = i;
   }
-  const auto eligible = [&](int i) { return need_point ? kf.points[i] && !kf.points[i]->bad : kf.depth[i] > 0; };
   for (int j = 0; j < current.size(); ++j) {
     if (owner[j] < 0) continue;
-    if (mutual) {
-      int best = best_for_frame[j];
-      bool own = true;
-      for (int i = 0; i < kf.size() && own; ++i)
-        own = i == owner[j] || !eligible(i) || std::abs(current.keys[j].octave - kf.keys[i].octave) > 2 ||
-              hammingDistance(kf.descriptor(i), current.descriptor(j)) >= best;
-      if (!own) continue;
-    }
+    // Mutual: no other candidate lies strictly nearer to the frame keypoint.
+    if (mutual && nearest[j] < best_for_frame[j]) continue;
     matched.push_back(j);
     rotations.push_back(kf.keys[owner[j]].angle - current.keys[j].angle);
   }
