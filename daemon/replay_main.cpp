@@ -176,6 +176,8 @@ int main(int argc, char** argv) {
     options = *loaded;
   }
   if (args.sequential) options.sequential = true;
+  // The keyframe file lists every keyframe made, culled ones included.
+  if (!args.keyframes_out.empty()) options.mapping.keep_culled_keyframes = true;
   if (!args.modules.empty()) {
     options.geometry.enabled = args.geometry;
     options.semantic.enabled = args.semantic;

@@ -33,7 +33,7 @@ void LocalMapper::process(KeyFrame* kf) {
       kf->updateConnections();
   }
   abort_ba_ = false;
-  if (options_.mapping.local_ba && map_->keyframes().size() > 2) {
+  if (options_.mapping.local_ba && map_->nextKeyFrameId() > 2) {
     const LocalBaStats s = localBundleAdjustment(map_, kf, options_.mapping.ba_max_keyframes,
                                                  options_.mapping.ba_iterations, &abort_ba_);
     ++ba_runs_;
@@ -108,7 +108,9 @@ void LocalMapper::cullKeyFrames(KeyFrame* kf) {
   // A keyframe is redundant when most of its close points are seen by enough
   // other keyframes at the same or a finer scale.
   for (KeyFrame* n : kf->bestNeighbours(1000)) {
-    if (n->id == 0 || n->bad || n == kf) continue;
+    // Keyframes newer than kf wait in our queue: not processed, never culled
+    // (tracking frees culled keyframes, and the queue still holds them).
+    if (n->id == 0 || n->bad || n == kf || n->id > kf->id) continue;
     int total = 0, redundant = 0;
     for (int i = 0; i < n->frame.size(); ++i) {
       const auto& p = n->frame.points[i];
@@ -168,16 +170,14 @@ void LocalMapper::applySemanticResults() {
 
 void LocalMapper::applySemantic(const SemanticResult& r) {
   SemanticStats& st = semantic_stats_;
-  st.segment_ms.push_back(r.segment_ms);
+  st.segment_ms.add(r.segment_ms);
   if (!r.ok) {
     ++st.failures;
     SP_WARN(logger, "keyframe " << r.keyframe_id << ": segmentation failed: " << r.error);
     return;
   }
-  const auto& kfs = map_->keyframes();
-  if (r.keyframe_id < 0 || r.keyframe_id >= static_cast<std::int64_t>(kfs.size())) return;
-  KeyFrame* kf = kfs[static_cast<std::size_t>(r.keyframe_id)].get();
-  if (kf->id != r.keyframe_id || kf->segmented) return;
+  KeyFrame* kf = map_->keyFrame(r.keyframe_id);
+  if (!kf || kf->segmented) return;  // culled and freed meanwhile
   Frame& f = kf->frame;
   const int n_regions = static_cast<int>(r.regions.size());
 
@@ -263,7 +263,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   st.features_removed += features_removed;
   st.points_removed += points_removed;
   st.points_culled += points_culled;
-  st.latency_ms.push_back(
+  st.latency_ms.add(
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - r.created).count());
   SP_DEBUG(logger, "keyframe " << kf->id << ": " << n_regions << " movable regions, " << features_removed
                                << " features dropped, " << points_removed << " points removed, " << points_culled

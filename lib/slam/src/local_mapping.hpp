@@ -15,14 +15,31 @@
 
 namespace stillpoint::slam {
 
+// The most recent kCapacity samples of a timing (a ring): its statistics
+// cover a bounded window however long the process runs.
+class RecentSamples {
+ public:
+  static constexpr std::size_t kCapacity = 1024;
+  void add(double value) {
+    if (values_.size() < kCapacity) values_.push_back(value);
+    else values_[next_] = value;
+    next_ = (next_ + 1) % kCapacity;
+  }
+  const std::vector<double>& values() const { return values_; }  // unordered
+
+ private:
+  std::vector<double> values_;
+  std::size_t next_ = 0;
+};
+
 // What the semantic results did to the map (written under the map's
 // exclusive lock, read under a shared one).
 struct SemanticStats {
   int segmented = 0, failures = 0;
   int features_removed = 0, points_removed = 0, points_culled = 0;
   int instances_applied = 0, instances_unconfirmed = 0, instances_capped = 0;
-  std::vector<double> latency_ms;  // keyframe creation -> result applied
-  std::vector<double> segment_ms;
+  RecentSamples latency_ms;  // keyframe creation -> result applied
+  RecentSamples segment_ms;
 };
 
 class LocalMapper {

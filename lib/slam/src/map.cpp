@@ -1,6 +1,7 @@
 #include "map.hpp"
 
 #include <algorithm>
+#include <cassert>
 #include <cmath>
 
 #include "stillpoint/features/descriptor.hpp"
@@ -27,7 +28,7 @@ void MapPoint::updateFromObservations() {
   std::copy(descs[best], descs[best] + 32, descriptor.begin());
   normal = normal_sum.normalized();
   // Scale range from the reference keyframe's observation.
-  const auto it = observations.find(reference);
+  const auto it = reference ? observations.find(reference) : observations.end();
   const auto& [kf, idx] = it != observations.end() ? *it : *observations.begin();
   const double dist = (position - kf->frame.cameraCentre()).norm();
   const int level = kf->frame.keys[idx].octave;
@@ -36,7 +37,20 @@ void MapPoint::updateFromObservations() {
   min_distance = max_distance / lv.scales[lv.levels - 1];
 }
 
-KeyFrame::KeyFrame(std::int64_t id, const Frame& f) : id(id), frame(f) {}
+SE3 PoseAnchor::T_c_w() const {
+  // Same composition as before anchors existed: T_self_parent products, then
+  // the first keyframe still in the map (or the world).
+  SE3 T = SE3::Identity();
+  const PoseAnchor* a = this;
+  while (!a->keyframe_ && a->parent_) {
+    T = T * a->T_self_parent_;
+    a = a->parent_.get();
+  }
+  return renormalized(T * (a->keyframe_ ? a->keyframe_->T_c_w() : a->T_self_parent_));
+}
+
+KeyFrame::KeyFrame(std::int64_t id, const Frame& f)
+    : id(id), frame(f), anchor_(std::make_shared<PoseAnchor>(this)) {}
 
 void KeyFrame::addObservation(const std::shared_ptr<MapPoint>& point, int index) {
   frame.points[index] = point;
@@ -46,6 +60,10 @@ void KeyFrame::addObservation(const std::shared_ptr<MapPoint>& point, int index)
 void KeyFrame::eraseObservation(int index) {
   if (auto& p = frame.points[index]) {
     p->observations.erase(this);
+    // A reference that no longer observes the point was never looked up
+    // (updateFromObservations falls back to the first observer); null it so
+    // that it cannot outlive this keyframe.
+    if (p->reference == this) p->reference = nullptr;
     p = nullptr;
   }
 }
@@ -108,19 +126,21 @@ std::vector<KeyFrame*> KeyFrame::bestNeighbours(int n) const {
   return out;
 }
 
-SE3 KeyFrame::resolvedT_c_w() const {
-  SE3 T = SE3::Identity();
-  const KeyFrame* kf = this;
-  while (kf->bad && kf->parent) {
-    T = T * kf->T_self_parent;
-    kf = kf->parent;
-  }
-  return renormalized(T * kf->T_c_w());
-}
-
 KeyFrame* Map::addKeyFrame(std::unique_ptr<KeyFrame> kf) {
+  assert(kf->id >= next_keyframe_id_);
+  next_keyframe_id_ = kf->id + 1;
   keyframes_.push_back(std::move(kf));
   return keyframes_.back().get();
+}
+
+KeyFrame* Map::keyFrame(std::int64_t id) const {
+  const auto it = std::lower_bound(keyframes_.begin(), keyframes_.end(), id,
+                                   [](const auto& kf, std::int64_t v) { return kf->id < v; });
+  return it != keyframes_.end() && (*it)->id == id ? it->get() : nullptr;
+}
+
+std::size_t Map::releaseCulledKeyFrames() {
+  return std::erase_if(keyframes_, [](const auto& kf) { return kf->bad; });
 }
 
 std::shared_ptr<MapPoint> Map::createPoint(const Vec3& position, KeyFrame* reference) {
@@ -139,6 +159,7 @@ void Map::erasePoint(const std::shared_ptr<MapPoint>& point) {
   for (auto& [kf, idx] : observations)
     if (kf->frame.points[idx] == point) kf->frame.points[idx] = nullptr;
   point->observations.clear();
+  point->reference = nullptr;  // its keyframe may be freed before the point
 }
 
 void Map::replacePoint(const std::shared_ptr<MapPoint>& a, const std::shared_ptr<MapPoint>& b) {
@@ -170,7 +191,7 @@ void Map::setKeyFrameBad(KeyFrame* kf) {
     auto p = kf->frame.points[i];
     if (!p) continue;
     p->observations.erase(kf);
-    if (p->reference == kf && !p->observations.empty()) p->reference = p->observations.begin()->first;
+    if (p->reference == kf) p->reference = p->observations.empty() ? nullptr : p->observations.begin()->first;
     if (p->observations.size() < 2) erasePoint(p);
   }
   // Children move to our parent (or to their best remaining neighbour).
@@ -181,11 +202,17 @@ void Map::setKeyFrameBad(KeyFrame* kf) {
     child->parent = new_parent;
     if (new_parent) new_parent->children.push_back(child);
   }
+  // Poses expressed through kf now follow new_parent (or stay put in the world).
+  PoseAnchor& anchor = *kf->anchor_;
+  anchor.keyframe_ = nullptr;
   if (new_parent) {
     std::erase(new_parent->children, kf);
-    kf->T_self_parent = renormalized(kf->T_c_w() * new_parent->T_c_w().inverse());
+    anchor.parent_ = new_parent->anchor_;
+    anchor.T_self_parent_ = renormalized(kf->T_c_w() * new_parent->T_c_w().inverse());
+  } else {
+    anchor.T_self_parent_ = kf->T_c_w();
   }
-  kf->parent = new_parent;
+  kf->parent = nullptr;
   kf->children.clear();
   kf->connections.clear();
   kf->ordered_neighbours.clear();
@@ -194,6 +221,10 @@ void Map::setKeyFrameBad(KeyFrame* kf) {
 
 std::size_t Map::goodKeyFrameCount() const {
   return std::count_if(keyframes_.begin(), keyframes_.end(), [](const auto& kf) { return !kf->bad; });
+}
+
+std::size_t Map::pointsInMemory() const {
+  return std::count_if(points_.begin(), points_.end(), [](const auto& w) { return !w.expired(); });
 }
 
 std::size_t Map::pointCount() const {

@@ -15,6 +15,26 @@ namespace stillpoint::slam {
 
 class KeyFrame;
 
+// Where a pose relative to a keyframe is anchored (trajectory records). While
+// the keyframe is in the map the anchor follows its pose (bundle adjustment
+// moves it); when the keyframe is culled the anchor keeps its pose relative to
+// the anchor of the keyframe that takes over its children (its parent), or in
+// the world when it has none. Records hold anchors, not keyframes, so a culled
+// keyframe is freed while the poses expressed through it still resolve; an
+// anchor lives as long as something expressed through it does. Read and
+// written under the map's lock.
+class PoseAnchor {
+ public:
+  explicit PoseAnchor(const KeyFrame* keyframe) : keyframe_(keyframe) {}
+  SE3 T_c_w() const;
+
+ private:
+  friend class Map;
+  const KeyFrame* keyframe_;  // null once culled
+  std::shared_ptr<const PoseAnchor> parent_;
+  SE3 T_self_parent_ = SE3::Identity();  // T_self_world when there is no parent
+};
+
 // Containers keyed by keyframe iterate in keyframe-id order, never in
 // pointer order, so runs are reproducible.
 struct KeyFrameIdLess {
@@ -75,12 +95,11 @@ class KeyFrame {
   void updateConnections();
   std::vector<KeyFrame*> bestNeighbours(int n) const;
 
-  // Spanning tree; a culled keyframe keeps its pose relative to its parent.
+  // Spanning tree of the keyframes in the map (culled ones leave it).
   KeyFrame* parent = nullptr;
   std::vector<KeyFrame*> children;
-  SE3 T_self_parent = SE3::Identity();
-  bool bad = false;
-  SE3 resolvedT_c_w() const;
+  bool bad = false;  // culled: out of the graph, freed by Map::releaseCulledKeyFrames()
+  std::shared_ptr<const PoseAnchor> anchor() const { return anchor_; }
 
   // Bookkeeping of the local-map search.
   std::int64_t local_for_frame = -1;
@@ -97,22 +116,40 @@ class KeyFrame {
   int trackedPoints(int min_observations) const;
   void addObservation(const std::shared_ptr<MapPoint>& point, int index);
   void eraseObservation(int index);
+
+ private:
+  friend class Map;
+  std::shared_ptr<PoseAnchor> anchor_;
 };
 
 class Map {
  public:
   std::shared_mutex& mutex() const { return mutex_; }
 
-  KeyFrame* addKeyFrame(std::unique_ptr<KeyFrame> kf);
+  // Keyframe ids count every keyframe ever made (freed ones included).
+  std::int64_t nextKeyFrameId() const { return next_keyframe_id_; }
+  KeyFrame* addKeyFrame(std::unique_ptr<KeyFrame> kf);  // ids must increase
   std::shared_ptr<MapPoint> createPoint(const Vec3& position, KeyFrame* reference);
   void erasePoint(const std::shared_ptr<MapPoint>& point);  // marks bad, drops observations
+  // Culls a keyframe: it leaves the covisibility graph, the spanning tree and
+  // its points' observations; its anchor is frozen relative to its parent's.
+  // The object stays (others may still hold it) until releaseCulledKeyFrames().
   void setKeyFrameBad(KeyFrame* kf);
+  // Frees the culled keyframes (and with them their features and their hold
+  // on map points). The caller guarantees that nothing still holds a pointer
+  // to one: tracking calls it under the exclusive lock after dropping its own,
+  // and local mapping only culls keyframes it has processed. Returns how many.
+  std::size_t releaseCulledKeyFrames();
+  // The keyframe with this id, or null (never made, or culled and freed).
+  KeyFrame* keyFrame(std::int64_t id) const;
   // Replaces `a` by `b` everywhere (fusion of duplicates).
   void replacePoint(const std::shared_ptr<MapPoint>& a, const std::shared_ptr<MapPoint>& b);
 
+  // In id order: the keyframes in the map and the culled ones not yet freed.
   const std::vector<std::unique_ptr<KeyFrame>>& keyframes() const { return keyframes_; }
   std::size_t goodKeyFrameCount() const;
   std::size_t pointCount() const;  // live (not bad) points
+  std::size_t pointsInMemory() const;  // map points not yet freed (bad ones included)
   std::int64_t nextFrameId() { return next_frame_id_++; }
 
  private:
@@ -120,6 +157,7 @@ class Map {
   std::vector<std::unique_ptr<KeyFrame>> keyframes_;
   std::vector<std::weak_ptr<MapPoint>> points_;  // for statistics only
   std::int64_t next_point_id_ = 0;
+  std::int64_t next_keyframe_id_ = 0;
   std::int64_t next_frame_id_ = 0;
 };
 

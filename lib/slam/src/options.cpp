@@ -16,6 +16,7 @@ Status TrackingOptions::validate() const {
   if (!(close_depth_baselines > 0)) return Error{"tracking.close_depth_baselines must be > 0"};
   if (local_keyframes_max < 1) return Error{"tracking.local_keyframes_max must be >= 1"};
   if (relocalisation_candidates < 1) return Error{"tracking.relocalisation_candidates must be >= 1"};
+  if (trajectory_records < -1) return Error{"tracking.trajectory_records must be >= -1 (-1: every frame)"};
   return Status::success();
 }
 
@@ -99,6 +100,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("tracking", "close_depth_baselines", o.tracking.close_depth_baselines);
   v("tracking", "local_keyframes_max", o.tracking.local_keyframes_max);
   v("tracking", "relocalisation_candidates", o.tracking.relocalisation_candidates);
+  v("tracking", "trajectory_records", o.tracking.trajectory_records);
   v("keyframes", "max_interval_s", o.keyframes.max_interval_s);
   v("keyframes", "min_interval_frames", o.keyframes.min_interval_frames);
   v("keyframes", "tracked_ratio", o.keyframes.tracked_ratio);
@@ -113,6 +115,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("mapping", "redundant_min_observers", o.mapping.redundant_min_observers);
   v("mapping", "point_found_ratio", o.mapping.point_found_ratio);
   v("mapping", "fuse_neighbours", o.mapping.fuse_neighbours);
+  v("mapping", "keep_culled_keyframes", o.mapping.keep_culled_keyframes);
   v("geometry", "enabled", o.geometry.enabled);
   v("geometry", "clusters", o.geometry.clustering.clusters_at_vga);
   v("geometry", "sample_step", o.geometry.clustering.sample_step_at_vga);

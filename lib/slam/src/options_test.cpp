@@ -72,6 +72,7 @@ TEST(SlamOptionsValidate, EachOutOfRangeValueNamesItsField) {
       {"tracking.close_depth_baselines", [](SlamOptions& o) { o.tracking.close_depth_baselines = 0; }},
       {"tracking.local_keyframes_max", [](SlamOptions& o) { o.tracking.local_keyframes_max = 0; }},
       {"tracking.relocalisation_candidates", [](SlamOptions& o) { o.tracking.relocalisation_candidates = 0; }},
+      {"tracking.trajectory_records", [](SlamOptions& o) { o.tracking.trajectory_records = -2; }},
       {"keyframes.max_interval_s", [](SlamOptions& o) { o.keyframes.max_interval_s = -1; }},
       {"keyframes.min_interval_frames", [](SlamOptions& o) { o.keyframes.min_interval_frames = -1; }},
       {"keyframes.tracked_ratio", [](SlamOptions& o) { o.keyframes.tracked_ratio = 1.5; }},
@@ -126,6 +127,7 @@ SlamOptions everythingChanged() {
   o.tracking.close_depth_baselines = 37.5;
   o.tracking.local_keyframes_max = 45;
   o.tracking.relocalisation_candidates = 12;
+  o.tracking.trajectory_records = 300;
   o.keyframes.max_interval_s = 0.75;
   o.keyframes.min_interval_frames = 3;
   o.keyframes.tracked_ratio = 0.55;
@@ -139,6 +141,7 @@ SlamOptions everythingChanged() {
   o.mapping.redundant_min_observers = 4;
   o.mapping.point_found_ratio = 0.3;
   o.mapping.fuse_neighbours = 8;
+  o.mapping.keep_culled_keyframes = true;
   o.sequential = true;
   return o;
 }
@@ -156,6 +159,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.tracking.close_depth_baselines, b.tracking.close_depth_baselines);
   EXPECT_EQ(a.tracking.local_keyframes_max, b.tracking.local_keyframes_max);
   EXPECT_EQ(a.tracking.relocalisation_candidates, b.tracking.relocalisation_candidates);
+  EXPECT_EQ(a.tracking.trajectory_records, b.tracking.trajectory_records);
   EXPECT_EQ(a.keyframes.max_interval_s, b.keyframes.max_interval_s);
   EXPECT_EQ(a.keyframes.min_interval_frames, b.keyframes.min_interval_frames);
   EXPECT_EQ(a.keyframes.tracked_ratio, b.keyframes.tracked_ratio);
@@ -168,6 +172,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.mapping.redundant_ratio, b.mapping.redundant_ratio);
   EXPECT_EQ(a.mapping.redundant_min_observers, b.mapping.redundant_min_observers);
   EXPECT_EQ(a.mapping.point_found_ratio, b.mapping.point_found_ratio);
+  EXPECT_EQ(a.mapping.keep_culled_keyframes, b.mapping.keep_culled_keyframes);
   EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
   EXPECT_EQ(a.sequential, b.sequential);
 }

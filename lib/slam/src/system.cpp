@@ -232,10 +232,7 @@ std::vector<TrajectoryPose> SlamSystem::trajectory() const {
   std::shared_lock lock(impl_->map.mutex());
   std::vector<TrajectoryPose> out;
   out.reserve(impl_->tracker.records().size());
-  for (const TrajectoryRecord& r : impl_->tracker.records()) {
-    const SE3 T_c_w = renormalized(r.T_c_ref * r.reference->resolvedT_c_w());
-    out.push_back({r.stamp, T_c_w.inverse()});
-  }
+  for (const TrajectoryRecord& r : impl_->tracker.records()) out.push_back({r.stamp, r.T_c_w().inverse()});
   return out;
 }
 
@@ -262,6 +259,9 @@ MapStats SlamSystem::mapStats() const {
   MapStats stats;
   stats.keyframes = impl_->map.goodKeyFrameCount();
   stats.points = impl_->map.pointCount();
+  stats.keyframes_in_memory = impl_->map.keyframes().size();
+  stats.points_in_memory = impl_->map.pointsInMemory();
+  stats.trajectory_records = impl_->tracker.records().size();
   stats.local_ba_runs = impl_->mapper.baRuns();
   stats.local_mapping_ms_total = impl_->mapper.totalMs();
   stats.dynamic_points_culled = impl_->mapper.dynamicPointsCulled();
@@ -278,8 +278,8 @@ MapStats SlamSystem::mapStats() const {
     stats.semantic_instances_applied = st.instances_applied;
     stats.semantic_instances_unconfirmed = st.instances_unconfirmed;
     stats.semantic_instances_capped = st.instances_capped;
-    std::tie(stats.semantic_latency_ms_median, stats.semantic_latency_ms_p95) = medianP95(st.latency_ms);
-    std::tie(stats.segmentation_ms_median, stats.segmentation_ms_p95) = medianP95(st.segment_ms);
+    std::tie(stats.semantic_latency_ms_median, stats.semantic_latency_ms_p95) = medianP95(st.latency_ms.values());
+    std::tie(stats.segmentation_ms_median, stats.segmentation_ms_p95) = medianP95(st.segment_ms.values());
     stats.semantic_model = impl_->semantic_model;
   }
   return stats;

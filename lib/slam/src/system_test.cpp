@@ -418,6 +418,41 @@ TEST_F(SlamSystemInputTest, IdenticalFramesKeepThePoseStill) {
   EXPECT_LT(degrees(max_rotation), 0.005);
 }
 
+// A long-running process keeps a bounded number of per-frame poses: the most
+// recent N (the same poses an unbounded run reports for those frames), or none.
+TEST_F(SlamSystemInputTest, TrajectoryRecordsAreBoundedByTheOption) {
+  auto run = [&](int records) {
+    SlamOptions options = sequentialOptions();
+    options.tracking.trajectory_records = records;
+    auto system = makeSystem(camera_, options);
+    EXPECT_TRUE(system);
+    if (!system) return std::pair<std::vector<TrajectoryPose>, MapStats>{};
+    for (const RgbdInput& frame : frames_) {
+      const auto out = system->track(frame);
+      EXPECT_TRUE(out.ok() && out->state == TrackingState::kOk);
+    }
+    system->finish();
+    return std::pair{system->trajectory(), system->mapStats()};
+  };
+  const auto [all, all_stats] = run(-1);
+  ASSERT_EQ(all.size(), frames_.size());
+  EXPECT_EQ(all_stats.trajectory_records, frames_.size());
+
+  const auto [last5, last5_stats] = run(5);
+  ASSERT_EQ(last5.size(), 5u);
+  EXPECT_EQ(last5_stats.trajectory_records, 5u);
+  for (std::size_t k = 0; k < 5; ++k) {
+    const TrajectoryPose& expected = all[all.size() - 5 + k];
+    EXPECT_EQ(last5[k].stamp, expected.stamp);
+    EXPECT_TRUE(last5[k].T_w_c.isApprox(expected.T_w_c, 1e-12)) << "frame " << k;
+  }
+
+  const auto [none, none_stats] = run(0);
+  EXPECT_TRUE(none.empty());
+  EXPECT_EQ(none_stats.trajectory_records, 0u);
+  EXPECT_EQ(none_stats.keyframes, all_stats.keyframes) << "tracking does not depend on the records kept";
+}
+
 // --- tracking accuracy ----------------------------------------------------
 
 struct TrackingRun {

@@ -94,7 +94,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
         current_.points[i] = nullptr;
     std::shared_lock lock(map_->mutex());  // keyframe poses change under local BA
-    records_.push_back({current_.stamp, reference_, renormalized(current_.T_c_w * reference_->T_c_w().inverse())});
+    record({current_.stamp, reference_->anchor(), renormalized(current_.T_c_w * reference_->T_c_w().inverse())});
     out->T_w_c = current_.T_c_w.inverse();
   }
   SP_DEBUG(logger, "frame " << current_.id << " state " << toString(state_) << " inliers " << inliers_
@@ -113,6 +113,25 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
+}
+
+void Tracker::record(const TrajectoryRecord& r) {
+  last_record_ = r;
+  const int keep = options_.tracking.trajectory_records;
+  if (keep == 0) return;
+  records_.push_back(r);
+  if (keep > 0 && records_.size() > static_cast<std::size_t>(keep)) records_.pop_front();
+}
+
+void Tracker::releaseCulledKeyFrames() {
+  if (options_.mapping.keep_culled_keyframes) return;
+  // Our pointers to keyframes: the reference (its record holds the anchor;
+  // a culled reference is only ever tested for `bad`, which null equals) and
+  // the local keyframes (rebuilt for every frame).
+  if (reference_ && reference_->bad) reference_ = nullptr;
+  std::erase_if(local_keyframes_, [](KeyFrame* kf) { return kf->bad; });
+  const std::size_t released = map_->releaseCulledKeyFrames();
+  if (released > 0) SP_DEBUG(logger, "freed " << released << " culled keyframes");
 }
 
 int Tracker::timedOptimizePose() {
@@ -138,7 +157,8 @@ bool Tracker::initialise() {
     p->updateFromObservations();
     current_.points[i] = p;
   }
-  reference_ = last_keyframe_ = k;
+  reference_ = k;
+  last_keyframe_stamp_ = current_.stamp;
   last_keyframe_frame_id_ = current_.id;
   local_keyframes_ = {k};
   inliers_ = k->trackedPoints(1);
@@ -151,10 +171,7 @@ void Tracker::refreshLastFrame() {
   // The last frame's pose follows its reference keyframe (bundle adjustment
   // may have moved it); then give it temporary points from depth so the
   // motion model has enough to match against.
-  if (!records_.empty()) {
-    const TrajectoryRecord& r = records_.back();
-    last_.T_c_w = renormalized(r.T_c_ref * r.reference->resolvedT_c_w());
-  }
+  if (last_record_) last_.T_c_w = last_record_->T_c_w();
   std::vector<std::pair<float, int>> by_depth;
   for (int i = 0; i < last_.size(); ++i) {
     if (last_.depth[i] <= 0) continue;
@@ -556,7 +573,7 @@ bool Tracker::needNewKeyFrame(bool mapping_idle) const {
   }
   const bool need_close = close_tracked < o.close_tracked_min && close_untracked > o.close_untracked_min;
   const double ratio = keyframes < 2 ? 0.4 : o.tracked_ratio;
-  const double since_s = secondsBetween(current_.stamp, last_keyframe_->frame.stamp);
+  const double since_s = secondsBetween(current_.stamp, last_keyframe_stamp_);
   const bool c1a = since_s >= o.max_interval_s;
   const bool c1b = current_.id >= last_keyframe_frame_id_ + o.min_interval_frames && mapping_idle;
   const bool c1c = inliers_ < 0.25 * ref_matches || need_close;
@@ -565,7 +582,8 @@ bool Tracker::needNewKeyFrame(bool mapping_idle) const {
 }
 
 KeyFrame* Tracker::createKeyFrame() {
-  const std::int64_t id = static_cast<std::int64_t>(map_->keyframes().size());
+  releaseCulledKeyFrames();  // the exclusive lock is held anyway
+  const std::int64_t id = map_->nextKeyFrameId();
   Frame copy = current_;
   for (int i = 0; i < copy.size(); ++i) {
     const auto& p = copy.points[i];
@@ -605,7 +623,8 @@ KeyFrame* Tracker::createKeyFrame() {
   kf->updateConnections();
   kf->dynamic_suspects = std::move(dynamic_suspects_);
   dynamic_suspects_.clear();
-  reference_ = last_keyframe_ = kf;
+  reference_ = kf;
+  last_keyframe_stamp_ = current_.stamp;
   last_keyframe_frame_id_ = current_.id;
   return kf;
 }

@@ -3,6 +3,7 @@
 // relocalisation, and the keyframe decision.
 #include <deque>
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "map.hpp"
@@ -12,10 +13,13 @@
 
 namespace stillpoint::slam {
 
+// A tracked frame's pose relative to its reference keyframe's anchor, so that
+// it follows bundle adjustment and survives the keyframe's culling.
 struct TrajectoryRecord {
   Timestamp stamp;
-  KeyFrame* reference;
+  std::shared_ptr<const PoseAnchor> reference;
   SE3 T_c_ref;
+  SE3 T_c_w() const { return renormalized(T_c_ref * reference->T_c_w()); }
 };
 
 class Tracker {
@@ -30,7 +34,8 @@ class Tracker {
   // frame's depth went to the clustering worker. Returns the new keyframe or null.
   KeyFrame* track(Frame frame, bool mapping_idle, bool clusters_pending, TrackOutput* out);
 
-  const std::vector<TrajectoryRecord>& records() const { return records_; }
+  // The most recent tracking.trajectory_records tracked frames (all with -1).
+  const std::deque<TrajectoryRecord>& records() const { return records_; }
   TrackingState state() const { return state_; }
 
  private:
@@ -62,7 +67,7 @@ class Tracker {
   Frame current_, last_;
   bool has_last_ = false;
   KeyFrame* reference_ = nullptr;
-  KeyFrame* last_keyframe_ = nullptr;
+  Timestamp last_keyframe_stamp_;
   std::int64_t last_keyframe_frame_id_ = 0;
   std::int64_t last_reloc_frame_id_ = -100;
   SE3 velocity_ = SE3::Identity();
@@ -70,7 +75,12 @@ class Tracker {
   int inliers_ = 0;
   std::vector<KeyFrame*> local_keyframes_;
   std::vector<std::shared_ptr<MapPoint>> local_points_;
-  std::vector<TrajectoryRecord> records_;
+  std::optional<TrajectoryRecord> last_record_;  // the last tracked frame (motion model)
+  std::deque<TrajectoryRecord> records_;
+  void record(const TrajectoryRecord& r);
+  // Frees the keyframes local mapping culled, after dropping our own pointers
+  // to them (map lock held exclusively).
+  void releaseCulledKeyFrames();
   StageTimes times_;
   GeometryOutput geometry_;
   std::vector<std::shared_ptr<MapPoint>> dynamic_suspects_;

@@ -18,6 +18,10 @@ struct TrackingOptions {
   double close_depth_baselines = 40.0;  // "close" points: depth < this x baseline
   int local_keyframes_max = 60;
   int relocalisation_candidates = 30;  // most recent keyframes tried when lost
+  // Tracked frames kept for SlamSystem::trajectory() (about 150 bytes each):
+  // -1 = every frame (evaluation, a trajectory file), 0 = none, N = the most
+  // recent N. A long-running process that writes no trajectory keeps none.
+  int trajectory_records = -1;
   Status validate() const;
 };
 
@@ -44,6 +48,10 @@ struct MappingOptions {
   int redundant_min_observers = 3;
   double point_found_ratio = 0.25;    // recent point culling
   int fuse_neighbours = 10;
+  // Culled keyframes are freed (at the next keyframe); true keeps them for
+  // inspection (SlamSystem::keyframes(), stillpoint-replay --keyframes-out),
+  // and memory then grows with every keyframe ever made.
+  bool keep_culled_keyframes = false;
   Status validate() const;
 };
 

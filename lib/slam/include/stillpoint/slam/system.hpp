@@ -86,8 +86,13 @@ struct TrajectoryPose {
 };
 
 struct MapStats {
-  std::size_t keyframes = 0;
-  std::size_t points = 0;
+  std::size_t keyframes = 0;  // in the map
+  std::size_t points = 0;     // in the map
+  // Memory held: keyframes and map points still allocated (culled ones not
+  // yet freed included), and tracked frames kept for trajectory().
+  std::size_t keyframes_in_memory = 0;
+  std::size_t points_in_memory = 0;
+  std::size_t trajectory_records = 0;
   int local_ba_runs = 0;
   double local_mapping_ms_total = 0;
   int dynamic_points_culled = 0;          // map points removed by the geometry module
@@ -103,6 +108,7 @@ struct MapStats {
   int semantic_instances_applied = 0;
   int semantic_instances_unconfirmed = 0;  // needed geometry's agreement and had none
   int semantic_instances_capped = 0;       // over max_removed_fraction without confirmation
+  // Over the most recent 1024 keyframes.
   double semantic_latency_ms_median = 0, semantic_latency_ms_p95 = 0;  // keyframe creation -> mask applied
   double segmentation_ms_median = 0, segmentation_ms_p95 = 0;          // segment() per keyframe
   std::string semantic_model;  // card name and why it was chosen
@@ -162,11 +168,13 @@ class SlamSystem {
   Result<TrackOutput> track(const RgbdInput& input);
   // Drains local mapping and stops its thread; tracking may not be called after.
   void finish();
-  // Every tracked frame, expressed through its reference keyframe so that it
-  // benefits from bundle adjustment. Call after finish() for final values.
+  // Every tracked frame (the most recent tracking.trajectory_records of them),
+  // expressed through its reference keyframe so that it benefits from bundle
+  // adjustment. Call after finish() for final values.
   std::vector<TrajectoryPose> trajectory() const;
   MapStats mapStats() const;
-  // Every keyframe, in creation order (call after finish() for final values).
+  // Every keyframe in memory, in creation order: culled ones are freed unless
+  // mapping.keep_culled_keyframes (call after finish() for final values).
   std::vector<KeyFrameView> keyframes() const;
 
  private:

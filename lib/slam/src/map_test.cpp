@@ -1,0 +1,162 @@
+// Map bookkeeping that bounds memory: culled keyframes are freed, and poses
+// expressed through them (trajectory records) still resolve and still follow
+// the keyframes that remain.
+#include "map.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+#include <vector>
+
+namespace stillpoint::slam {
+namespace {
+
+SE3 pose(double tx, double ty, double tz, double yaw) {
+  SE3 T = SE3::Identity();
+  T.linear() = Eigen::AngleAxisd(yaw, Vec3::UnitY()).toRotationMatrix();
+  T.translation() = Vec3(tx, ty, tz);
+  return T;
+}
+
+const LevelInfo& levels() {
+  static const LevelInfo lv = [] {
+    LevelInfo l;
+    l.levels = 1;
+    l.scale_factor = 1.2;
+    l.log_scale_factor = std::log(1.2);
+    l.scales = l.sigma2 = l.inv_sigma2 = {1.0};
+    return l;
+  }();
+  return lv;
+}
+
+// A keyframe with `n` features (their image positions are never looked at here).
+std::unique_ptr<KeyFrame> keyFrame(std::int64_t id, int n, const SE3& T_c_w) {
+  Frame f;
+  f.id = id;
+  f.levels = &levels();
+  f.T_c_w = T_c_w;
+  f.keys.resize(n);
+  f.un.resize(n);
+  f.depth.assign(n, 1.0f);
+  f.u_right.assign(n, -1.0f);
+  f.descriptors = cv::Mat::zeros(n, 32, CV_8U);
+  f.clearMatches();
+  return std::make_unique<KeyFrame>(id, f);
+}
+
+bool near(const SE3& a, const SE3& b) { return (a.matrix() - b.matrix()).cwiseAbs().maxCoeff() < 1e-12; }
+
+// Keyframes 0 <- 1 <- 2 (spanning tree), sharing points: 40 seen by all
+// three, 20 by 1 and 2, 10 by 1 alone.
+class CulledKeyFrames : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    kf0_ = map_.addKeyFrame(keyFrame(0, 70, pose(0, 0, 0, 0)));
+    kf1_ = map_.addKeyFrame(keyFrame(1, 70, pose(0.1, 0, 0, 0.05)));
+    for (int i = 0; i < 40; ++i) observe(map_.createPoint(Vec3(i, 0, 2), kf1_), {kf0_, kf1_}, i);
+    for (int i = 40; i < 50; ++i) only_kf1_.push_back(observe(map_.createPoint(Vec3(i, 1, 2), kf1_), {kf1_}, i));
+    kf1_->updateConnections();
+    kf2_ = map_.addKeyFrame(keyFrame(2, 70, pose(0.2, 0, 0.05, 0.1)));
+    for (int i = 0; i < 40; ++i) kf2_->addObservation(kf1_->frame.points[i], i);
+    for (int i = 50; i < 70; ++i) shared_12_.push_back(observe(map_.createPoint(Vec3(i, 2, 2), kf1_), {kf1_, kf2_}, i));
+    kf2_->updateConnections();
+    ASSERT_EQ(kf1_->parent, kf0_);
+    ASSERT_EQ(kf2_->parent, kf1_);
+  }
+
+  std::shared_ptr<MapPoint> observe(std::shared_ptr<MapPoint> p, std::vector<KeyFrame*> kfs, int index) {
+    for (KeyFrame* kf : kfs) kf->addObservation(p, index);
+    return p;
+  }
+
+  Map map_;
+  KeyFrame *kf0_ = nullptr, *kf1_ = nullptr, *kf2_ = nullptr;
+  std::vector<std::shared_ptr<MapPoint>> only_kf1_, shared_12_;
+};
+
+TEST_F(CulledKeyFrames, AreFreedAndPosesThroughThemStillResolve) {
+  // What trajectory records hold: anchors, and poses relative to them.
+  const std::shared_ptr<const PoseAnchor> at1 = kf1_->anchor(), at2 = kf2_->anchor();
+  const SE3 T1_w = kf1_->T_c_w(), T2_w = kf2_->T_c_w();
+  std::vector<std::weak_ptr<MapPoint>> watched(only_kf1_.begin(), only_kf1_.end());
+  only_kf1_.clear();
+  const std::size_t points_before = map_.pointsInMemory();
+
+  // Child first, then its parent: the chain 2 -> 1 -> 0 must hold.
+  map_.setKeyFrameBad(kf2_);
+  map_.setKeyFrameBad(kf1_);
+  EXPECT_TRUE(near(at2->T_c_w(), T2_w));
+  EXPECT_TRUE(near(at1->T_c_w(), T1_w));
+  // Points seen by 1 and 2 only lost both observers; their reference must
+  // not point at a keyframe about to be freed.
+  for (const auto& p : shared_12_) {
+    EXPECT_TRUE(p->bad);
+    EXPECT_EQ(p->reference, nullptr);
+  }
+
+  EXPECT_EQ(map_.releaseCulledKeyFrames(), 2u);
+  ASSERT_EQ(map_.keyframes().size(), 1u);
+  EXPECT_EQ(map_.keyFrame(0), kf0_);
+  EXPECT_EQ(map_.keyFrame(1), nullptr);
+  EXPECT_EQ(map_.keyFrame(2), nullptr);
+  EXPECT_EQ(map_.nextKeyFrameId(), 3) << "ids are never reused";
+  EXPECT_TRUE(kf0_->children.empty());
+  EXPECT_TRUE(kf0_->connections.empty());
+  for (const auto& w : watched) EXPECT_TRUE(w.expired()) << "a point only the culled keyframe held must be freed";
+  EXPECT_LT(map_.pointsInMemory(), points_before);
+
+  // The freed keyframes' poses resolve as before, and follow keyframe 0 when
+  // bundle adjustment moves it.
+  EXPECT_TRUE(near(at2->T_c_w(), T2_w));
+  EXPECT_TRUE(near(at1->T_c_w(), T1_w));
+  const SE3 T0_old = kf0_->T_c_w();
+  kf0_->T_c_w() = pose(0.01, -0.02, 0.03, 0.02) * T0_old;
+  const SE3 expected = renormalized(T2_w * T0_old.inverse() * kf0_->T_c_w());
+  EXPECT_LT((at2->T_c_w().matrix() - expected.matrix()).cwiseAbs().maxCoeff(), 1e-9);
+}
+
+TEST_F(CulledKeyFrames, ChildrenMoveToTheParentAndReferencesToTheRemainingObserver) {
+  map_.setKeyFrameBad(kf1_);
+  EXPECT_EQ(kf2_->parent, kf0_);
+  ASSERT_EQ(kf0_->children.size(), 1u);
+  EXPECT_EQ(kf0_->children[0], kf2_);
+  for (int i = 0; i < 40; ++i) {
+    const auto& p = kf2_->frame.points[i];
+    ASSERT_TRUE(p);
+    EXPECT_FALSE(p->bad) << "still seen by keyframes 0 and 2";
+    EXPECT_EQ(p->reference, kf0_);
+  }
+  for (const auto& p : shared_12_) {
+    EXPECT_TRUE(p->bad) << "one observer left";
+    EXPECT_EQ(p->reference, nullptr);
+  }
+  for (const auto& p : only_kf1_) {
+    EXPECT_TRUE(p->bad);
+    EXPECT_EQ(p->reference, nullptr);
+  }
+  EXPECT_EQ(map_.releaseCulledKeyFrames(), 1u);
+  EXPECT_EQ(map_.keyframes().size(), 2u);
+  EXPECT_EQ(map_.goodKeyFrameCount(), 2u);
+  // Keyframe 2 keeps working with the survivors.
+  kf2_->updateConnections();
+  EXPECT_EQ(kf2_->bestNeighbours(5), std::vector<KeyFrame*>{kf0_});
+}
+
+TEST(MapPoint, ReferenceIsDroppedWithItsObservation) {
+  Map map;
+  KeyFrame* a = map.addKeyFrame(keyFrame(0, 4, SE3::Identity()));
+  KeyFrame* b = map.addKeyFrame(keyFrame(1, 4, SE3::Identity()));
+  auto p = map.createPoint(Vec3(0, 0, 1), b);
+  a->addObservation(p, 0);
+  b->addObservation(p, 1);
+  b->eraseObservation(1);  // as bundle adjustment does for an outlier
+  EXPECT_EQ(p->reference, nullptr);
+  EXPECT_EQ(p->observations.size(), 1u);
+  p->updateFromObservations();  // falls back to the remaining observer
+  EXPECT_FALSE(p->bad);
+}
+
+}  // namespace
+}  // namespace stillpoint::slam
