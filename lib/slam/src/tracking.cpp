@@ -420,12 +420,24 @@ bool Tracker::trackReferenceKeyFrame() {
 
 bool Tracker::relocalise() {
   // Most recent keyframes first: after a short loss the camera is usually
-  // still near where it was.
-  std::vector<KeyFrame*> candidates;
+  // still near where it was. Then as many of the older ones, a window that
+  // moves on with every lost frame: a camera back at a place mapped long ago
+  // (a robot's next lap, a kidnapped camera) finds the map there within a few
+  // frames, at a bounded cost per frame, instead of staying lost until it
+  // reaches recently mapped ground.
+  const auto n = static_cast<std::size_t>(options_.tracking.relocalisation_candidates);
+  std::vector<KeyFrame*> candidates, older;  // newest first
   for (auto it = map_->keyframes().rbegin(); it != map_->keyframes().rend(); ++it) {
     if ((*it)->bad) continue;
-    candidates.push_back(it->get());
-    if (static_cast<int>(candidates.size()) >= options_.tracking.relocalisation_candidates) break;
+    (candidates.size() < n ? candidates : older).push_back(it->get());
+  }
+  if (!older.empty()) {
+    std::size_t start = 0;
+    while (start < older.size() && older[start]->id >= reloc_window_next_id_) ++start;
+    if (start == older.size()) start = 0;  // wrap around to the newest of them
+    const std::size_t count = std::min(n, older.size());
+    for (std::size_t k = 0; k < count; ++k) candidates.push_back(older[(start + k) % older.size()]);
+    reloc_window_next_id_ = candidates.back()->id;
   }
   const cv::Mat K = (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
   for (KeyFrame* kf : candidates) {

@@ -70,6 +70,9 @@ class Tracker {
   Timestamp last_keyframe_stamp_;
   std::int64_t last_keyframe_frame_id_ = 0;
   std::int64_t last_reloc_frame_id_ = -100;
+  // Relocalisation tries older keyframes in turn: the next window starts
+  // below this id (wrapping to the newest).
+  std::int64_t reloc_window_next_id_ = -1;
   SE3 velocity_ = SE3::Identity();
   bool has_velocity_ = false;
   int inliers_ = 0;

@@ -17,7 +17,9 @@ struct TrackingOptions {
   int min_inliers_after_reloc = 50;
   double close_depth_baselines = 40.0;  // "close" points: depth < this x baseline
   int local_keyframes_max = 60;
-  int relocalisation_candidates = 30;  // most recent keyframes tried when lost
+  // Keyframes tried per lost frame: the N most recent, then N of the older
+  // ones in turn (every keyframe is tried within a few lost frames).
+  int relocalisation_candidates = 30;
   // Tracked frames kept for SlamSystem::trajectory() (about 150 bytes each):
   // -1 = every frame (evaluation, a trajectory file), 0 = none, N = the most
   // recent N. A long-running process that writes no trajectory keeps none.
