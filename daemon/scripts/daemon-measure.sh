@@ -5,7 +5,9 @@
 #              in -> pose handed to the publisher) median / p99 / max, from the status file
 #   shutdown - N starts/stops: SIGTERM $WARMUP s (default 5) after the ring appears, time until the process
 #              has exited (measured outside) and the daemon's own shutdown_ms
-#   rss      - looped paced replay for S seconds, VmRSS every 10 s, least-squares slope
+#   rss      - looped paced replay for S seconds, VmRSS every 10 s with the map's keyframes and
+#              points (from the daemon's STATUS= line, read from a NOTIFY_SOCKET of our own),
+#              least-squares slope, and what the daemon held at the stop (status file)
 # usage: daemon-measure.sh STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|rss [SECONDS]
 set -euo pipefail
 bin=$1 seq=$2 what=$3
@@ -47,15 +49,28 @@ case $what in
   rss)
     secs=${4:-600}
     cfg true true false
-    "$bin" --config "$work/d.yaml" &
+    python3 -u -c '
+import socket, sys
+s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+s.bind(sys.argv[1])
+while True:
+    for line in s.recv(4096).decode().splitlines():
+        if line.startswith("STATUS="): print(line[7:])
+' "$work/notify.sock" > "$work/notify.txt" &
+    listener=$!
+    for _ in $(seq 50); do [[ -S $work/notify.sock ]] && break; sleep 0.1; done
+    NOTIFY_SOCKET=$work/notify.sock "$bin" --config "$work/d.yaml" &
     pid=$!
     start=$(date +%s)
     while (( $(date +%s) - start < secs )); do
       sleep 10
-      echo "$(( $(date +%s) - start )) $(awk '/VmRSS/ {print $2}' /proc/$pid/status)"
+      map=$(grep -o 'map [0-9]* keyframes [0-9]* points' "$work/notify.txt" | tail -1 || true)
+      echo "$(( $(date +%s) - start )) $(awk '/VmRSS/ {print $2}' /proc/$pid/status) ${map:-map ? keyframes ? points}"
     done | tee "$work/rss.txt"
     kill -TERM $pid; wait $pid || true
+    kill $listener; wait $listener 2>/dev/null || true
     awk '{n++; sx+=$1; sy+=$2; sxx+=$1*$1; sxy+=$1*$2} END {s=(n*sxy-sx*sy)/(n*sxx-sx*sx); printf "rss slope %.2f kB/min over %d samples (first %d kB, last %d kB)\n", s*60, n, first, $2} NR==1 {first=$2}' "$work/rss.txt"
+    grep -E '^(frames_processed|frames_lost|map_|keyframes_in_memory|points_in_memory|trajectory_records)' "$work/status.txt"
     ;;
   *) echo "usage: $0 STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|rss [SECONDS]" >&2; exit 2 ;;
 esac

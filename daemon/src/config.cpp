@@ -274,6 +274,9 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
   }
   c->slam.geometry.enabled = c->modules.geometry;
   c->slam.semantic.enabled = c->modules.semantic;
+  // Per-frame poses are kept only for a trajectory file: without one the
+  // daemon's memory does not grow with its running time.
+  if (c->output.trajectory.empty()) c->slam.tracking.trajectory_records = 0;
   if (!c->modules.semantic_model_card.empty()) c->slam.semantic.model_card = c->modules.semantic_model_card;
   if (!c->modules.semantic_model_dirs.empty()) c->slam.semantic.model_dirs = c->modules.semantic_model_dirs;
   if (c->modules.semantic) {

@@ -44,6 +44,22 @@ TEST_F(ConfigTest, MinimalConfigGetsDefaults) {
   EXPECT_TRUE(c->threads.tracking.cores.empty());
 }
 
+// The daemon runs for days: per-frame poses are kept only for a trajectory
+// file, and then as many as the SLAM options say.
+TEST_F(ConfigTest, TrajectoryRecordsOnlyForATrajectoryFile) {
+  auto without = loadDaemonConfig(
+      write("source: {replay: {path: /d}}\nslam: {options: {tracking: {trajectory_records: 500}}}\n"));
+  ASSERT_TRUE(without) << without.error();
+  EXPECT_EQ(without->slam.tracking.trajectory_records, 0);
+  auto with = loadDaemonConfig(write("source: {replay: {path: /d}}\noutput: {trajectory: /tmp/t.txt}\n"
+                                     "slam: {options: {tracking: {trajectory_records: 500}}}\n"));
+  ASSERT_TRUE(with) << with.error();
+  EXPECT_EQ(with->slam.tracking.trajectory_records, 500);
+  auto all = loadDaemonConfig(write("source: {replay: {path: /d}}\noutput: {trajectory: /tmp/t.txt}\n"));
+  ASSERT_TRUE(all) << all.error();
+  EXPECT_EQ(all->slam.tracking.trajectory_records, -1);
+}
+
 TEST_F(ConfigTest, ShippedConfigLoads) {
   // The shipped file names the installed slam.yaml; point it at the source tree's copy.
   std::ifstream in(STILLPOINT_SOURCE_DIR "/config/stillpointd.yaml");

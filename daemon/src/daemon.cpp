@@ -283,9 +283,12 @@ std::string Daemon::Impl::statusLine(double fps) const {
   else if (device_gone) state = "camera gone, reconnecting";
   else if (last_state < 0) state = "starting";
   else state = slam::toString(static_cast<slam::TrackingState>(last_state.load()));
+  const slam::MapStats map = system->mapStats();
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%s, %.1f fps, %" PRIu64 " frames, %" PRIu64 " lost, %" PRIu64 " dropped", state.c_str(),
-                fps, frames_processed.load(), frames_lost.load(), queue->dropped());
+  std::snprintf(buf, sizeof buf,
+                "%s, %.1f fps, %" PRIu64 " frames, %" PRIu64 " lost, %" PRIu64 " dropped, map %zu keyframes %zu points",
+                state.c_str(), fps, frames_processed.load(), frames_lost.load(), queue->dropped(), map.keyframes,
+                map.points);
   return buf;
 }
 
@@ -330,6 +333,12 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
                  frames_lost.load(), frames_bad.load(), queue->dropped(), queue->discarded(), keyframes.load(),
                  reconnects.load(), latency.quantile(0.5), latency.quantile(0.99), latency.max(), ps.sent, ps.dropped,
                  wall_s, shutdown_ms);
+    // What the process holds (issue 7: bounded memory over long runs).
+    const slam::MapStats map = system->mapStats();
+    std::fprintf(f,
+                 "map_keyframes=%zu\nmap_points=%zu\nkeyframes_in_memory=%zu\npoints_in_memory=%zu\n"
+                 "trajectory_records=%zu\n",
+                 map.keyframes, map.points, map.keyframes_in_memory, map.points_in_memory, map.trajectory_records);
     if (config.modules.semantic) {
       const slam::MapStats m = system->mapStats();
       std::fprintf(f,

@@ -57,8 +57,9 @@ class LocalMapper {
   std::size_t pending() const;
   void finish();  // drains the queue, joins the worker
 
-  int baRuns() const { return ba_runs_; }
-  double totalMs() const { return total_ms_; }
+  // Readable from any thread (stillpointd's status line).
+  int baRuns() const { return ba_runs_.load(); }
+  double totalMs() const { return total_ms_.load(); }
   int dynamicPointsCulled() const { return dynamic_points_culled_.load(); }
 
   // Semantic results arrive from any thread into a mailbox; local mapping (the
@@ -93,8 +94,8 @@ class LocalMapper {
   std::atomic<bool> idle_{true};
   std::atomic<bool> abort_ba_{false};
   std::jthread worker_;
-  int ba_runs_ = 0;
-  double total_ms_ = 0;
+  std::atomic<int> ba_runs_{0};
+  std::atomic<double> total_ms_{0};
   std::atomic<int> dynamic_points_culled_{0};
   std::deque<SemanticResult> mailbox_;  // guarded by queue_mutex_
   bool semantic_confirm_ = false;
