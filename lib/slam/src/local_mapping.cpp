@@ -249,11 +249,12 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     }
     ++p->semantic_checks;
     ++p->semantic_hits;
+    const bool was_reference = p->reference == kf;
     kf->eraseObservation(i);
     if (p->semantic_hits > o.point_masked_ratio * p->semantic_checks || p->observations.empty()) {
       map_->erasePoint(p);
       ++points_culled;
-    } else if (p->reference == kf) {
+    } else if (was_reference) {
       p->reference = p->observations.begin()->first;
     }
   }

@@ -168,6 +168,7 @@ void Map::replacePoint(const std::shared_ptr<MapPoint>& a, const std::shared_ptr
   a->observations.clear();
   a->bad = true;
   a->replaced_by = b;
+  a->reference = nullptr;
   for (auto& [kf, idx] : observations) {
     if (!b->observations.count(kf)) {
       kf->frame.points[idx] = b;
