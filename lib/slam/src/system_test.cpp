@@ -493,6 +493,22 @@ TEST(SlamSystemTracking, RoomSequenceFollowsTheTrueMotion) {
   EXPECT_LT(degrees(a.frame_to_frame.max_rotation), 0.15);
 }
 
+// keyframes.tracked_ratio sets how far tracking may fall behind the reference
+// keyframe before a new one is made: the default (0.6, for accuracy on real
+// data) makes keyframes more often than the old 0.4.
+TEST(SlamSystemTracking, TrackedRatioSetsHowOftenKeyFramesAreMade) {
+  const Sequence seq = roomSequence(40);
+  SlamOptions sparse = sequentialOptions();
+  sparse.keyframes.tracked_ratio = 0.4;
+  const TrackingRun few = trackSequence(seq, sparse);
+  const TrackingRun many = trackSequence(seq, sequentialOptions());
+  ASSERT_EQ(many.tracked_frames, static_cast<int>(seq.frames.size()));
+  std::printf("keyframes over %zu frames: %zu at tracked_ratio 0.4, %zu at the default %.2f\n", seq.frames.size(),
+              few.stats.keyframes, many.stats.keyframes, SlamOptions{}.keyframes.tracked_ratio);
+  EXPECT_EQ(SlamOptions{}.keyframes.tracked_ratio, 0.6);
+  EXPECT_GT(many.stats.keyframes, few.stats.keyframes);
+}
+
 // A keyframe's pose in keyframes() is the map's: the trajectory pose of the
 // frame it was made from (that frame's reference is the keyframe itself), and
 // near the truth (the room test bounds the accuracy; this one the bookkeeping).
