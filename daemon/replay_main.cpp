@@ -27,7 +27,7 @@ constexpr const char* kUsage =
     "usage: stillpoint-replay DATASET_DIR --camera fr1|fr2|fr3|CAMERA.yaml --output TRAJ.txt\n"
     "                         [--config SLAM.yaml] [--sequential] [--paced]\n"
     "                         [--modules none|geometry,semantic] [--features-out FEATURES.txt]\n"
-    "                         [--keyframes-out KEYFRAMES.txt]\n"
+    "                         [--keyframes-out KEYFRAMES.txt] [--keyframe-trajectory KF_TRAJ.txt]\n"
     "                         [--max-frames N] [--log-level debug|info|warn|error]\n"
     "       stillpoint-replay --help | --version\n"
     "\n"
@@ -41,10 +41,12 @@ constexpr const char* kUsage =
     "'timestamp u v dynamic(0|1) cluster chi2', for stillpoint-synth score.\n"
     "--keyframes-out writes the features of every segmented keyframe after the run, one line\n"
     "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
+    "--keyframe-trajectory writes the final poses of the keyframes (culled ones included) in TUM\n"
+    "format, to tell keyframe (map) error from per-frame tracking error.\n"
     "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n";
 
 struct Args {
-  std::string dataset, camera, output, config, modules, features_out, keyframes_out, log_level = "warn";
+  std::string dataset, camera, output, config, modules, features_out, keyframes_out, keyframe_trajectory, log_level = "warn";
   bool sequential = false, paced = false;
   bool geometry = false, semantic = false;  // from --modules
   long max_frames = -1;
@@ -73,6 +75,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       if (!value(&args->features_out)) return false;
     } else if (a == "--keyframes-out") {
       if (!value(&args->keyframes_out)) return false;
+    } else if (a == "--keyframe-trajectory") {
+      if (!value(&args->keyframe_trajectory)) return false;
     } else if (a == "--log-level") {
       if (!value(&args->log_level)) return false;
     } else if (a == "--max-frames") {
@@ -271,6 +275,14 @@ int main(int argc, char** argv) {
     return 1;
   }
   const slam::MapStats map = (*system)->mapStats();
+  if (!args.keyframe_trajectory.empty()) {
+    eval::Trajectory keyframes;
+    for (const slam::KeyFrameView& kf : (*system)->keyframes()) keyframes.push_back({kf.stamp, kf.T_w_c});
+    if (Status s = eval::writeTumTrajectory(args.keyframe_trajectory, keyframes); !s) {
+      std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
+      return 1;
+    }
+  }
   if (!args.keyframes_out.empty()) {
     std::FILE* kf_out = std::fopen(args.keyframes_out.c_str(), "w");
     if (!kf_out) {

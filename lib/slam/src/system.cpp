@@ -245,6 +245,7 @@ std::vector<KeyFrameView> SlamSystem::keyframes() const {
     v.stamp = kf->frame.stamp;
     v.bad = kf->bad;
     v.segmented = kf->segmented;
+    v.T_w_c = kf->resolvedT_c_w().inverse();
     const Frame& f = kf->frame;
     v.features.reserve(f.keys.size());
     for (int i = 0; i < f.size(); ++i)

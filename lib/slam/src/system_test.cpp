@@ -528,6 +528,46 @@ TEST(SlamSystemTracking, RoomSequenceFollowsTheTrueMotion) {
   EXPECT_LT(degrees(a.frame_to_frame.max_rotation), 0.15);
 }
 
+// keyframes.tracked_ratio sets how far tracking may fall behind the reference
+// keyframe before a new one is made: the default (0.6, for accuracy on real
+// data) makes keyframes more often than the old 0.4.
+TEST(SlamSystemTracking, TrackedRatioSetsHowOftenKeyFramesAreMade) {
+  const Sequence seq = roomSequence(40);
+  SlamOptions sparse = sequentialOptions();
+  sparse.keyframes.tracked_ratio = 0.4;
+  const TrackingRun few = trackSequence(seq, sparse);
+  const TrackingRun many = trackSequence(seq, sequentialOptions());
+  ASSERT_EQ(many.tracked_frames, static_cast<int>(seq.frames.size()));
+  std::printf("keyframes over %zu frames: %zu at tracked_ratio 0.4, %zu at the default %.2f\n", seq.frames.size(),
+              few.stats.keyframes, many.stats.keyframes, SlamOptions{}.keyframes.tracked_ratio);
+  EXPECT_EQ(SlamOptions{}.keyframes.tracked_ratio, 0.6);
+  EXPECT_GT(many.stats.keyframes, few.stats.keyframes);
+}
+
+// A keyframe's pose in keyframes() is the map's: the trajectory pose of the
+// frame it was made from (that frame's reference is the keyframe itself), and
+// near the truth (the room test bounds the accuracy; this one the bookkeeping).
+TEST(SlamSystemTracking, KeyFramePosesMatchTheTrajectory) {
+  const Sequence seq = roomSequence(30);
+  auto system = makeSystem(seq.camera);
+  ASSERT_TRUE(system);
+  for (const RgbdInput& frame : seq.frames) ASSERT_TRUE(system->track(frame).ok());
+  system->finish();
+  const auto trajectory = system->trajectory();
+  const auto keyframes = system->keyframes();
+  ASSERT_GE(keyframes.size(), 2u);
+  for (const KeyFrameView& kf : keyframes) {
+    if (kf.bad) continue;
+    const auto at = std::find_if(trajectory.begin(), trajectory.end(),
+                                 [&](const TrajectoryPose& p) { return p.stamp == kf.stamp; });
+    ASSERT_NE(at, trajectory.end()) << "keyframe " << kf.id;
+    EXPECT_LT((at->T_w_c.translation() - kf.T_w_c.translation()).norm(), 1e-9) << "keyframe " << kf.id;
+    EXPECT_LT(rotationAngle(at->T_w_c.linear() * kf.T_w_c.linear().transpose()), 1e-9) << "keyframe " << kf.id;
+    const std::size_t k = static_cast<std::size_t>(at - trajectory.begin());
+    EXPECT_LT((kf.T_w_c.translation() - seq.T_w_c[k].translation()).norm(), 0.03) << "keyframe " << kf.id;
+  }
+}
+
 // A board in front of the camera moves sideways at 0.45 m/s while the camera
 // moves slowly: the geometry module must flag the board's features (and only
 // them) and keep the pose on the static room.

@@ -126,6 +126,7 @@ struct KeyFrameView {
   Timestamp stamp;
   bool bad = false;        // culled as redundant
   bool segmented = false;  // the semantic module's result was applied
+  SE3 T_w_c = SE3::Identity();  // current estimate (a culled keyframe's follows its parent)
   std::vector<KeyFrameFeature> features;
 };
 
