@@ -216,6 +216,7 @@ int main(int argc, char** argv) {
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
   std::vector<double> geometry_ms, clustering_ms;
   std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0;
+  std::size_t semantic_followed = 0;  // features matched to the last segmented keyframe's masks
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
   const auto start = std::chrono::steady_clock::now();
   Timestamp first_stamp;
@@ -244,6 +245,7 @@ int main(int argc, char** argv) {
     local_map_ms.push_back(out->stages.local_map);
     pose_opt_ms.push_back(out->stages.pose_optimisation);
     keyframe_ms.push_back(out->stages.keyframe);
+    semantic_followed += out->semantic_features;
     const slam::GeometryOutput& g = out->geometry;
     if (g.ran || g.deadline_missed) geometry_ms.push_back(out->stages.geometry);
     geometry_misses += g.deadline_missed;
@@ -342,6 +344,9 @@ int main(int argc, char** argv) {
                 map.semantic_instances_applied, map.semantic_instances_unconfirmed, map.semantic_instances_capped);
     std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks)\n",
                 map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled);
+    std::printf("              %.1f features per frame followed from the last segmented keyframe's masks%s\n",
+                frames ? double(semantic_followed) / frames : 0.0,
+                options.semantic.propagate_masks ? "" : " (semantic.propagate_masks off)");
     std::printf("              segmentation per keyframe median %.1f ms p95 %.1f ms; keyframe -> mask applied "
                 "median %.1f ms p95 %.1f ms\n",
                 map.segmentation_ms_median, map.segmentation_ms_p95, map.semantic_latency_ms_median,

@@ -11,6 +11,10 @@
 
 namespace stillpoint::slam {
 
+// Frame::dynamic value of a feature inside a movable semantic mask (1: the
+// geometry module's verdict).
+inline constexpr char kSemanticDynamic = 2;
+
 class MapPoint;
 
 // Pyramid constants shared by all frames of one extractor.

@@ -239,7 +239,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       if (p) ++p->semantic_checks;
       continue;
     }
-    f.dynamic[i] = 1;
+    f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
     ++features_removed;
     if (!p) continue;
     if (p->first_keyframe_id == kf->id) {

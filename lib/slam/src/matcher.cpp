@@ -72,6 +72,7 @@ int searchByProjection(Frame* current, const Frame& last, float radius) {
     int best = 256, best_idx = -1;
     for (int j : candidates) {
       if (current->points[j] && !current->points[j]->bad) continue;
+      if (current->dynamic[j]) continue;
       if (current->u_right[j] >= 0 && std::abs(ur_pred - current->u_right[j]) > r) continue;
       const int d = hammingDistance(point->descriptor.data(), current->descriptor(j));
       if (d < best) {
@@ -164,7 +165,7 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
     const std::uint8_t* d_kf = kf.descriptor(i);
     int best = 256, second = 256, best_idx = -1;
     for (int j = 0; j < current.size(); ++j) {
-      if (std::abs(current.keys[j].octave - kf.keys[i].octave) > 2) continue;
+      if (current.dynamic[j] || std::abs(current.keys[j].octave - kf.keys[i].octave) > 2) continue;
       const int d = hammingDistance(d_kf, current.descriptor(j));
       nearest[j] = std::min(nearest[j], d);
       if (d < best) {

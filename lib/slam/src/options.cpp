@@ -153,6 +153,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "confirm_ratio", o.semantic.confirm_ratio);
   v("semantic", "max_removed_fraction", o.semantic.max_removed_fraction);
   v("semantic", "point_masked_ratio", o.semantic.point_masked_ratio);
+  v("semantic", "propagate_masks", o.semantic.propagate_masks);
   v("", "sequential", o.sequential);
 }
 

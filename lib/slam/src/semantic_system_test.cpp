@@ -111,6 +111,10 @@ SlamOptions semanticOptions(bool sequential = true) {
   o.sequential = sequential;
   o.semantic.enabled = true;
   o.semantic.max_removed_fraction = 1.0;
+  // The rectangle stays put in the image while the scene moves through it:
+  // it masks no object, so there is nothing for tracking to follow between
+  // keyframes (MasksFollowTheirFeaturesBetweenKeyframes tests that).
+  o.semantic.propagate_masks = false;
   return o;
 }
 
@@ -184,6 +188,47 @@ TEST(SemanticModule, SequentialRunDropsTheMaskedFeaturesOfEveryKeyframe) {
   EXPECT_GT(run.stats.semantic_points_removed, 0);  // the first keyframe's points in the mask
   EXPECT_EQ(run.stats.semantic_keyframes_dropped, 0);
   EXPECT_EQ(run.stats.semantic_failures, 0);
+}
+
+// With propagation, every frame after the first segmented keyframe looks up
+// that keyframe's masked features (world texture that lay in the rectangle)
+// and keeps them out of the pose; keyframes never map a feature so marked.
+TEST(SemanticModule, MasksFollowTheirFeaturesBetweenKeyframes) {
+  for (const bool propagate : {true, false}) {
+    SCOPED_TRACE(propagate ? "propagation on" : "propagation off");
+    SlamOptions options = semanticOptions();
+    options.semantic.propagate_masks = propagate;
+    const Frames& frames = planeFrames();
+    auto system = SlamSystem::create(frames.camera, options, std::make_unique<RectangleSegmenter>(kRect, false));
+    ASSERT_TRUE(system.ok()) << system.error();
+    int after_first = 0, marked_frames = 0, marked = 0;
+    bool segmented = false;
+    for (const RgbdInput& input : frames.inputs) {
+      const auto out = (*system)->track(input);
+      ASSERT_TRUE(out.ok()) << out.error();
+      EXPECT_EQ(out->state, TrackingState::kOk);
+      if (segmented) {
+        ++after_first;
+        marked_frames += out->semantic_features > 0;
+      } else {
+        EXPECT_EQ(out->semantic_features, 0) << "nothing is segmented yet";
+      }
+      marked += out->semantic_features;
+      // Sequential mode applies a keyframe's mask when the next keyframe is mapped.
+      segmented = segmented || (*system)->mapStats().semantic_keyframes_segmented > 0;
+    }
+    (*system)->finish();
+    ASSERT_GT(after_first, 5);
+    if (propagate) {
+      EXPECT_GE(marked_frames, after_first * 8 / 10) << marked << " features marked in all";
+      EXPECT_GT(marked / after_first, 10);
+    } else {
+      EXPECT_EQ(marked, 0);
+    }
+    for (const KeyFrameView& kf : (*system)->keyframes())
+      for (const KeyFrameFeature& f : kf.features)
+        EXPECT_FALSE(f.dynamic && f.mapped) << "keyframe " << kf.id << " feature at " << f.u << "," << f.v;
+  }
 }
 
 TEST(SemanticModule, SequentialModeIsDeterministic) {

@@ -245,7 +245,7 @@ std::vector<KeyFrameView> SlamSystem::keyframes() const {
     v.stamp = kf->frame.stamp;
     v.bad = kf->bad;
     v.segmented = kf->segmented;
-    v.T_w_c = kf->resolvedT_c_w().inverse();
+    v.T_w_c = kf->anchor()->T_c_w().inverse();  // a culled keyframe kept in memory follows its parent
     const Frame& f = kf->frame;
     v.features.reserve(f.keys.size());
     for (int i = 0; i < f.size(); ++i)

@@ -11,6 +11,7 @@
 #include <unordered_map>
 
 #include "matcher.hpp"
+#include "stillpoint/features/descriptor.hpp"
 #include "optimizer.hpp"
 #include "stillpoint/core/log.hpp"
 
@@ -45,6 +46,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   current_ = std::move(frame);
   times_ = StageTimes{};
   geometry_ = GeometryOutput{};
+  semantic_marked_ = 0;
   carried_.clear();
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
@@ -56,6 +58,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     std::shared_lock lock(map_->mutex());
     const bool was_lost = state_ == TrackingState::kLost;
     if (!was_lost) {
+      if (options_.semantic.enabled && options_.semantic.propagate_masks) markSemanticMovers();
       {
         ScopedStageTimer timer(&times_.initial_pose);
         refreshLastFrame();
@@ -106,6 +109,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   out->tracked = ok ? inliers_ : 0;
   out->new_keyframe = new_keyframe != nullptr;
   out->geometry = std::move(geometry_);
+  out->semantic_features = semantic_marked_;
   if (ok)
     rememberAnchor();
   else
@@ -132,6 +136,27 @@ void Tracker::releaseCulledKeyFrames() {
   std::erase_if(local_keyframes_, [](KeyFrame* kf) { return kf->bad; });
   const std::size_t released = map_->releaseCulledKeyFrames();
   if (released > 0) SP_DEBUG(logger, "freed " << released << " culled keyframes");
+}
+
+void Tracker::markSemanticMovers() {
+  // The newest segmented keyframe near the camera: features inside its
+  // movable masks are looked up in this frame by descriptor alone (the
+  // object may have moved anywhere since) and kept out of the pose, so a
+  // masked object does not pull the pose between keyframes.
+  const KeyFrame* source = nullptr;
+  const auto consider = [&](const KeyFrame* kf) {
+    if (kf && !kf->bad && kf->segmented && (!source || kf->id > source->id)) source = kf;
+  };
+  consider(reference_);
+  for (const KeyFrame* kf : local_keyframes_) consider(kf);
+  if (!source) return;
+  // Mutual nearest neighbours over all the keyframe's features, ratio 0.7 and
+  // rotation consistency: window-free matching on repetitive texture
+  // mismatches, and a static feature marked here is lost to the pose.
+  const Frame& f = source->frame;
+  for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true))
+    if (f.dynamic[i] == kSemanticDynamic) current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
+  SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of keyframe " << source->id);
 }
 
 int Tracker::timedOptimizePose() {

@@ -52,6 +52,8 @@ class Tracker {
   // reprojection errors of the stage-1 matches, drops dynamic features and
   // re-estimates the initial pose without them.
   void removeDynamicFeatures();
+  // Features matching the masked features of the newest segmented keyframe.
+  void markSemanticMovers();
   int timedOptimizePose();
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
@@ -76,6 +78,7 @@ class Tracker {
   SE3 velocity_ = SE3::Identity();
   bool has_velocity_ = false;
   int inliers_ = 0;
+  int semantic_marked_ = 0;
   std::vector<KeyFrame*> local_keyframes_;
   std::vector<std::shared_ptr<MapPoint>> local_points_;
   std::optional<TrajectoryRecord> last_record_;  // the last tracked frame (motion model)

@@ -130,6 +130,11 @@ struct SemanticOptions {
   // A map point is culled when more than this share of the segmented
   // keyframes observing it saw it inside a movable mask.
   double point_masked_ratio = 0.5;
+  // Between keyframes, tracking looks up the masked features of the newest
+  // segmented keyframe in every frame by descriptor and keeps the matches
+  // out of the pose and the map (a masked object keeps moving after its
+  // keyframe was segmented).
+  bool propagate_masks = true;
   Status validate() const;
 };
 

@@ -72,6 +72,9 @@ struct TrackOutput {
   SE3 T_w_c = SE3::Identity();  // valid when state is kOk or kRelocalised
   int features = 0;
   int tracked = 0;  // inlier matches to map points
+  // Features matched to the masked features of the newest segmented keyframe
+  // and kept out of the pose (semantic module).
+  int semantic_features = 0;
   bool new_keyframe = false;
   std::size_t keyframes = 0;
   double extract_ms = 0;  // ORB extraction
