@@ -165,7 +165,7 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
     const std::uint8_t* d_kf = kf.descriptor(i);
     int best = 256, second = 256, best_idx = -1;
     for (int j = 0; j < current.size(); ++j) {
-      if (current.dynamic[j] || std::abs(current.keys[j].octave - kf.keys[i].octave) > 2) continue;
+      if ((need_point && current.dynamic[j]) || std::abs(current.keys[j].octave - kf.keys[i].octave) > 2) continue;
       const int d = hammingDistance(d_kf, current.descriptor(j));
       nearest[j] = std::min(nearest[j], d);
       if (d < best) {

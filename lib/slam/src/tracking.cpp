@@ -281,6 +281,9 @@ void Tracker::removeDynamicFeatures() {
   // Matched to a feature that lay in a dynamic cluster (anchor or last frame).
   std::vector<char> inherited(current_.size(), 0);
   for (std::size_t i = 0; i < carried_.size(); ++i) inherited[i] = carried_[i] != nullptr;
+  // Features following a semantic mask count as moving before too: they keep
+  // their anchor evidence and hold their cluster like the module's own.
+  for (int i = 0; i < current_.size(); ++i) inherited[i] |= current_.dynamic[i] == kSemanticDynamic;
   if (!anchors_.empty()) {
     const Frame& anchor = anchors_.front();
     for (const auto& [j, i] : matchByDescriptor(current_, anchor, 0.7f, false, true)) {
