@@ -29,7 +29,9 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const K
 // The same between two frames: keypoints of `other` take part when they hold
 // a map point (`need_point`) or a depth (otherwise). `mutual` also asks that
 // the frame keypoint's own nearest neighbour in `other` is its match (fewer
-// mismatches on repetitive texture, at the cost of a second pass).
+// mismatches on repetitive texture, at the cost of a second pass). Frame
+// keypoints already flagged dynamic take part only when no map point is needed
+// (evidence, not pose).
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const Frame& other, float ratio,
                                                    bool need_point, bool mutual = false);
 

@@ -11,7 +11,6 @@
 #include <unordered_map>
 
 #include "matcher.hpp"
-#include "stillpoint/features/descriptor.hpp"
 #include "optimizer.hpp"
 #include "stillpoint/core/log.hpp"
 
@@ -150,10 +149,12 @@ void Tracker::markSemanticMovers() {
   consider(reference_);
   for (const KeyFrame* kf : local_keyframes_) consider(kf);
   if (!source) return;
+  const Frame& f = source->frame;
+  // Most keyframes mask nothing: skip the brute-force pass then.
+  if (std::find(f.dynamic.begin(), f.dynamic.end(), kSemanticDynamic) == f.dynamic.end()) return;
   // Mutual nearest neighbours over all the keyframe's features, ratio 0.7 and
   // rotation consistency: window-free matching on repetitive texture
   // mismatches, and a static feature marked here is lost to the pose.
-  const Frame& f = source->frame;
   for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true))
     if (f.dynamic[i] == kSemanticDynamic) current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
   SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of keyframe " << source->id);
