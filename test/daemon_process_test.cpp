@@ -468,7 +468,12 @@ TEST_F(DaemonProcess, SemanticModuleRealExcerptMatchesGroundTruth) {
                        ", paced: false}}\nmodules: {semantic: true, semantic_model_card: " +
                        (coco ? "coco_yolov5s_seg_320.yaml" : "person_selfie_256.yaml") + ", semantic_model_dirs: [" +
                        model_dir.string() + "]}\noutput: {status: " + (d / "status.txt").string() +
-                       "}\nipc: {shm: {name: " + r + ", capacity: 1024}}\n");
+                       "}\nipc: {shm: {name: " + r + ", capacity: 1024}}\n"
+                       // Replayed as fast as it goes, tracking and mapping keep both cores busy:
+                       // the default nice values (mapping 5, semantic 10; they serve paced, live
+                       // runs) would leave segmentation little CPU. This test is about the
+                       // module's results: all threads at the process's nice.
+                       "threads: {mapping: {nice: 0}, semantic: {nice: 0}}\n");
   ASSERT_EQ(daemon.waitExit(300s), 0) << daemon.err();
   const auto status = readStatus(d / "status.txt");
   std::printf("semantic (%s): %s keyframes, %s segmented, %s dropped; segmentation median %s ms p95 %s ms; "

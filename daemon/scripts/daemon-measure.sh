@@ -2,7 +2,9 @@
 # Measurements of stillpointd for issue 7 (numbers in README "stillpointd"):
 #   latency  - paced 30 Hz replay of the real excerpt as a live camera (drop-oldest
 #              queue of capacity $QUEUE, default 2): dropped frames, pose latency (frame
-#              in -> pose handed to the publisher) median / p99 / max, from the status file
+#              in -> pose handed to the publisher) median / p99 / max, from the status file.
+#              EXTRA adds YAML to the config, e.g. all modules on:
+#              EXTRA='modules: {semantic: true, semantic_model_dirs: [../shared/models]}'
 #   shutdown - N starts/stops: SIGTERM $WARMUP s (default 5) after the ring appears, time until the process
 #              has exited (measured outside) and the daemon's own shutdown_ms
 #   rss      - looped paced replay for S seconds, VmRSS every 10 s with the map's keyframes and
@@ -19,15 +21,20 @@ cfg() {  # paced loop as_live
 camera: fr3
 log_level: warn
 source: {queue_capacity: ${QUEUE:-2}, replay: {path: $seq, paced: $1, loop: $2, as_live: $3}}
-output: {status: $work/status.txt}
+output: {status: $work/status.txt, trajectory: "${traj:-}"}
 ipc: {shm: {name: $ring}}
+${EXTRA:-}
 YAML
 }
 case $what in
   latency)
+    traj=$work/traj.txt  # only here: a trajectory file makes the daemon keep every pose
     cfg true false true
     "$bin" --config "$work/d.yaml"
-    grep -E '^(frames_|latency_|publisher_)' "$work/status.txt"
+    grep -E '^(frames_|latency_|publisher_|semantic_)' "$work/status.txt"
+    # The daemon's own trajectory against the ground truth (stillpoint-eval beside it).
+    eval=$(dirname "$bin")/stillpoint-eval
+    if [[ -x $eval && -f $seq/groundtruth.txt ]]; then "$eval" "$seq/groundtruth.txt" "$work/traj.txt"; fi
     ;;
   shutdown)
     n=${4:-20}

@@ -101,6 +101,9 @@ void readPlacement(Section& threads, const std::string& name, ThreadPlacement* p
   s.read("priority", &p->priority);
   if (error->empty() && (p->priority < 0 || p->priority > 99))
     s.fail(node["priority"], "priority", "must be 0 (normal scheduling) or a SCHED_FIFO priority 1..99");
+  s.read("nice", &p->nice);
+  if (error->empty() && (p->nice < -20 || p->nice > 19))
+    s.fail(node["nice"], "nice", "must be a nice value -20..19 (0: inherited)");
   s.checkUnknown();
 }
 
@@ -309,7 +312,8 @@ void emitPlacement(YAML::Emitter& out, const char* name, const ThreadPlacement& 
   out << YAML::Key << name << YAML::Value << YAML::Flow << YAML::BeginMap;
   out << YAML::Key << "cores" << YAML::Value << YAML::Flow << YAML::BeginSeq;
   for (int c : p.cores) out << c;
-  out << YAML::EndSeq << YAML::Key << "priority" << YAML::Value << p.priority << YAML::EndMap;
+  out << YAML::EndSeq << YAML::Key << "priority" << YAML::Value << p.priority;
+  out << YAML::Key << "nice" << YAML::Value << p.nice << YAML::EndMap;
 }
 
 }  // namespace

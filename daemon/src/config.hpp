@@ -18,10 +18,16 @@
 namespace stillpoint::daemon {
 
 // Where one thread runs. Empty cores: no pinning. priority 0: normal
-// scheduling (SCHED_OTHER); 1..99: SCHED_FIFO at that priority.
+// scheduling (SCHED_OTHER); 1..99: SCHED_FIFO at that priority. nice: the
+// thread's nice value under normal scheduling (-20..19; 0 keeps what it
+// inherited). A positive value needs no privilege and makes the thread yield
+// the CPU to the others: the semantic thread's default (10) keeps a keyframe
+// segmentation, hundreds of ms of CPU, from delaying tracking on a small board;
+// mapping's (5) lets tracking go first when local BA and tracking share a core.
 struct ThreadPlacement {
   std::vector<int> cores;
   int priority = 0;
+  int nice = 0;
 };
 
 // The threads the daemon places. "mapping" covers the SLAM core's own threads
@@ -30,7 +36,9 @@ struct ThreadPlacement {
 // placement, and inherit it. "semantic" is the semantic module's segmentation
 // thread, placed by a hook the SLAM core runs on it.
 struct ThreadMap {
-  ThreadPlacement source, tracking, mapping, publisher, semantic;
+  ThreadPlacement source, tracking, publisher;
+  ThreadPlacement mapping{.cores = {}, .priority = 0, .nice = 5};
+  ThreadPlacement semantic{.cores = {}, .priority = 0, .nice = 10};
 };
 
 struct SourceConfig {

@@ -80,7 +80,7 @@ TEST_F(ConfigTest, ShippedConfigLoads) {
 TEST_F(ConfigTest, PrintedConfigLoadsToTheSameConfig) {
   auto c = loadDaemonConfig(write(
       "camera: fr1\nsource: {queue_capacity: 3, replay: {path: /d, paced: false, max_frames: 7}}\n"
-      "modules: {geometry: true}\nthreads: {tracking: {cores: [1, 3], priority: 20}}\n"
+      "modules: {geometry: true}\nthreads: {tracking: {cores: [1, 3], priority: 20}, publisher: {nice: 3}}\n"
       "slam: {options: {orb: {num_features: 800}, sequential: true}}\n"
       "ipc: {shm: {name: ring_x}}\noutput: {trajectory: /tmp/t.txt}\n"));
   ASSERT_TRUE(c) << c.error();
@@ -93,6 +93,10 @@ TEST_F(ConfigTest, PrintedConfigLoadsToTheSameConfig) {
   EXPECT_EQ(toYaml(*again), printed);
   EXPECT_EQ(again->threads.tracking.cores, (std::vector<int>{1, 3}));
   EXPECT_EQ(again->threads.tracking.priority, 20);
+  EXPECT_EQ(again->threads.publisher.nice, 3);
+  EXPECT_EQ(again->threads.mapping.nice, 5);     // the defaults: local mapping and
+  EXPECT_EQ(again->threads.semantic.nice, 10);   // segmentation yield to tracking
+  EXPECT_EQ(again->threads.tracking.nice, 0);
   EXPECT_EQ(again->source.replay.max_frames, 7u);
   EXPECT_EQ(again->ipc.shm.name, "ring_x");
   EXPECT_EQ(again->slam.orb.num_features, 800);
@@ -112,6 +116,7 @@ TEST_F(ConfigTest, ErrorsNameTheField) {
   expectError(src + "threads: {tracking: {cores: [1, x]}}\n", {"'threads.tracking.cores'"});
   expectError(src + "threads: {mapping: {priority: 120}}\n", {"'threads.mapping.priority'", "1..99"});
   expectError(src + "threads: {gpu: {cores: [1]}}\n", {"unknown field 'threads.gpu'"});
+  expectError(src + "threads: {semantic: {nice: 20}}\n", {"'threads.semantic.nice'", "-20..19"});
   expectError(src + "slam: {options: {orb: {num_features: -5}}}\n", {"slam.options", "num_features"});
   expectError(src + "slam: {options: {orb: {bogus: 1}}}\n", {"slam.options", "orb.bogus"});
   expectError(src + "slam: {options_file: /nonexistent/slam.yaml}\n", {"'slam.options_file'", "/nonexistent/slam.yaml"});

@@ -4,6 +4,7 @@
 #include <sys/mman.h>
 #include <sys/resource.h>
 #include <sched.h>
+#include <unistd.h>
 
 #include <cerrno>
 #include <cstring>
@@ -64,6 +65,15 @@ std::vector<std::string> placeCurrentThread(const std::string& name, const Threa
       warnings.push_back(what + ".priority: SCHED_FIFO " + std::to_string(placement.priority) +
                          " not permitted (" + std::strerror(rc) +
                          "; needs CAP_SYS_NICE or RLIMIT_RTPRIO); normal scheduling kept");
+  }
+  if (placement.nice != 0 && placement.priority == 0) {
+    // Linux keeps a nice value per thread: PRIO_PROCESS with the thread id.
+    const auto tid = static_cast<id_t>(::gettid());
+    errno = 0;
+    if (setpriority(PRIO_PROCESS, tid, placement.nice) != 0)
+      warnings.push_back(what + ".nice: " + std::to_string(placement.nice) + " not permitted (" +
+                         std::strerror(errno) + (placement.nice < 0 ? "; a negative value needs CAP_SYS_NICE" : "") +
+                         "); nice " + std::to_string(getpriority(PRIO_PROCESS, tid)) + " kept");
   }
   return warnings;
 }

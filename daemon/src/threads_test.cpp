@@ -5,6 +5,7 @@
 #include <sched.h>
 #include <sys/mman.h>
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include <fstream>
 #include <string>
@@ -79,6 +80,28 @@ TEST(ThreadsTest, ClearingTheInheritedPlacementUnpins) {
     child.join();
   });
   parent.join();
+}
+
+TEST(ThreadsTest, NiceIsPerThread) {
+  const std::vector<int> available = availableCores();
+  const int process_nice = getpriority(PRIO_PROCESS, 0);
+  if (process_nice > 14) GTEST_SKIP() << "process already at nice " << process_nice;
+  std::thread t([&] {
+    ThreadPlacement p;
+    p.nice = process_nice + 5;
+    EXPECT_TRUE(placeCurrentThread("sp-nice", p, available, "threads.semantic").empty());
+    EXPECT_EQ(getpriority(PRIO_PROCESS, static_cast<id_t>(::gettid())), process_nice + 5);
+    if (geteuid() != 0) {  // a negative value needs CAP_SYS_NICE: a warning, the value kept
+      p.nice = -5;
+      const auto warnings = placeCurrentThread("sp-nice", p, available, "threads.semantic");
+      ASSERT_EQ(warnings.size(), 1u);
+      EXPECT_NE(warnings[0].find("threads.semantic.nice"), std::string::npos) << warnings[0];
+      EXPECT_NE(warnings[0].find("CAP_SYS_NICE"), std::string::npos) << warnings[0];
+      EXPECT_EQ(getpriority(PRIO_PROCESS, static_cast<id_t>(::gettid())), process_nice + 5);
+    }
+  });
+  t.join();
+  EXPECT_EQ(getpriority(PRIO_PROCESS, static_cast<id_t>(::gettid())), process_nice);  // other threads untouched
 }
 
 long lockedKb() {
