@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <string>
 #include <vector>
 
@@ -29,7 +30,7 @@ constexpr const char* kUsage =
     "       stillpoint-synth score SEQUENCE_DIR FEATURES.txt [--min-features N] [--per-frame]\n"
     "       stillpoint-synth presets\n"
     "common options: [--seed N] [--blur] [--threads N] [--max-frames N] [--png-compression 0-9 (default 0: uncompressed, fastest)]\n"
-    "                [--no-write] [--photo-dir DIR]\n"
+    "                [--no-write] [--photo-dir DIR] [--cutout MASK.png] [--face-camera]\n"
     "\n"
     "overlay: renders the movers into every frame of a TUM sequence with groundtruth.txt at the\n"
     "  ground-truth camera pose (z-tested against the real depth) and writes a TUM-layout folder\n"
@@ -37,15 +38,19 @@ constexpr const char* kUsage =
     "room: renders a textured room with movers along a TUM-like camera motion.\n"
     "score: FEATURES.txt has one line per feature 'timestamp u v flagged(0/1)' (timestamps as in\n"
     "  rgb.txt, '#' comments); prints precision/recall of flagged features against the masks.\n"
+    "--cutout cuts every poster mover along MASK.png (kept where >= 128), e.g. a person cut out of\n"
+    "  its photo: stillpoint-segment --card CARD --out DIR PHOTO writes DIR/<photo>_mask.png.\n"
+    "--face-camera turns every poster mover to face the camera in each frame (a cut-out person\n"
+    "  stays recognisable; a flat poster seen edge-on does not).\n"
     "--no-write renders without writing images (speed measurement). Exit status: 0 ok,\n"
     "1 bad input, 2 usage error. The last line of overlay/room output is machine-readable.\n";
 
 struct Args {
   std::string command;
   std::vector<std::string> positional;
-  std::string camera, config, preset, motion, photo_dir = STILLPOINT_PHOTO_DIR, size;
+  std::string camera, config, preset, motion, photo_dir = STILLPOINT_PHOTO_DIR, size, cutout;
   long seed = -1, threads = 2, max_frames = 0, frames = 0, png_compression = 0, min_features = 10;
-  bool blur = false, no_write = false, per_frame = false;
+  bool blur = false, no_write = false, per_frame = false, face_camera = false;
 };
 
 bool parseLong(const std::string& text, long lo, long hi, long* out) {
@@ -87,6 +92,7 @@ bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
     else if (s == "--preset") ok = value(&a->preset);
     else if (s == "--motion") ok = value(&a->motion);
     else if (s == "--photo-dir") ok = value(&a->photo_dir);
+    else if (s == "--cutout") ok = value(&a->cutout);
     else if (s == "--size") ok = value(&a->size);
     else if (s == "--seed") ok = number(0, 2147483647L, &a->seed);
     else if (s == "--threads") ok = number(1, 64, &a->threads);
@@ -95,6 +101,7 @@ bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
     else if (s == "--png-compression") ok = number(0, 9, &a->png_compression);
     else if (s == "--min-features") ok = number(1, 1000000, &a->min_features);
     else if (s == "--blur") a->blur = true;
+    else if (s == "--face-camera") a->face_camera = true;
     else if (s == "--no-write") a->no_write = true;
     else if (s == "--per-frame") a->per_frame = true;
     else if (!s.empty() && s[0] == '-') {
@@ -153,6 +160,18 @@ Result<SynthConfig> configFrom(const Args& a) {
   if (!c.ok()) return c;
   if (a.seed >= 0) c->seed = static_cast<std::uint64_t>(a.seed);
   if (a.blur) c->blur.enabled = true;
+  if (!a.cutout.empty()) {
+    int posters = 0;
+    for (MoverSpec& m : c->movers)
+      if (m.shape == MoverShape::kPoster) m.cutout = std::filesystem::absolute(a.cutout).string(), ++posters;
+    if (posters == 0) return Error{"--cutout: the configuration has no poster mover"};
+  }
+  if (a.face_camera) {
+    int posters = 0;
+    for (MoverSpec& m : c->movers)
+      if (m.shape == MoverShape::kPoster) m.face_camera = true, ++posters;
+    if (posters == 0) return Error{"--face-camera: the configuration has no poster mover"};
+  }
   if (!a.motion.empty()) {
     Result<CameraMotion> m = parseCameraMotion(a.motion);
     if (!m.ok()) return Error{"--motion: " + m.error()};

@@ -30,7 +30,8 @@ const char* kUsage =
     "                          [--furniture] [--threads N]\n"
     "                          (IMAGE... | --tum DATASET_DIR [--from I] [--to J] [--depth])\n"
     "Prints one line per image and a summary line; --out writes <name>_overlay.png\n"
-    "(movable pixels red, pixels the post-filter dropped yellow, boxes with class and score).\n"
+    "(movable pixels red, pixels the post-filter dropped yellow, boxes with class and score)\n"
+    "and <name>_mask.png (255 movable, 0 not: e.g. a person cut-out for stillpoint-synth --cutout).\n"
     "--depth (with --tum): cut mask pixels that disagree with the instance's depth (TUM depth, /5000).\n";
 
 int usage(const std::string& why) {
@@ -245,6 +246,10 @@ int main(int argc, char** argv) {
       const fs::path out = out_dir / (path.stem().string() + "_overlay.png");
       if (!cv::imwrite(out.string(), overlay(bgr, *seg)))
         std::cerr << "stillpoint-segment: cannot write '" << out.string() << "'\n";
+      const fs::path mask = out_dir / (path.stem().string() + "_mask.png");
+      cv::Mat binary;
+      cv::compare(seg->movable_mask, 0, binary, cv::CMP_GT);
+      if (!cv::imwrite(mask.string(), binary)) std::cerr << "stillpoint-segment: cannot write '" << mask.string() << "'\n";
     }
   }
   if (processed == 0) return std::cerr << "stillpoint-segment: no image could be processed\n", 1;

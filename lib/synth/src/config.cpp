@@ -90,7 +90,7 @@ Result<MoverShape> parseShape(const std::string& s) {
 
 Result<MoverSpec> readMover(const Reader& r, const YAML::Node& n, const std::string& f) {
   MoverSpec m;
-  SP_TRY(r.checkKeys(n, f, {"name", "shape", "texture", "size", "yaw_deg", "yaw_rate_deg_s", "path"}));
+  SP_TRY(r.checkKeys(n, f, {"name", "shape", "texture", "cutout", "face_camera", "size", "yaw_deg", "yaw_rate_deg_s", "path"}));
   SP_TRY(r.read(n, "name", f + ".name", &m.name));
   std::string shape = "poster";
   SP_TRY(r.read(n, "shape", f + ".shape", &shape));
@@ -99,6 +99,8 @@ Result<MoverSpec> readMover(const Reader& r, const YAML::Node& n, const std::str
   m.shape = *sh;
   if (m.shape == MoverShape::kWalker) m.size = Vec3(0.45, 1.75, 0.25);
   SP_TRY(r.read(n, "texture", f + ".texture", &m.texture));
+  SP_TRY(r.read(n, "cutout", f + ".cutout", &m.cutout));
+  SP_TRY(r.read(n, "face_camera", f + ".face_camera", &m.face_camera));
   SP_TRY(r.readVec3(n, "size", f + ".size", &m.size, 2));
   SP_TRY(r.read(n, "yaw_deg", f + ".yaw_deg", &m.yaw_deg));
   SP_TRY(r.read(n, "yaw_rate_deg_s", f + ".yaw_rate_deg_s", &m.yaw_rate_deg_s));
@@ -204,6 +206,8 @@ Status SynthConfig::validate() const {
       if (!(m.size[d] > 0.005 && m.size[d] < 20)) return bad("size", "must be in (0.005, 20) m");
     }
     if (m.texture.empty()) return bad("texture", "must not be empty");
+    if (!m.cutout.empty() && m.shape != MoverShape::kPoster) return bad("cutout", "is for posters only");
+    if (m.face_camera && m.shape != MoverShape::kPoster) return bad("face_camera", "is for posters only");
     if (!std::isfinite(m.yaw_deg)) return bad("yaw_deg", "must be finite");
     if (!std::isfinite(m.yaw_rate_deg_s)) return bad("yaw_rate_deg_s", "must be finite");
     const PathSpec& p = m.path;

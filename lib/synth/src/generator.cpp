@@ -187,6 +187,8 @@ Status writeMoversYaml(const fs::path& path, const std::string& mode, const std:
     e << YAML::Key << "name" << YAML::Value << m.name;
     e << YAML::Key << "shape" << YAML::Value << toString(m.shape);
     e << YAML::Key << "texture" << YAML::Value << m.texture;
+    if (!m.cutout.empty()) e << YAML::Key << "cutout" << YAML::Value << m.cutout;
+    if (m.face_camera) e << YAML::Key << "face_camera" << YAML::Value << true;
     e << YAML::Key << "size" << YAML::Value;
     emitVec(e, m.size);
     e << YAML::Key << "yaw_deg" << YAML::Value << m.yaw_deg;
@@ -240,7 +242,7 @@ Result<MoverRenderer> MoverRenderer::create(const SynthConfig& config, const SE3
 void MoverRenderer::drawAt(double t, const SE3& T_w_c, const CameraModel& camera, RenderTarget* target) const {
   Mesh mesh;
   for (std::size_t k = 0; k < specs_.size(); ++k) {
-    addMover(&mesh, specs_[k], textures_[k], T_w_s_, t, static_cast<std::uint16_t>(k + 1));
+    addMover(&mesh, specs_[k], textures_[k], T_w_s_, t, static_cast<std::uint16_t>(k + 1), T_w_c.translation());
   }
   synth::render(mesh, T_w_c, camera, target);
 }

@@ -13,6 +13,7 @@
 
 #include "stillpoint/dataset/testing.hpp"
 #include "stillpoint/synth/generator.hpp"
+#include "stillpoint/synth/movers.hpp"
 #include "stillpoint/synth/room.hpp"
 #include "stillpoint/synth/sensor.hpp"
 
@@ -174,6 +175,55 @@ SynthConfig smallRoom(std::uint64_t seed) {
   w.path.end = Vec3(0.5, 2.0, 0);
   c.movers = {w};
   return c;
+}
+
+TEST(Movers, FaceCameraPosterTurnsToTheCamera) {
+  MoverSpec m;
+  m.shape = MoverShape::kPoster;
+  m.texture = "paper";
+  m.size = Vec3(0.6, 0.9, 0.0);
+  m.path.start = m.path.end = Vec3(0.5, 2.0, 1.0);
+  Result<MoverTextures> tx = makeMoverTextures(m, "", 1);
+  ASSERT_TRUE(tx.ok()) << tx.error();
+  // Normal of the drawn poster, horizontal part, against the direction to each camera.
+  auto facing = [&](const MoverSpec& spec, const Vec3& camera) {
+    Mesh mesh;
+    addMover(&mesh, spec, *tx, SE3::Identity(), 0.0, 1, camera);
+    const Triangle& t = mesh.triangles.front();
+    Vec3 n = (t.p[1] - t.p[0]).cross(t.p[2] - t.p[0]).normalized();
+    Vec3 to_camera = camera - m.path.start;
+    to_camera.z() = 0;
+    return std::abs(n.dot(to_camera.normalized()));
+  };
+  m.face_camera = true;
+  for (const Vec3& camera : {Vec3(0, 0, 1.5), Vec3(3, 2, 1.5), Vec3(-2, 4, 0.5), Vec3(0.5, 5, 1)})
+    EXPECT_NEAR(facing(m, camera), 1.0, 1e-9) << camera.transpose();
+  m.face_camera = false;  // a plain poster keeps its yaw: edge-on from the side
+  EXPECT_NEAR(facing(m, Vec3(3, 2, 1.5)), 0.0, 1e-9);
+}
+
+TEST(Movers, CutOutMaskErrorsNameTheFile) {
+  MoverSpec m;
+  m.name = "person";
+  m.cutout = "/nonexistent/mask.png";
+  Result<MoverTextures> tx = makeMoverTextures(m, "", 1);
+  ASSERT_FALSE(tx.ok());
+  EXPECT_NE(tx.error().find("/nonexistent/mask.png"), std::string::npos) << tx.error();
+  EXPECT_NE(tx.error().find("person"), std::string::npos) << tx.error();
+  const fs::path empty = tempDir("empty_mask.png");
+  cv::imwrite(empty.string(), cv::Mat(8, 8, CV_8UC1, cv::Scalar(0)));
+  m.cutout = empty.string();
+  tx = makeMoverTextures(m, "", 1);
+  ASSERT_FALSE(tx.ok());
+  EXPECT_NE(tx.error().find("keeps no pixel"), std::string::npos) << tx.error();
+  fs::remove(empty);
+  SynthConfig config;
+  m.shape = MoverShape::kBox;
+  m.cutout = "mask.png";
+  config.movers = {m};
+  const Status s = config.validate();
+  ASSERT_FALSE(s);
+  EXPECT_NE(s.error().find("cutout"), std::string::npos) << s.error();
 }
 
 TEST(Room, DeterministicBySeedWhateverTheThreads) {

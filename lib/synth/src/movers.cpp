@@ -195,19 +195,33 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
   } else {
     Result<TexturePtr> main = photoOrStyle(spec.texture, TextureStyle::kPaper, 512, 512, seed);
     if (!main.ok()) return Error{main.error()};
-    out.textures.push_back(*main);
+    if (spec.cutout.empty()) {
+      out.textures.push_back(*main);
+    } else {
+      std::filesystem::path p(spec.cutout);
+      if (p.is_relative() && !base_dir.empty()) p = std::filesystem::path(base_dir) / p;
+      Result<cv::Mat> keep = loadMask(p.string());
+      if (!keep.ok()) return Error{"mover '" + spec.name + "': cutout: " + keep.error()};
+      out.textures.push_back(std::make_shared<const Texture>((*main)->level(0), false, *keep));
+    }
   }
   return out;
 }
 
 void addMover(Mesh* mesh, const MoverSpec& spec, const MoverTextures& tx, const SE3& T_w_s, double t,
-              std::uint16_t id) {
+              std::uint16_t id, const Vec3& camera_w) {
   if (spec.shape == MoverShape::kWalker) {
     addWalker(mesh, spec, tx, T_w_s, t, id);
     return;
   }
   const PathState s = evaluatePath(spec.path, t);
-  const double yaw = (spec.yaw_deg + spec.yaw_rate_deg_s * t) * kPi / 180.0;
+  double yaw = (spec.yaw_deg + spec.yaw_rate_deg_s * t) * kPi / 180.0;
+  if (spec.face_camera && spec.shape == MoverShape::kPoster) {
+    // The poster's normal is its -y axis, (sin yaw, -cos yaw) after the yaw:
+    // point it at the camera, seen from above in the stage frame.
+    const Vec3 d = T_w_s.inverse() * camera_w - s.position;
+    if (std::hypot(d.x(), d.y()) > 1e-6) yaw += std::atan2(d.x(), -d.y());
+  }
   const SE3 T_w_m = yawPose(T_w_s, s.position, yaw);
   const Texture* tex = tx.textures[0].get();
   if (spec.shape == MoverShape::kPoster) {

@@ -107,6 +107,8 @@ struct Rasteriser {
     const float ftw = static_cast<float>(tw), fth = static_cast<float>(th);
     const std::uint8_t* tex_data = tex.data;
     const std::size_t tex_step = tex.step[0];
+    const std::uint8_t* keep_data = tri.texture->cutout() ? tri.texture->keepLevel(lod).data : nullptr;
+    const std::size_t keep_step = tri.texture->cutout() ? tri.texture->keepLevel(lod).step[0] : 0;
     const std::uint16_t id = tri.id;
     const double sign = area > 0 ? 1.0 : -1.0;
 
@@ -161,6 +163,13 @@ struct Rasteriser {
           v0 = wrapIndex(v0, th, repeat);
           v1 = wrapIndex(v1, th, repeat);
         }
+        if (keep_data) {  // cut-out: transparent where the bilinear mask is below half
+          const std::uint8_t* k0 = keep_data + static_cast<std::ptrdiff_t>(v0) * keep_step;
+          const std::uint8_t* k1 = keep_data + static_cast<std::ptrdiff_t>(v1) * keep_step;
+          const int top = (k0[u0] << 8) + (k0[u1] - k0[u0]) * fu;
+          const int bottom = (k1[u0] << 8) + (k1[u1] - k1[u0]) * fu;
+          if ((((top << 8) + (bottom - top) * fv) >> 16) < 128) continue;
+        }
         const std::uint8_t* r0 = tex_data + static_cast<std::ptrdiff_t>(v0) * tex_step;
         const std::uint8_t* r1 = tex_data + static_cast<std::ptrdiff_t>(v1) * tex_step;
         const std::uint8_t* p00 = r0 + 3 * u0;
@@ -187,7 +196,7 @@ struct Rasteriser {
 
 }  // namespace
 
-Texture::Texture(const cv::Mat& bgr, bool repeat) : repeat_(repeat) {
+Texture::Texture(const cv::Mat& bgr, bool repeat, const cv::Mat& keep) : repeat_(repeat) {
   cv::Mat level0;
   if (bgr.type() == CV_8UC3) {
     level0 = bgr.clone();
@@ -204,6 +213,13 @@ Texture::Texture(const cv::Mat& bgr, bool repeat) : repeat_(repeat) {
     cv::resize(levels_.back(), next, cv::Size(levels_.back().cols / 2, levels_.back().rows / 2), 0,
                0, cv::INTER_AREA);
     levels_.push_back(next);
+  }
+  if (!keep.empty() && keep.type() == CV_8UC1) {
+    for (const cv::Mat& level : levels_) {
+      cv::Mat k;
+      cv::resize(keep, k, level.size(), 0, 0, level.cols < keep.cols ? cv::INTER_AREA : cv::INTER_LINEAR);
+      keep_.push_back(k);
+    }
   }
 }
 

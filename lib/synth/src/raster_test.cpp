@@ -195,5 +195,43 @@ TEST(Raster, CameraPoseMovesTheImage) {
   EXPECT_NEAR(m.m01 / m.m00, expected.y(), 0.75);
 }
 
+TEST(Raster, CutOutTextureIsTransparentOutsideItsMask) {
+  const CameraModel cam = smallCamera();
+  // Keep the texture's left half only (the mask is at another size: it is resized).
+  cv::Mat keep(40, 40, CV_8UC1, cv::Scalar(0));
+  keep(cv::Rect(0, 0, 20, 40)).setTo(255);
+  const Texture whole = halves();
+  const Texture cut(whole.level(0), false, keep);
+  ASSERT_TRUE(cut.cutout());
+  ASSERT_FALSE(whole.cutout());
+  // A 1.2 x 0.9 m quad facing the camera 2 m ahead; behind it, a wall at 3 m.
+  auto quad = [](Mesh* mesh, const Texture* tex, double z, double hw, double hh, std::uint16_t id) {
+    addQuad(mesh, {Vec3(-hw, -hh, z), Vec3(hw, -hh, z), Vec3(hw, hh, z), Vec3(-hw, hh, z)}, tex, id);
+  };
+  Mesh mesh;
+  quad(&mesh, &cut, 2.0, 0.6, 0.45, 1);
+  quad(&mesh, &whole, 3.0, 3.0, 3.0, 2);
+  RenderTarget target = RenderTarget::blank(cam.width, cam.height);
+  render(mesh, SE3::Identity(), cam, &target);
+  int left = 0, right = 0, misplaced = 0;
+  for (int y = 0; y < cam.height; ++y) {
+    for (int x = 0; x < cam.width; ++x) {
+      const Vec3 on_quad = cam.unproject(Vec2(x, y), 2.0);
+      if (std::abs(on_quad.y()) > 0.44 || std::abs(on_quad.x()) > 0.59 || std::abs(on_quad.x()) < 0.01) continue;
+      const std::uint16_t id = target.id.at<std::uint16_t>(y, x);
+      if (on_quad.x() < 0) {
+        left += id == 1;
+        misplaced += id != 1;
+      } else {  // the wall shows through the cut-out, at its own depth
+        right += id == 2 && std::abs(target.depth.at<float>(y, x) - 3.0f) < 1e-3f;
+        misplaced += id != 2;
+      }
+    }
+  }
+  EXPECT_GT(left, 500);
+  EXPECT_GT(right, 500);
+  EXPECT_EQ(misplaced, 0);
+}
+
 }  // namespace
 }  // namespace stillpoint::synth

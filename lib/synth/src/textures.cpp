@@ -184,4 +184,18 @@ Result<cv::Mat> loadPhoto(const std::string& path) {
   return img;
 }
 
+Result<cv::Mat> loadMask(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) return Error{"mask file '" + path + "' does not exist"};
+  cv::Mat img;
+  try {
+    img = cv::imread(path, cv::IMREAD_GRAYSCALE);
+  } catch (const std::exception& e) {
+    return Error{"mask file '" + path + "': " + e.what()};
+  }
+  if (img.empty()) return Error{"mask file '" + path + "' is not a readable image"};
+  if (cv::countNonZero(img >= 128) == 0) return Error{"mask file '" + path + "' keeps no pixel (none >= 128)"};
+  return img;
+}
+
 }  // namespace stillpoint::synth

@@ -57,6 +57,15 @@ struct MoverSpec {
   MoverShape shape = MoverShape::kPoster;
   // A texture style (paper, wood, fabric, stone, skin) or an image file path.
   std::string texture = "paper";
+  // Poster only: a mask image (any size; stretched over the poster like the
+  // texture). The poster keeps the pixels where it is >= 128 and is transparent
+  // elsewhere, in colour, depth and the ground-truth masks alike: e.g. a person
+  // cut out of a photo (stillpoint-segment --out writes such masks). "" = none.
+  std::string cutout;
+  // Poster only: turn about the vertical to face the camera in every frame
+  // (yaw_deg is added), as a person's cut-out would keep looking like a person
+  // from any side; a flat poster seen edge-on is a sliver no network knows.
+  bool face_camera = false;
   Vec3 size{0.6, 0.9, 0.05};
   double yaw_deg = 0.0;         // about z; poster/box only (walkers face where they walk)
   double yaw_rate_deg_s = 0.0;  // poster/box spin
@@ -68,13 +77,15 @@ struct MoverTextures {
   std::vector<TexturePtr> textures;  // poster/box: [main]; walker: [shirt, trousers, skin, shoes]
 };
 
-// Resolves `spec.texture` (relative paths against base_dir). Errors name the mover and file.
+// Resolves `spec.texture` and `spec.cutout` (relative paths against base_dir). Errors name the
+// mover and file.
 Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string& base_dir,
                                         std::uint64_t seed);
 
-// Appends the mover's triangles at time t; all carry `id`.
+// Appends the mover's triangles at time t; all carry `id`. camera_w: the camera centre
+// (world), for face_camera posters.
 void addMover(Mesh* mesh, const MoverSpec& spec, const MoverTextures& textures, const SE3& T_w_s,
-              double t, std::uint16_t id);
+              double t, std::uint16_t id, const Vec3& camera_w = Vec3::Zero());
 
 // Stage frame of a first camera pose (see the file comment).
 SE3 stageFromCamera(const SE3& T_w_c0);

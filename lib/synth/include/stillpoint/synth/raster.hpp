@@ -20,15 +20,21 @@ namespace stillpoint::synth {
 // coordinates are in [0,1] across the image; with `repeat` they wrap.
 class Texture {
  public:
-  Texture(const cv::Mat& bgr, bool repeat);
+  // `keep` (optional, CV_8UC1, any size: resized to the texture's) cuts the
+  // texture out: texels where it is < 128 are transparent, nothing is drawn there.
+  Texture(const cv::Mat& bgr, bool repeat, const cv::Mat& keep = cv::Mat());
   int levels() const { return static_cast<int>(levels_.size()); }
   const cv::Mat& level(int i) const { return levels_[static_cast<std::size_t>(i)]; }
   bool repeat() const { return repeat_; }
+  bool cutout() const { return !keep_.empty(); }
+  // The cut-out mask of level i (CV_8UC1, same size as level(i)); only when cutout().
+  const cv::Mat& keepLevel(int i) const { return keep_[static_cast<std::size_t>(i)]; }
   // Bilinear lookup at texture coordinates (u, v) of level `lod`.
   cv::Vec3f sample(float u, float v, int lod) const;
 
  private:
   std::vector<cv::Mat> levels_;  // CV_8UC3, continuous
+  std::vector<cv::Mat> keep_;    // CV_8UC1 per level, or empty
   bool repeat_;
 };
 using TexturePtr = std::shared_ptr<const Texture>;

@@ -28,4 +28,8 @@ cv::Mat makeTexture(TextureStyle style, int width, int height, std::uint64_t see
 // Reads a photo (any format OpenCV reads) as CV_8UC3; the error names the file.
 Result<cv::Mat> loadPhoto(const std::string& path);
 
+// Reads a mask image as CV_8UC1 (colour images are converted to grey); the
+// error names the file. Errors also when no pixel is >= 128 (nothing kept).
+Result<cv::Mat> loadMask(const std::string& path);
+
 }  // namespace stillpoint::synth
