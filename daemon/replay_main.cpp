@@ -2,6 +2,8 @@
 // sequence, writes the trajectory and prints a summary whose last line is
 // machine-readable.
 #include <opencv2/core.hpp>
+#include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -206,7 +208,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "stillpoint-replay: %s\n", data.error().c_str());
     return 1;
   }
-  auto system = slam::SlamSystem::create(*camera, options);
+  // The segmentation thread runs at nice 10, as stillpointd's default
+  // (threads.semantic.nice): a keyframe's segmentation must not take the CPU
+  // from tracking, and tracking times with the module on mean the same here.
+  slam::SlamThreadHooks hooks;
+  hooks.semantic_start = [] { setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), 10); };
+  auto system = slam::SlamSystem::create(*camera, options, hooks);
   if (!system) {
     std::fprintf(stderr, "stillpoint-replay: %s\n", system.error().c_str());
     return 1;

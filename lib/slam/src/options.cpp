@@ -71,6 +71,8 @@ Status SemanticOptions::validate() const {
     return Error{"semantic.max_removed_fraction must be in [0, 1]"};
   if (!(point_masked_ratio >= 0 && point_masked_ratio < 1))
     return Error{"semantic.point_masked_ratio must be in [0, 1)"};
+  if (!(propagate_grow_px >= 0 && propagate_grow_px <= 200))
+    return Error{"semantic.propagate_grow_px must be in [0, 200]"};
   for (const std::string& d : model_dirs)
     if (d.empty()) return Error{"semantic.model_dirs: empty folder name"};
   return Status::success();
@@ -154,6 +156,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "max_removed_fraction", o.semantic.max_removed_fraction);
   v("semantic", "point_masked_ratio", o.semantic.point_masked_ratio);
   v("semantic", "propagate_masks", o.semantic.propagate_masks);
+  v("semantic", "propagate_grow_px", o.semantic.propagate_grow_px);
   v("", "sequential", o.sequential);
 }
 

@@ -231,6 +231,42 @@ TEST(SemanticModule, MasksFollowTheirFeaturesBetweenKeyframes) {
   }
 }
 
+// Growing the matches over their surface marks more of the masked region
+// between keyframes, and only around it: the rectangle is 18 % of the image,
+// 24 % with the growth radius around it.
+TEST(SemanticModule, GrownMasksStayAroundTheirMatches) {
+  const Frames& frames = planeFrames();
+  auto run = [&](float grow, int* features) {
+    SlamOptions options = semanticOptions();
+    options.semantic.propagate_masks = true;
+    options.semantic.propagate_grow_px = grow;
+    auto system = SlamSystem::create(frames.camera, options, std::make_unique<RectangleSegmenter>(kRect, false));
+    EXPECT_TRUE(system.ok()) << system.error();
+    if (!system.ok()) return 0;
+    int marked = 0;
+    *features = 0;
+    for (const RgbdInput& input : frames.inputs) {
+      const auto out = (*system)->track(input);
+      EXPECT_TRUE(out.ok()) << out.error();
+      if (!out.ok()) return 0;
+      marked += out->semantic_features;
+      if (out->semantic_features > 0) *features += out->features;
+    }
+    (*system)->finish();
+    for (const KeyFrameView& kf : (*system)->keyframes())
+      for (const KeyFrameFeature& f : kf.features)
+        EXPECT_FALSE(f.dynamic && f.mapped) << "keyframe " << kf.id << " feature at " << f.u << "," << f.v;
+    return marked;
+  };
+  int features_matched = 0, features_grown = 0;
+  const int matched = run(0.0f, &features_matched);
+  const int grown = run(16.0f, &features_grown);
+  ASSERT_GT(matched, 0);
+  std::printf("marked between keyframes: %d matched, %d grown (of %d features)\n", matched, grown, features_grown);
+  EXPECT_GT(grown, matched * 11 / 10) << "matched " << matched << ", grown " << grown;
+  EXPECT_LT(grown, features_grown * 3 / 10) << grown << " of " << features_grown << " features marked";
+}
+
 TEST(SemanticModule, SequentialModeIsDeterministic) {
   const RunResult a = runWith(semanticOptions(), std::make_unique<RectangleSegmenter>(kRect, false));
   const RunResult b = runWith(semanticOptions(), std::make_unique<RectangleSegmenter>(kRect, false));
@@ -384,6 +420,7 @@ TEST(SemanticOptions, EachOutOfRangeValueNamesItsField) {
       {"semantic.confirm_ratio", [](SemanticOptions& o) { o.confirm_ratio = std::nan(""); }},
       {"semantic.max_removed_fraction", [](SemanticOptions& o) { o.max_removed_fraction = 1.5; }},
       {"semantic.point_masked_ratio", [](SemanticOptions& o) { o.point_masked_ratio = 1; }},
+      {"semantic.propagate_grow_px", [](SemanticOptions& o) { o.propagate_grow_px = -1; }},
       {"semantic.model_dirs", [](SemanticOptions& o) { o.model_dirs = {""}; }},
   };
   for (const auto& [field, spoil] : cases) {

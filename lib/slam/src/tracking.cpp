@@ -157,6 +157,22 @@ void Tracker::markSemanticMovers() {
   // mismatches, and a static feature marked here is lost to the pose.
   for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true))
     if (f.dynamic[i] == kSemanticDynamic) current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
+  const float grow = options_.semantic.propagate_grow_px;
+  if (grow > 0 && semantic_marked_ >= 5) {
+    // One pass of region growing from the matches (not from what it adds).
+    std::vector<int> grown;
+    for (int j = 0; j < current_.size(); ++j) {
+      const float z = current_.depth[j];
+      if (current_.dynamic[j] || z <= 0) continue;
+      int support = 0;
+      for (int s : current_.grid.query(current_.keys, current_.un, current_.un[j].x, current_.un[j].y, grow, 0, -1))
+        support += current_.dynamic[s] == kSemanticDynamic && current_.depth[s] > 0 &&
+                   std::abs(current_.depth[s] - z) < 0.1f + 0.05f * z;
+      if (support >= 2) grown.push_back(j);
+    }
+    for (int j : grown) current_.dynamic[j] = kSemanticDynamic;
+    semantic_marked_ += static_cast<int>(grown.size());
+  }
   SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of keyframe " << source->id);
 }
 

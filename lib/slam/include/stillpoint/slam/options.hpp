@@ -135,6 +135,12 @@ struct SemanticOptions {
   // out of the pose and the map (a masked object keeps moving after its
   // keyframe was segmented).
   bool propagate_masks = true;
+  // ...and grows the matches over their surface: a feature with at least two
+  // matched ones within this radius (pixels) at its depth (10 cm + 5 %) is
+  // kept out too. Descriptor matches alone find a fraction of a moving
+  // person's features; the rest would pull the pose until the next
+  // segmented keyframe. 0: matches only.
+  float propagate_grow_px = 0.0f;
   Status validate() const;
 };
 
