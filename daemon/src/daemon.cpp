@@ -420,7 +420,9 @@ int Daemon::run() {
   if (reason == "signal") d.queue->close(/*drain=*/false);  // unblocks the source, ends tracking soon
   source_thread.join();
   tracking_thread.join();
-  d.system->finish();
+  // On a signal, keyframes waiting for segmentation are dropped: their masks
+  // would only edit a map about to be discarded, at up to seconds each.
+  d.system->finish(/*discard_pending_segmentation=*/reason == "signal");
   d.publisher->publishStatus(d.statusMessage());
   d.publisher->close();
   d.publisher->flush();

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -42,6 +43,7 @@ class RectangleSegmenter : public semantic::Segmenter {
   }
   Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
     if (bgr.empty() || bgr.type() != CV_8UC3) return Error{"not a BGR image"};
+    while (gate && !*gate) std::this_thread::sleep_for(std::chrono::milliseconds(1));
     ++*calls;
     semantic::Segmentation seg;
     seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
@@ -64,6 +66,7 @@ class RectangleSegmenter : public semantic::Segmenter {
   const semantic::ModelCard& card() const override { return card_; }
   const std::vector<int>& movableClassIds() const override { return ids_; }
   std::shared_ptr<int> calls = std::make_shared<int>(0);  // outlives the segmenter (owned by the system)
+  std::shared_ptr<std::atomic<bool>> gate;                 // when set, segment() waits until it is true
 
  private:
   cv::Rect rect_;
@@ -292,6 +295,33 @@ TEST(SemanticModule, ThreadedRunAppliesEveryResultByFinish) {
   ASSERT_EQ(run.stats.semantic_keyframes_dropped, 0);
   expectMaskApplied(run);
   EXPECT_GT(run.stats.semantic_latency_ms_p95, 0.0);
+}
+
+// A stop on request (stillpointd on SIGTERM) drops the keyframes still
+// queued for segmentation instead of segmenting them first.
+TEST(SemanticModule, FinishCanDropQueuedKeyframes) {
+  const Frames& frames = planeFrames();
+  SlamOptions options = semanticOptions(false);
+  options.semantic.queue_capacity = 100;
+  auto fake = std::make_unique<RectangleSegmenter>(kRect, false);
+  fake->gate = std::make_shared<std::atomic<bool>>(false);  // the first keyframe's segmentation waits
+  const auto gate = fake->gate;
+  const auto calls = fake->calls;
+  auto system = SlamSystem::create(frames.camera, options, std::move(fake));
+  ASSERT_TRUE(system.ok()) << system.error();
+  for (const RgbdInput& input : frames.inputs) ASSERT_TRUE((*system)->track(input).ok());
+  std::thread opener([gate] {  // lets the running segmentation end once finish() has begun
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    *gate = true;
+  });
+  (*system)->finish(/*discard_pending_segmentation=*/true);
+  opener.join();
+  const MapStats stats = (*system)->mapStats();
+  EXPECT_LE(*calls, 1);
+  EXPECT_LE(stats.semantic_keyframes_segmented, 1);
+  EXPECT_GE(stats.semantic_keyframes_dropped, 2);
+  EXPECT_GE(stats.semantic_keyframes_segmented + stats.semantic_keyframes_dropped,
+            static_cast<int>((*system)->keyframes().size()) - 1);
 }
 
 TEST(SemanticModule, ThreadHookRunsOnTheSegmentationThread) {

@@ -111,10 +111,14 @@ void SemanticWorker::run(std::stop_token stop) {
   }
 }
 
-void SemanticWorker::finish() {
+void SemanticWorker::finish(bool discard_queued) {
   {
     std::lock_guard lock(mutex_);
     closed_ = true;
+    if (discard_queued) {
+      dropped_ += static_cast<int>(queue_.size());
+      queue_.clear();
+    }
   }
   cv_.notify_all();
   if (worker_.joinable()) worker_.join();

@@ -70,7 +70,8 @@ class SemanticWorker {
   // Threaded use.
   void start(std::function<void()> on_thread_start = {});  // runs first on the worker thread
   void submit(SemanticJob job);  // never blocks; drop-oldest when full
-  void finish();                 // segments what is queued, then joins
+  // Segments what is queued (or drops it, counted as dropped), then joins.
+  void finish(bool discard_queued = false);
   int dropped() const;
 
  private:

@@ -222,8 +222,8 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   return out;
 }
 
-void SlamSystem::finish() {
-  if (impl_->semantic) impl_->semantic->finish();  // segments what is queued
+void SlamSystem::finish(bool discard_pending_segmentation) {
+  if (impl_->semantic) impl_->semantic->finish(discard_pending_segmentation);  // segments what is queued
   impl_->mapper.finish();                          // then applies it
   impl_->finished = true;
 }

@@ -171,7 +171,11 @@ class SlamSystem {
   // system unchanged.
   Result<TrackOutput> track(const RgbdInput& input);
   // Drains local mapping and stops its thread; tracking may not be called after.
-  void finish();
+  // Keyframes still waiting for segmentation are segmented first, unless
+  // `discard_pending_segmentation` (a stop on request: one segmentation can
+  // take seconds on a loaded CPU); they then count as dropped. A segmentation
+  // already running completes either way.
+  void finish(bool discard_pending_segmentation = false);
   // Every tracked frame (the most recent tracking.trajectory_records of them),
   // expressed through its reference keyframe so that it benefits from bundle
   // adjustment. Call after finish() for final values.
