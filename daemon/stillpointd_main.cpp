@@ -110,14 +110,11 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   daemon::Daemon service(config);
-  if (Status s = service.start(); !s) {
-    std::fprintf(stderr, "stillpointd: %s\n", s.error().c_str());
-    return 1;
-  }
-
   // First signal: orderly stop. Second signal, or a stop overrunning
-  // shutdown_timeout_s: immediate _exit (nothing flushed).
-  std::atomic<bool> finished{false};
+  // shutdown_timeout_s: immediate _exit (nothing flushed). A signal during
+  // start-up (opening the camera, loading and warming up a network: seconds
+  // on a loaded CPU) exits at once: nothing has been tracked or written yet.
+  std::atomic<bool> started{false}, finished{false};
   const auto timeout = std::chrono::duration<double>(config.shutdown_timeout_s);
   std::thread signal_thread([&] {
     pthread_setname_np(pthread_self(), "sp-signals");
@@ -127,6 +124,10 @@ int main(int argc, char** argv) {
     while (!finished) {
       const int sig = sigtimedwait(&signals, nullptr, &poll);
       if (sig > 0) {
+        if (!started) {
+          writeAll("stillpointd: signal during start-up, exiting\n");
+          ::_exit(0);
+        }
         if (stopping) {
           writeAll("stillpointd: second signal, forcing exit\n");
           ::_exit(130);
@@ -140,6 +141,13 @@ int main(int argc, char** argv) {
       }
     }
   });
+  if (Status s = service.start(); !s) {
+    finished = true;
+    signal_thread.join();
+    std::fprintf(stderr, "stillpointd: %s\n", s.error().c_str());
+    return 1;
+  }
+  started = true;
   const int rc = service.run();
   finished = true;
   signal_thread.join();

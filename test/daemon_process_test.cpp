@@ -287,6 +287,18 @@ TEST_F(DaemonProcess, SecondSignalForcesExit) {
   EXPECT_FALSE(fs::exists(d / "status.txt"));  // forced: nothing flushed
 }
 
+TEST_F(DaemonProcess, SignalDuringStartUpExitsAtOnce) {
+  const auto d = dir("startup");
+  Daemon daemon(d, config(g_fast_seq, d, ring("startup"), true, true), {"STILLPOINTD_TEST_SLOW_START_MS=60000"});
+  const auto until = Clock::now() + 60s;  // the source is open: start-up is under way
+  while (daemon.err().find("source:") == std::string::npos && Clock::now() < until) std::this_thread::sleep_for(20ms);
+  ASSERT_NE(daemon.err().find("source:"), std::string::npos) << daemon.err();
+  daemon.signal(SIGTERM);
+  EXPECT_EQ(daemon.waitExit(5s), 0) << daemon.err();
+  EXPECT_NE(daemon.err().find("signal during start-up"), std::string::npos) << daemon.err();
+  EXPECT_FALSE(fs::exists(d / "status.txt"));  // nothing ran
+}
+
 TEST_F(DaemonProcess, StopOverrunningTheTimeoutForcesExit) {
   const auto d = dir("overrun");
   const std::string r = ring("overrun");

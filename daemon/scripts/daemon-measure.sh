@@ -40,7 +40,7 @@ case $what in
     n=${4:-20}
     cfg true true false
     for i in $(seq "$n"); do
-      rm -f "$work/status.txt"
+      rm -f "$work/status.txt" "/dev/shm/$ring"  # the ring outlives a run: wait for this run's
       "$bin" --config "$work/d.yaml" 2> "$work/err.txt" &
       pid=$!
       # Wait for tracking to run (ring present and a few poses in), then stop.
@@ -48,8 +48,10 @@ case $what in
       sleep "${WARMUP:-5}"
       t0=$(date +%s%N)
       kill -TERM $pid
-      wait $pid
+      rc=0
+      wait $pid || rc=$?
       t1=$(date +%s%N)
+      (( rc == 0 )) || { echo "run $i: exit status $rc:"; tail -3 "$work/err.txt"; }
       echo "run $i: exit_ms=$(( (t1 - t0) / 1000000 )) $(grep -E '^(shutdown_ms|frames_processed)' "$work/status.txt" | tr '\n' ' ')"
     done
     ;;

@@ -152,6 +152,10 @@ Status Daemon::start() {
   else d.source = std::make_unique<platform::ReplaySource>(c.source.replay, c.camera);
   if (Status s = d.source->open(); !s) return Error{"source: " + s.error()};
   SP_INFO(logger, "source: " << d.source->describe());
+  // Test hook (test/daemon_process_test.cpp): a start-up as slow as loading a
+  // network on a loaded CPU, to signal the daemon during it. Never set in production.
+  if (const char* slow = std::getenv("STILLPOINTD_TEST_SLOW_START_MS"))
+    std::this_thread::sleep_for(std::chrono::milliseconds(std::atol(slow)));
   d.queue = std::make_unique<BoundedQueue<platform::CameraFrame>>(
       c.source.queue_capacity, d.source->live() ? BoundedQueue<platform::CameraFrame>::Policy::kDropOldest
                                                 : BoundedQueue<platform::CameraFrame>::Policy::kBlock);
