@@ -1,6 +1,8 @@
 #include "daemon.hpp"
 
 #include <opencv2/core.hpp>
+#include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -116,6 +118,7 @@ struct Daemon::Impl {
       frames_processed{0}, reconnects{0}, keyframes{0};
   std::atomic<int> last_state{-1};
   std::atomic<bool> device_gone{false};
+  std::atomic<int> semantic_tid{0};  // the segmentation thread (nice 10 by default)
   LatencyHistogram latency;
   ipc::PublisherStats publisher_stats;  // final, taken at stop
 
@@ -164,6 +167,7 @@ Status Daemon::start() {
   // SLAM threads inherit the set-up thread's placement.
   slam::SlamThreadHooks hooks;
   hooks.semantic_start = [&d] {
+    d.semantic_tid = static_cast<int>(::gettid());
     clearInheritedPlacement(d.available_cores);  // not the mapping placement it was started under
     logWarnings(placeCurrentThread("sp-semantic", d.config.threads.semantic, d.available_cores, "threads.semantic"));
   };
@@ -426,6 +430,10 @@ int Daemon::run() {
   tracking_thread.join();
   // On a signal, keyframes waiting for segmentation are dropped: their masks
   // would only edit a map about to be discarded, at up to seconds each.
+  // A segmentation under way is waited for: back at the process's nice (where
+  // permitted: CAP_SYS_NICE, which the unit grants) it ends sooner on a busy CPU.
+  if (const int tid = d.semantic_tid; tid > 0 && reason == "signal")
+    setpriority(PRIO_PROCESS, static_cast<id_t>(tid), getpriority(PRIO_PROCESS, 0));
   d.system->finish(/*discard_pending_segmentation=*/reason == "signal");
   d.publisher->publishStatus(d.statusMessage());
   d.publisher->close();
