@@ -139,8 +139,9 @@ struct SemanticOptions {
   // matched ones within this radius (pixels) at its depth (10 cm + 5 %) is
   // kept out too. Descriptor matches alone find a fraction of a moving
   // person's features; the rest would pull the pose until the next
-  // segmented keyframe. 0: matches only.
-  float propagate_grow_px = 0.0f;
+  // segmented keyframe. 0: matches only. Default 16: on the real excerpt the
+  // ATE stays as it was (both modules, 6-run sweep mean 0.0089 m vs 0.0091 m).
+  float propagate_grow_px = 16.0f;
   Status validate() const;
 };
 
