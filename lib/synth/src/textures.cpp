@@ -171,30 +171,30 @@ cv::Mat makeTexture(TextureStyle style, int width, int height, std::uint64_t see
   return cv::Mat(height, width, CV_8UC3, cv::Scalar(128, 128, 128));
 }
 
-Result<cv::Mat> loadPhoto(const std::string& path) {
+namespace {
+
+// Reads an image with `flags`; `what` names the file's role in errors.
+Result<cv::Mat> readImage(const std::string& path, int flags, const std::string& what) {
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) return Error{"texture file '" + path + "' does not exist"};
+  if (!std::filesystem::is_regular_file(path, ec)) return Error{what + " file '" + path + "' does not exist"};
   cv::Mat img;
   try {
-    img = cv::imread(path, cv::IMREAD_COLOR);
+    img = cv::imread(path, flags);
   } catch (const std::exception& e) {
-    return Error{"texture file '" + path + "': " + e.what()};
+    return Error{what + " file '" + path + "': " + e.what()};
   }
-  if (img.empty()) return Error{"texture file '" + path + "' is not a readable image"};
+  if (img.empty()) return Error{what + " file '" + path + "' is not a readable image"};
   return img;
 }
 
+}  // namespace
+
+Result<cv::Mat> loadPhoto(const std::string& path) { return readImage(path, cv::IMREAD_COLOR, "texture"); }
+
 Result<cv::Mat> loadMask(const std::string& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) return Error{"mask file '" + path + "' does not exist"};
-  cv::Mat img;
-  try {
-    img = cv::imread(path, cv::IMREAD_GRAYSCALE);
-  } catch (const std::exception& e) {
-    return Error{"mask file '" + path + "': " + e.what()};
-  }
-  if (img.empty()) return Error{"mask file '" + path + "' is not a readable image"};
-  if (cv::countNonZero(img >= 128) == 0) return Error{"mask file '" + path + "' keeps no pixel (none >= 128)"};
+  Result<cv::Mat> img = readImage(path, cv::IMREAD_GRAYSCALE, "mask");
+  if (img.ok() && cv::countNonZero(*img >= 128) == 0)
+    return Error{"mask file '" + path + "' keeps no pixel (none >= 128)"};
   return img;
 }
 
