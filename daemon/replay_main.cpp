@@ -40,7 +40,7 @@ constexpr const char* kUsage =
     "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
     "(default: as the config enables them; listed modules are on, the others off).\n"
     "--features-out writes every feature the geometry module judged, one line\n"
-    "'timestamp u v dynamic(0|1) cluster chi2', for stillpoint-synth score.\n"
+    "'timestamp u v dynamic(0|1) cluster chi2 evidence inherited depth distance', for stillpoint-synth score.\n"
     "--keyframes-out writes the features of every segmented keyframe after the run, one line\n"
     "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
     "--keyframe-trajectory writes the final poses of the keyframes (culled ones included) in TUM\n"
@@ -195,7 +195,10 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.features_out.c_str());
       return 1;
     }
-    std::fputs("# timestamp u v dynamic cluster chi2: features judged by the geometry module (cluster label,\n# squared reprojection error / sigma^2 against the initial pose)\n",
+    std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance: features judged by\n"
+               "# the geometry module (cluster label, squared reprojection error / sigma^2 against the initial\n"
+               "# pose, evidence 0 anchor frame | 1 map point | 2 carried or reference keyframe, inherited 1 =\n"
+               "# matched to a feature dynamic before, keypoint depth in m, Hamming distance of the evidence match)\n",
                features_out);
   }
 
@@ -222,7 +225,7 @@ int main(int argc, char** argv) {
   std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0;
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
   std::vector<double> geometry_ms, clustering_ms;
-  std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0;
+  std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0, rejudged = 0;
   std::size_t semantic_followed = 0;  // features matched to the last segmented keyframe's masks
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
   const auto start = std::chrono::steady_clock::now();
@@ -261,10 +264,12 @@ int main(int argc, char** argv) {
       clustering_ms.push_back(g.clustering_ms);
       dynamic_clusters += g.dynamic_clusters;
       dynamic_features += g.dynamic_features;
+      rejudged += g.rejudged;
       if (features_out)
         for (const slam::JudgedFeature& f : g.judged)
-          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f\n", frame->stamp.toSecondsString().c_str(), f.u, f.v,
-                       f.dynamic, f.cluster, f.chi2);
+          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f %d %d %.3f %d\n",
+                       frame->stamp.toSecondsString().c_str(), f.u, f.v, f.dynamic, f.cluster, f.chi2,
+                       static_cast<int>(f.evidence), f.inherited ? 1 : 0, f.depth, f.distance);
     }
     switch (out->state) {
       case slam::TrackingState::kOk:
@@ -337,9 +342,10 @@ int main(int argc, char** argv) {
   std::printf("              %-24s %.1f fps over %.2f s wall\n", "throughput", frames / wall_s, wall_s);
   if (options.geometry.enabled)
     std::printf("geometry:     %zu frames judged, %zu deadline misses, %.2f dynamic clusters and %.1f dynamic "
-                "features per frame, %d map points culled\n",
+                "features per frame, %zu verdicts changed by the second judgement, %d map points culled\n",
                 geometry_frames, geometry_misses, geometry_frames ? double(dynamic_clusters) / geometry_frames : 0.0,
-                geometry_frames ? double(dynamic_features) / geometry_frames : 0.0, map.dynamic_points_culled);
+                geometry_frames ? double(dynamic_features) / geometry_frames : 0.0, rejudged,
+                map.dynamic_points_culled);
   else
     std::printf("geometry:     off\n");
   if (options.semantic.enabled) {

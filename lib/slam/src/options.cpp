@@ -139,6 +139,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "anchor_frames", o.geometry.anchor_frames);
   v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
   v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
+  v("geometry", "rejudge", o.geometry.rejudge);
   v("semantic", "enabled", o.semantic.enabled);
   v("semantic", "model_card", o.semantic.model_card);
   v("semantic", "model_dirs", o.semantic.model_dirs);

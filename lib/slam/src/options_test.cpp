@@ -142,6 +142,7 @@ SlamOptions everythingChanged() {
   o.mapping.point_found_ratio = 0.3;
   o.mapping.fuse_neighbours = 8;
   o.mapping.keep_culled_keyframes = true;
+  o.geometry.rejudge = true;
   o.sequential = true;
   return o;
 }
@@ -174,6 +175,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.mapping.point_found_ratio, b.mapping.point_found_ratio);
   EXPECT_EQ(a.mapping.keep_culled_keyframes, b.mapping.keep_culled_keyframes);
   EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
+  EXPECT_EQ(a.geometry.rejudge, b.geometry.rejudge);
   EXPECT_EQ(a.sequential, b.sequential);
 }
 

@@ -640,6 +640,46 @@ TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
   EXPECT_LT(on.rms_translation, off.rms_translation);
 }
 
+// geometry.rejudge: the frame is judged again under the pose refitted without
+// the first verdict's dynamic clusters. The board stays flagged, the static
+// room stays static, and what is reported (flags, cluster scores) is the
+// final verdict the pose was refitted with.
+TEST(SlamSystemGeometry, SecondJudgementKeepsTheBoardFlagged) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  const Sequence& seq = data.seq;
+  SlamOptions options = sequentialOptions();
+  options.geometry.rejudge = true;
+  auto system = makeSystem(seq.camera, options);
+  ASSERT_TRUE(system);
+  int true_positive = 0, false_positive = 0, false_negative = 0, rejudged = 0;
+  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+    const auto out = system->track(seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    rejudged += out->geometry.rejudged;
+    int flagged = 0;
+    for (const JudgedFeature& f : out->geometry.judged) {
+      ASSERT_GE(f.cluster, 0);
+      ASSERT_LT(f.cluster, static_cast<int>(out->geometry.scores.size()));
+      EXPECT_EQ(f.dynamic, out->geometry.scores[f.cluster].dynamic) << "frame " << i;
+      flagged += f.dynamic;
+      if (i < 10) continue;
+      const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
+      true_positive += on_board && f.dynamic;
+      false_positive += !on_board && f.dynamic;
+      false_negative += on_board && !f.dynamic;
+    }
+    EXPECT_LE(flagged, out->geometry.dynamic_features) << "frame " << i;
+  }
+  system->finish();
+  const double precision = true_positive / std::max(1.0, double(true_positive + false_positive));
+  const double recall = true_positive / std::max(1.0, double(true_positive + false_negative));
+  std::printf("moving board, second judgement: precision %.3f recall %.3f (%d/%d/%d), %d verdicts changed\n",
+              precision, recall, true_positive, false_positive, false_negative, rejudged);
+  EXPECT_GE(recall, 0.9);
+  EXPECT_GE(precision, 0.9);
+}
+
 // The sequence other modules' tests use, read back through TumDataset (the
 // replay path: colour PNG to grey, 16-bit depth to metres). One
 // fronto-parallel plane is a weak scene: a small tilt and a sideways shift

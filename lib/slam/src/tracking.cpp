@@ -11,6 +11,7 @@
 #include <unordered_map>
 
 #include "matcher.hpp"
+#include "stillpoint/features/descriptor.hpp"
 #include "optimizer.hpp"
 #include "stillpoint/core/log.hpp"
 
@@ -291,10 +292,13 @@ void Tracker::removeDynamicFeatures() {
   if (anchors_.empty() && reference_ && !reference_->bad)
     for (const auto& [j, i] : matchByDescriptor(current_, *reference_, 0.7f))
       if (!evidence[j] || evidence[j]->isTemporary()) evidence[j] = reference_->frame.points[i];
+  std::vector<char> from_map(current_.size());
+  for (int i = 0; i < current_.size(); ++i) from_map[i] = evidence[i] && evidence[i] == current_.points[i];
   // The anchor frame's depth point wins over all of these: its baseline is
   // fixed, so a slow mover's error is not one frame's motion.
   std::vector<Vec3> anchor_point(current_.size());
   std::vector<char> has_anchor(current_.size(), 0);
+  std::vector<int> anchor_distance(current_.size(), 0);
   // Matched to a feature that lay in a dynamic cluster (anchor or last frame).
   std::vector<char> inherited(current_.size(), 0);
   for (std::size_t i = 0; i < carried_.size(); ++i) inherited[i] = carried_[i] != nullptr;
@@ -306,6 +310,7 @@ void Tracker::removeDynamicFeatures() {
     for (const auto& [j, i] : matchByDescriptor(current_, anchor, 0.7f, false, true)) {
       anchor_point[j] = anchor.unprojectToWorld(i);
       has_anchor[j] = 1;
+      anchor_distance[j] = features::hammingDistance(anchor.descriptor(i), current_.descriptor(j));
       inherited[j] |= anchor.dynamic[i];
     }
   }
@@ -321,9 +326,11 @@ void Tracker::removeDynamicFeatures() {
   const int min_features = options_.geometry.verdict.min_features;
   std::vector<geometry::FeatureResidual> residuals;
   std::vector<int> matched;
+  std::vector<JudgedFeature::Evidence> kinds;
   const auto judge = [&](bool anchored) {
     residuals.clear();
     matched.clear();
+    kinds.clear();
     for (int i = 0; i < current_.size(); ++i) {
       const int c = current_.cluster[i];
       if (c < 0) continue;
@@ -333,22 +340,58 @@ void Tracker::removeDynamicFeatures() {
       const double chi2 = evidenceChi2(i, by_anchor ? anchor_point[i] : p->position);
       residuals.push_back({c, chi2, inherited[i] != 0});
       matched.push_back(i);
+      kinds.push_back(by_anchor     ? JudgedFeature::Evidence::kAnchor
+                      : from_map[i] ? JudgedFeature::Evidence::kMapPoint
+                                    : JudgedFeature::Evidence::kCarried);
     }
     return geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
   };
-  geometry::ClusterVerdict verdict = judge(!anchors_.empty());
+  bool anchored = !anchors_.empty();
+  geometry::ClusterVerdict verdict = judge(anchored);
   // Anchor matches measure the initial pose independently of stage 1: when
   // most of the view disagrees with it, the pose is what is wrong (stage 1
   // had few map points), not the world; the frame is judged by its stage-1
   // matches instead, which are consistent with the pose they produced.
-  if (!anchors_.empty()) {
+  if (anchored) {
     int judged = 0, dynamic = 0;
     for (const geometry::ClusterScore& c : verdict.clusters)
       if (c.judged) judged += c.features, dynamic += c.dynamic ? c.features : 0;
     if (dynamic > options_.geometry.max_dynamic_fraction * judged) {
+      anchored = false;
       verdict = judge(false);
       geometry_.anchor_fallback = true;
     }
+  }
+  // Drops the features of dynamic clusters from the pose and refits it.
+  const auto remove = [&](const geometry::ClusterVerdict& v) {
+    int removed = 0;
+    for (int i = 0; i < current_.size(); ++i) {
+      if (current_.cluster[i] < 0 || !v.clusters[current_.cluster[i]].dynamic) continue;
+      current_.points[i] = nullptr;
+      current_.outlier[i] = 0;
+      ++removed;
+    }
+    if (removed > 0 && countMapInliers() >= 10) timedOptimizePose();
+  };
+  if (verdict.dynamic_clusters > 0 && options_.geometry.rejudge) {
+    // The stage-1 pose still holds the movers' pull: judge again under the
+    // pose refitted without them, from the same matches.
+    const std::vector<std::shared_ptr<MapPoint>> points = current_.points;
+    const std::vector<char> outlier = current_.outlier;
+    remove(verdict);
+    geometry::ClusterVerdict second = judge(anchored);
+    bool same = second.dynamic_clusters == verdict.dynamic_clusters;
+    for (std::size_t c = 0; same && c < second.clusters.size(); ++c)
+      same = second.clusters[c].dynamic == verdict.clusters[c].dynamic;
+    verdict = std::move(second);
+    if (!same) {
+      current_.points = points;
+      current_.outlier = outlier;
+      remove(verdict);
+    }
+    geometry_.rejudged = !same;
+  } else {
+    remove(verdict);
   }
   geometry_.ran = true;
   geometry_.scores = verdict.clusters;
@@ -359,24 +402,23 @@ void Tracker::removeDynamicFeatures() {
   for (std::size_t k = 0; k < matched.size(); ++k) {
     const int i = matched[k];
     const bool dynamic = verdict.clusters[current_.cluster[i]].dynamic;
+    const int distance = kinds[k] == JudgedFeature::Evidence::kAnchor
+                             ? anchor_distance[i]
+                             : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
     geometry_.judged.push_back({current_.keys[i].pt.x, current_.keys[i].pt.y, dynamic, current_.cluster[i],
-                                static_cast<float>(residuals[k].chi2)});
+                                static_cast<float>(residuals[k].chi2), kinds[k], residuals[k].inherited,
+                                current_.depth[i], distance});
     const auto& p = evidence[i];
     if (!p || p->bad || p->isTemporary()) continue;
     const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
     p->dynamic_score.store(score, std::memory_order_relaxed);
     if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
   }
-  if (verdict.dynamic_clusters == 0) return;
   for (int i = 0; i < current_.size(); ++i) {
     if (current_.cluster[i] < 0 || !verdict.clusters[current_.cluster[i]].dynamic) continue;
     current_.dynamic[i] = 1;
-    current_.points[i] = nullptr;
-    current_.outlier[i] = 0;
     ++geometry_.dynamic_features;
   }
-  // The initial pose again, from the static features only.
-  if (countMapInliers() >= 10) timedOptimizePose();
 }
 
 double Tracker::evidenceChi2(int i, const Vec3& p_w) const {

@@ -2,6 +2,7 @@
 // The SLAM core's public face: feed RGB-D frames, read poses and the
 // trajectory. Tracking runs in the caller's thread; local mapping runs in its
 // own thread, or inline when options.sequential is set (deterministic).
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <opencv2/core.hpp>
@@ -50,6 +51,14 @@ struct JudgedFeature {
   bool dynamic = false;
   int cluster = -1;
   float chi2 = 0;  // squared reprojection error / level sigma^2 under the initial pose
+  // What chi2 was measured against: the anchor frame's match, a stage-1 map
+  // point, or a match carried from the last frame's dynamic features / the
+  // reference keyframe.
+  enum class Evidence : std::uint8_t { kAnchor = 0, kMapPoint = 1, kCarried = 2 };
+  Evidence evidence = Evidence::kMapPoint;
+  bool inherited = false;  // matched to a feature that was dynamic before
+  float depth = 0;         // keypoint depth in metres (0: none)
+  int distance = 0;        // Hamming distance of the evidence match
 };
 
 // What the geometry module saw in one frame (for visualisation and scoring).
@@ -60,6 +69,7 @@ struct GeometryOutput {
   int dynamic_clusters = 0;
   int dynamic_features = 0;      // features excluded from pose and mapping
   bool anchor_fallback = false;  // judged by stage-1 matches: the anchor evidence disagreed with most of the view
+  bool rejudged = false;         // the second judgement (under the refitted pose) changed the verdict
   double threshold = 0;          // score above which a cluster was dynamic
   double clustering_ms = 0;      // K-Means time (in the module's thread)
   std::vector<geometry::ClusterScore> scores;
