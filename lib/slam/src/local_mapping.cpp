@@ -240,6 +240,8 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       continue;
     }
     f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
+    if (kf->in_mask.empty()) kf->in_mask.assign(f.size(), 0);
+    kf->in_mask[i] = 1;
     ++features_removed;
     if (!p) continue;
     if (p->first_keyframe_id == kf->id) {

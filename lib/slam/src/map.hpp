@@ -112,6 +112,9 @@ class KeyFrame {
   // The semantic module's result was applied (its features in movable masks
   // are flagged dynamic and hold no map point).
   bool segmented = false;
+  // Per feature: inside a movable mask applied to this keyframe (empty: none
+  // was). Unlike `dynamic`, not set by propagation from older keyframes.
+  std::vector<char> in_mask;
 
   int trackedPoints(int min_observations) const;
   void addObservation(const std::shared_ptr<MapPoint>& point, int index);

@@ -239,10 +239,11 @@ TEST(SemanticModule, MasksFollowTheirFeaturesBetweenKeyframes) {
 // 24 % with the growth radius around it.
 TEST(SemanticModule, GrownMasksStayAroundTheirMatches) {
   const Frames& frames = planeFrames();
-  auto run = [&](float grow, int* features) {
+  auto run = [&](float grow, float warp, int* features) {
     SlamOptions options = semanticOptions();
     options.semantic.propagate_masks = true;
     options.semantic.propagate_grow_px = grow;
+    options.semantic.propagate_warp_px = warp;
     auto system = SlamSystem::create(frames.camera, options, std::make_unique<RectangleSegmenter>(kRect, false));
     EXPECT_TRUE(system.ok()) << system.error();
     if (!system.ok()) return 0;
@@ -261,13 +262,19 @@ TEST(SemanticModule, GrownMasksStayAroundTheirMatches) {
         EXPECT_FALSE(f.dynamic && f.mapped) << "keyframe " << kf.id << " feature at " << f.u << "," << f.v;
     return marked;
   };
-  int features_matched = 0, features_grown = 0;
-  const int matched = run(0.0f, &features_matched);
-  const int grown = run(16.0f, &features_grown);
+  int features_matched = 0, features_grown = 0, features_warped = 0;
+  const int matched = run(0.0f, 0.0f, &features_matched);
+  const int grown = run(16.0f, 0.0f, &features_grown);
+  // Carrying the keyframe's whole mask along with the matches marks more
+  // again, still only around the rectangle.
+  const int warped = run(16.0f, 16.0f, &features_warped);
   ASSERT_GT(matched, 0);
-  std::printf("marked between keyframes: %d matched, %d grown (of %d features)\n", matched, grown, features_grown);
+  std::printf("marked between keyframes: %d matched, %d grown (of %d features), %d warped (of %d)\n", matched,
+              grown, features_grown, warped, features_warped);
   EXPECT_GT(grown, matched * 11 / 10) << "matched " << matched << ", grown " << grown;
   EXPECT_LT(grown, features_grown * 3 / 10) << grown << " of " << features_grown << " features marked";
+  EXPECT_GT(warped, grown * 11 / 10) << "grown " << grown << ", warped " << warped;
+  EXPECT_LT(warped, features_warped * 3 / 10) << warped << " of " << features_warped << " features marked";
 }
 
 TEST(SemanticModule, SequentialModeIsDeterministic) {
@@ -451,6 +458,7 @@ TEST(SemanticOptions, EachOutOfRangeValueNamesItsField) {
       {"semantic.max_removed_fraction", [](SemanticOptions& o) { o.max_removed_fraction = 1.5; }},
       {"semantic.point_masked_ratio", [](SemanticOptions& o) { o.point_masked_ratio = 1; }},
       {"semantic.propagate_grow_px", [](SemanticOptions& o) { o.propagate_grow_px = -1; }},
+      {"semantic.propagate_warp_px", [](SemanticOptions& o) { o.propagate_warp_px = 201; }},
       {"semantic.model_dirs", [](SemanticOptions& o) { o.model_dirs = {""}; }},
   };
   for (const auto& [field, spoil] : cases) {

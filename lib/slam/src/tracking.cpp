@@ -156,8 +156,17 @@ void Tracker::markSemanticMovers() {
   // Mutual nearest neighbours over all the keyframe's features, ratio 0.7 and
   // rotation consistency: window-free matching on repetitive texture
   // mismatches, and a static feature marked here is lost to the pose.
-  for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true))
-    if (f.dynamic[i] == kSemanticDynamic) current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
+  std::vector<cv::Point2f> from, to;
+  std::vector<float> depth_change;
+  const std::vector<char>& in_mask = source->in_mask;
+  for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true)) {
+    if (f.dynamic[i] != kSemanticDynamic) continue;
+    current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
+    if (in_mask.empty() || !in_mask[i]) continue;
+    from.push_back(f.un[i]);
+    to.push_back(current_.un[j]);
+    if (f.depth[i] > 0 && current_.depth[j] > 0) depth_change.push_back(current_.depth[j] - f.depth[i]);
+  }
   const float grow = options_.semantic.propagate_grow_px;
   if (grow > 0 && semantic_marked_ >= 5) {
     // One pass of region growing from the matches (not from what it adds).
@@ -173,6 +182,38 @@ void Tracker::markSemanticMovers() {
     }
     for (int j : grown) current_.dynamic[j] = kSemanticDynamic;
     semantic_marked_ += static_cast<int>(grown.size());
+  }
+  const float warp = options_.semantic.propagate_warp_px;
+  if (warp > 0 && from.size() >= 6 && !depth_change.empty()) {
+    // The object's motion in the image since the keyframe (it does not
+    // follow the camera's): a similarity through the matches of the
+    // keyframe's own mask, then every feature in that mask is looked for
+    // where it went. Only the mask: features the keyframe inherited by
+    // propagation would carry a static false positive on from keyframe to
+    // keyframe (static texture matches well), and it grew by the radius each time.
+    std::vector<unsigned char> inlier;
+    const cv::Mat A = cv::estimateAffinePartial2D(from, to, inlier, cv::RANSAC, 3.0);
+    const int inliers = static_cast<int>(std::count(inlier.begin(), inlier.end(), 1));
+    if (!A.empty() && inliers >= 6 && 2 * inliers >= static_cast<int>(from.size())) {
+      auto mid = depth_change.begin() + static_cast<std::ptrdiff_t>(depth_change.size() / 2);
+      std::nth_element(depth_change.begin(), mid, depth_change.end());
+      const float dz = *mid;
+      int warped = 0;
+      for (int i = 0; i < f.size(); ++i) {
+        if (!in_mask[i] || f.depth[i] <= 0) continue;
+        const cv::Point2f& q = f.un[i];
+        const float x = static_cast<float>(A.at<double>(0, 0) * q.x + A.at<double>(0, 1) * q.y + A.at<double>(0, 2));
+        const float y = static_cast<float>(A.at<double>(1, 0) * q.x + A.at<double>(1, 1) * q.y + A.at<double>(1, 2));
+        const float z = f.depth[i] + dz;
+        for (int s : current_.grid.query(current_.keys, current_.un, x, y, warp, 0, -1)) {
+          if (current_.dynamic[s] || current_.depth[s] <= 0 || std::abs(current_.depth[s] - z) >= 0.1f + 0.05f * z)
+            continue;
+          current_.dynamic[s] = kSemanticDynamic;
+          ++warped;
+        }
+      }
+      semantic_marked_ += warped;
+    }
   }
   SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of keyframe " << source->id);
 }
