@@ -156,13 +156,14 @@ void Tracker::markSemanticMovers() {
   // Mutual nearest neighbours over all the keyframe's features, ratio 0.7 and
   // rotation consistency: window-free matching on repetitive texture
   // mismatches, and a static feature marked here is lost to the pose.
+  const float warp = options_.semantic.propagate_warp_px;
   std::vector<cv::Point2f> from, to;
   std::vector<float> depth_change;
   const std::vector<char>& in_mask = source->in_mask;
   for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true)) {
     if (f.dynamic[i] != kSemanticDynamic) continue;
     current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
-    if (in_mask.empty() || !in_mask[i]) continue;
+    if (warp <= 0 || in_mask.empty() || !in_mask[i]) continue;
     from.push_back(f.un[i]);
     to.push_back(current_.un[j]);
     if (f.depth[i] > 0 && current_.depth[j] > 0) depth_change.push_back(current_.depth[j] - f.depth[i]);
@@ -183,7 +184,6 @@ void Tracker::markSemanticMovers() {
     for (int j : grown) current_.dynamic[j] = kSemanticDynamic;
     semantic_marked_ += static_cast<int>(grown.size());
   }
-  const float warp = options_.semantic.propagate_warp_px;
   if (warp > 0 && from.size() >= 6 && !depth_change.empty()) {
     // The object's motion in the image since the keyframe (it does not
     // follow the camera's): a similarity through the matches of the
