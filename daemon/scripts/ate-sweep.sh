@@ -7,10 +7,13 @@
 # usage: daemon/scripts/ate-sweep.sh [SEQUENCE_DIR] [EXTRA_YAML]
 #   SEQUENCE_DIR defaults to ../shared/data/tum_fr3_teddy_200 beside the repository;
 #   EXTRA_YAML is appended to each run's config, e.g. $'mapping:\n  ba_iterations: 20\n'.
+#   ORB_EXTRA (environment) holds more `orb:` keys, as indented lines, e.g. $'  num_levels: 3\n'
+#   (an `orb:` block in EXTRA_YAML would clash with the sweep's own).
 set -euo pipefail
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 sequence=${1:-$repo/../shared/data/tum_fr3_teddy_200}
 extra=${2:-}
+orb_extra=${ORB_EXTRA:-}
 replay=${REPLAY:-$repo/build/release/bin/stillpoint-replay}
 [[ -x $replay ]] || { echo "ate-sweep: build first ($replay missing)" >&2; exit 1; }
 work=$(mktemp -d)
@@ -18,12 +21,12 @@ trap 'rm -rf "$work"' EXIT
 
 run() {
   local n=$1
-  printf 'orb:\n  num_features: %s\n%s' "$n" "$extra" > "$work/$n.yaml"
+  printf 'orb:\n  num_features: %s\n%s%s' "$n" "$orb_extra" "$extra" > "$work/$n.yaml"
   "$replay" "$sequence" --camera fr3 --sequential --config "$work/$n.yaml" --output "$work/$n.txt" 2>/dev/null |
     sed -n 's/.*ate_rmse_m=\([0-9.]*\).*/\1/p' | head -n 1 > "$work/$n.ate"
 }
 export -f run
-export replay sequence extra work
+export replay sequence extra orb_extra work
 printf '%s\n' 900 950 1000 1050 1100 1150 | xargs -P 2 -I{} bash -c 'run {}'
 cat "$work"/*.ate | sort -n | awk '{a[NR] = $1; s += $1}
   END {
