@@ -23,6 +23,7 @@ cv::Mat benchmarkImage() {
 void BM_OrbExtract(benchmark::State& state) {
   stillpoint::features::OrbOptions options;
   options.num_features = static_cast<int>(state.range(0));
+  options.num_levels = static_cast<int>(state.range(1));
   stillpoint::features::OrbExtractor orb(options);
   const cv::Mat image = benchmarkImage();
   std::vector<cv::KeyPoint> kps;
@@ -33,6 +34,7 @@ void BM_OrbExtract(benchmark::State& state) {
   }
   state.counters["keypoints"] = static_cast<double>(kps.size());
 }
-BENCHMARK(BM_OrbExtract)->Arg(1000)->Arg(2000)->Unit(benchmark::kMillisecond);
+// Arguments: feature budget, pyramid levels.
+BENCHMARK(BM_OrbExtract)->Args({1000, 8})->Args({1000, 3})->Args({2000, 8})->Unit(benchmark::kMillisecond);
 
 }  // namespace

@@ -50,6 +50,14 @@ Status GeometryOptions::validate() const {
   if (!(max_dynamic_fraction > 0 && max_dynamic_fraction <= 1))
     return Error{"geometry.max_dynamic_fraction must be in (0, 1]"};
   if (anchor_frames < 0 || anchor_frames > 30) return Error{"geometry.anchor_frames must be in [0, 30]"};
+  if (!(frame_sigma_factor >= 0 && frame_sigma_factor <= 100))
+    return Error{"geometry.frame_sigma_factor must be in [0, 100] (0: off)"};
+  if (frame_sigma_from != "reference" && frame_sigma_from != "all")
+    return Error{"geometry.frame_sigma_from must be 'reference' or 'all'"};
+  if (!(frame_sigma_quantile >= 0 && frame_sigma_quantile <= 1))
+    return Error{"geometry.frame_sigma_quantile must be in [0, 1]"};
+  if (!(frame_sigma_min_scale > 0 && frame_sigma_min_scale <= 1))
+    return Error{"geometry.frame_sigma_min_scale must be in (0, 1]"};
   return Status::success();
 }
 
@@ -142,6 +150,10 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
   v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
   v("geometry", "rejudge", o.geometry.rejudge);
+  v("geometry", "frame_sigma_factor", o.geometry.frame_sigma_factor);
+  v("geometry", "frame_sigma_from", o.geometry.frame_sigma_from);
+  v("geometry", "frame_sigma_quantile", o.geometry.frame_sigma_quantile);
+  v("geometry", "frame_sigma_min_scale", o.geometry.frame_sigma_min_scale);
   v("semantic", "enabled", o.semantic.enabled);
   v("semantic", "model_card", o.semantic.model_card);
   v("semantic", "model_dirs", o.semantic.model_dirs);

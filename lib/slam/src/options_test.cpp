@@ -103,6 +103,24 @@ TEST(SlamOptionsValidate, EachOutOfRangeValueNamesItsField) {
   }
 }
 
+TEST(SlamOptionsValidate, FrameSigmaFieldsNameThemselves) {
+  const std::vector<BadValue> cases = {
+      {"geometry.frame_sigma_factor", [](SlamOptions& o) { o.geometry.frame_sigma_factor = -1; }},
+      {"geometry.frame_sigma_from", [](SlamOptions& o) { o.geometry.frame_sigma_from = "static"; }},
+      {"geometry.frame_sigma_quantile", [](SlamOptions& o) { o.geometry.frame_sigma_quantile = 1.5; }},
+      {"geometry.frame_sigma_min_scale", [](SlamOptions& o) { o.geometry.frame_sigma_min_scale = 0; }},
+  };
+  for (const BadValue& c : cases) {
+    SCOPED_TRACE(c.field);
+    SlamOptions o;
+    c.spoil(o);
+    const Status own = o.geometry.validate();
+    ASSERT_FALSE(own.ok());
+    EXPECT_TRUE(contains(own.error(), c.field));
+    ASSERT_FALSE(o.validate().ok());
+  }
+}
+
 TEST(SlamOptionsValidate, NonFiniteValuesAreRejected) {
   SlamOptions o;
   o.keyframes.tracked_ratio = std::nan("");
@@ -143,6 +161,10 @@ SlamOptions everythingChanged() {
   o.mapping.fuse_neighbours = 8;
   o.mapping.keep_culled_keyframes = true;
   o.geometry.rejudge = true;
+  o.geometry.frame_sigma_factor = 3.0;
+  o.geometry.frame_sigma_from = "all";
+  o.geometry.frame_sigma_quantile = 0.75;
+  o.geometry.frame_sigma_min_scale = 0.5;
   o.sequential = true;
   return o;
 }
@@ -176,6 +198,10 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.mapping.keep_culled_keyframes, b.mapping.keep_culled_keyframes);
   EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
   EXPECT_EQ(a.geometry.rejudge, b.geometry.rejudge);
+  EXPECT_EQ(a.geometry.frame_sigma_factor, b.geometry.frame_sigma_factor);
+  EXPECT_EQ(a.geometry.frame_sigma_from, b.geometry.frame_sigma_from);
+  EXPECT_EQ(a.geometry.frame_sigma_quantile, b.geometry.frame_sigma_quantile);
+  EXPECT_EQ(a.geometry.frame_sigma_min_scale, b.geometry.frame_sigma_min_scale);
   EXPECT_EQ(a.sequential, b.sequential);
 }
 

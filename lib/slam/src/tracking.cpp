@@ -368,22 +368,51 @@ void Tracker::removeDynamicFeatures() {
   std::vector<geometry::FeatureResidual> residuals;
   std::vector<int> matched;
   std::vector<JudgedFeature::Evidence> kinds;
+  std::vector<EvidenceError> errors;
   const auto judge = [&](bool anchored) {
     residuals.clear();
     matched.clear();
     kinds.clear();
+    errors.clear();
     for (int i = 0; i < current_.size(); ++i) {
       const int c = current_.cluster[i];
       if (c < 0) continue;
       const auto& p = evidence[i];
       const bool by_anchor = anchored && has_anchor[i];
       if (!by_anchor && ((anchored && anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
-      const double chi2 = evidenceChi2(i, by_anchor ? anchor_point[i] : p->position);
-      residuals.push_back({c, chi2, inherited[i] != 0});
+      const EvidenceError e = evidenceError(i, by_anchor ? anchor_point[i] : p->position);
+      errors.push_back(e);
+      residuals.push_back({c, e.level_chi2, inherited[i] != 0});
       matched.push_back(i);
       kinds.push_back(by_anchor     ? JudgedFeature::Evidence::kAnchor
                       : from_map[i] ? JudgedFeature::Evidence::kMapPoint
                                     : JudgedFeature::Evidence::kCarried);
+    }
+    geometry::ClusterVerdict v = geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
+    const GeometryOptions& g = options_.geometry;
+    if (g.frame_sigma_factor <= 0 || residuals.empty()) return v;
+    // Experiment (off by default, README): the frame's own image noise.
+    // Static evidence misses by about the same number of pixels at every
+    // pyramid level on real images (two tracked poses and a depth point, not
+    // keypoint localisation), so the level sigma alone under-states it for
+    // fine levels. "reference": estimated from the features of the clusters
+    // at or below the reference score of a first verdict (static by
+    // construction of the reference), so a mover does not inflate it.
+    std::vector<double> per_dof;
+    for (std::size_t k = 0; k < residuals.size(); ++k) {
+      if (errors[k].dof == 0) continue;
+      const geometry::ClusterScore& cs = v.clusters[residuals[k].cluster];
+      if (g.frame_sigma_from == "reference" && !(cs.judged && cs.mean_rho <= v.reference)) continue;
+      per_dof.push_back(errors[k].pixel2 / errors[k].dof);
+    }
+    if (per_dof.size() < 8) return v;
+    std::size_t q = static_cast<std::size_t>(g.frame_sigma_quantile * (per_dof.size() - 1) + 0.5);
+    std::nth_element(per_dof.begin(), per_dof.begin() + q, per_dof.end());
+    const double frame_sigma2 = g.frame_sigma_factor * per_dof[q];
+    for (std::size_t k = 0; k < residuals.size(); ++k) {
+      const EvidenceError& e = errors[k];
+      const double sigma2 = std::max(g.frame_sigma_min_scale / e.inv_level_sigma2, frame_sigma2);
+      residuals[k].chi2 = e.pixel2 / sigma2 + e.depth_chi2;
     }
     return geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
   };
@@ -462,26 +491,36 @@ void Tracker::removeDynamicFeatures() {
   }
 }
 
-double Tracker::evidenceChi2(int i, const Vec3& p_w) const {
-  // Image error at the keypoint's scale plus a depth term: by default the
-  // virtual-stereo coordinate of pose optimisation (a depth error dz counts
-  // bf dz / z^2 pixels: 1 px ~ 5 cm at 1.5 m), optionally the depth error at
-  // the sensor's scale, which sees motion along the ray but, on the real
-  // excerpt's noisy keypoint depths, flagged more static clusters (README).
+Tracker::EvidenceError Tracker::evidenceError(int i, const Vec3& p_w) const {
+  // Image error plus a depth term: by default the virtual-stereo coordinate
+  // of pose optimisation (a depth error dz counts bf dz / z^2 pixels: 1 px ~
+  // 5 cm at 1.5 m), optionally the depth error at the sensor's scale, which
+  // sees motion along the ray but, on the real excerpt's noisy keypoint
+  // depths, flagged more static clusters (README).
+  EvidenceError e;
+  e.inv_level_sigma2 = levels_.inv_sigma2[current_.keys[i].octave];
   const Vec3 p = current_.T_c_w * p_w;
-  if (p.z() <= 1e-6) return 1e6;
+  if (p.z() <= 1e-6) {
+    e.depth_chi2 = e.level_chi2 = 1e6;
+    return e;
+  }
   const double u = camera_.fx * p.x() / p.z() + camera_.cx, v = camera_.fy * p.y() / p.z() + camera_.cy;
   const double du = u - current_.un[i].x, dv = v - current_.un[i].y;
-  double chi2 = (du * du + dv * dv) * levels_.inv_sigma2[current_.keys[i].octave];
+  e.pixel2 = du * du + dv * dv;
+  e.dof = 2;
+  e.level_chi2 = e.pixel2 * e.inv_level_sigma2;
   const double z = current_.depth[i];
   if (z > 0 && options_.geometry.depth_sigma_at_1m > 0) {
     const double sigma = options_.geometry.depth_sigma_at_1m * z * z;
-    chi2 += (p.z() - z) * (p.z() - z) / (sigma * sigma);
+    e.depth_chi2 = (p.z() - z) * (p.z() - z) / (sigma * sigma);
+    e.level_chi2 += e.depth_chi2;
   } else if (current_.u_right[i] >= 0) {
     const double ur = u - camera_.bf() / p.z() - current_.u_right[i];
-    chi2 += ur * ur * levels_.inv_sigma2[current_.keys[i].octave];
+    e.pixel2 += ur * ur;
+    e.dof = 3;
+    e.level_chi2 += ur * ur * e.inv_level_sigma2;
   }
-  return chi2;
+  return e;
 }
 
 void Tracker::rememberAnchor() {

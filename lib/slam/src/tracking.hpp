@@ -100,7 +100,14 @@ class Tracker {
   void rememberAnchor();
   // Squared error of feature i of the current frame against world point p_w
   // under the current pose, in units of its measurement sigma (3 dof with depth).
-  double evidenceChi2(int i, const Vec3& p_w) const;
+  struct EvidenceError {
+    double pixel2 = 0;  // squared image error (u, v and, with depth, virtual right u) [px^2]
+    int dof = 0;        // coordinates in pixel2
+    double inv_level_sigma2 = 1;
+    double depth_chi2 = 0;  // depth_sigma_at_1m's term, or 1e6 behind the camera
+    double level_chi2 = 0;  // the whole error normalised by the level sigma
+  };
+  EvidenceError evidenceError(int i, const Vec3& p_w) const;
 };
 
 }  // namespace stillpoint::slam

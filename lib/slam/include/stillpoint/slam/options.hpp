@@ -95,6 +95,21 @@ struct GeometryOptions {
   // 6-run sweeps it lifts `mix` recall 0.72 -> 0.75 but leaves `poster-walk`
   // as it was and the clean excerpt's ATE 0.0083 -> 0.0092 m (README).
   bool rejudge = false;
+  // Per-frame evidence sigma (an experiment, off: README "Results" and
+  // lib/geometry/README.md). Static evidence misses by about the same number
+  // of pixels at every pyramid level on real images, so with few levels the
+  // level sigma under-states the noise and static clusters get flagged. When
+  // frame_sigma_factor > 0 each feature's error is normalised by
+  // sigma^2 = max(frame_sigma_min_scale x level sigma^2, frame_sigma_factor x
+  // q), q = the frame_sigma_quantile of the per-coordinate squared pixel
+  // errors of the frame's evidence, over all of it ("all") or only over the
+  // features of the clusters scoring at or below the reference under the
+  // level sigma ("reference": a mover cannot inflate it). min_scale < 1 lets
+  // sigma fall below the level sigma on clean images.
+  double frame_sigma_factor = 0.0;
+  std::string frame_sigma_from = "reference";
+  double frame_sigma_quantile = 0.5;
+  double frame_sigma_min_scale = 1.0;
   Status validate() const;
 };
 

@@ -50,7 +50,7 @@ struct JudgedFeature {
   float u = 0, v = 0;
   bool dynamic = false;
   int cluster = -1;
-  float chi2 = 0;  // squared reprojection error / level sigma^2 under the initial pose
+  float chi2 = 0;  // squared reprojection error / level sigma^2 (or geometry.frame_sigma_*) under the initial pose
   // What chi2 was measured against: the anchor frame's match, a stage-1 map
   // point, or a match carried from the last frame's dynamic features / the
   // reference keyframe.
