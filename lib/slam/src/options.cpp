@@ -50,6 +50,8 @@ Status GeometryOptions::validate() const {
   if (!(max_dynamic_fraction > 0 && max_dynamic_fraction <= 1))
     return Error{"geometry.max_dynamic_fraction must be in (0, 1]"};
   if (anchor_frames < 0 || anchor_frames > 30) return Error{"geometry.anchor_frames must be in [0, 30]"};
+  if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
+  if (!(projection_ratio >= 0 && projection_ratio <= 1)) return Error{"geometry.projection_ratio must be in [0, 1]"};
   return Status::success();
 }
 
@@ -142,6 +144,9 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
   v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
   v("geometry", "rejudge", o.geometry.rejudge);
+  v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
+  v("geometry", "projection_ratio", o.geometry.projection_ratio);
+  v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
   v("semantic", "enabled", o.semantic.enabled);
   v("semantic", "model_card", o.semantic.model_card);
   v("semantic", "model_dirs", o.semantic.model_dirs);

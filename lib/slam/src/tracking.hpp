@@ -92,6 +92,18 @@ class Tracker {
   std::vector<std::shared_ptr<MapPoint>> dynamic_suspects_;
   // Stage-1 matches to last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
+  // Per keypoint of the current frame: best / second-best Hamming distance of
+  // its motion-model match (0: none, or matched by a ratio-tested search).
+  std::vector<float> match_ratio_;
+  // The current frame's depth clusters, fetched once (null: none or late).
+  bool clusters_pending_ = false, clusters_fetched_ = false;
+  std::shared_ptr<const geometry::DepthClusters> clusters_;
+  std::shared_ptr<const geometry::DepthClusters> currentClusters();
+  // geometry.exclude_known_movers: keeps the stage-1 matches of clusters
+  // mostly matched to the last frame's dynamic features out of the initial
+  // pose (returned as outliers, still evidence).
+  void holdKnownMoversOutOfPose();
+  std::vector<std::shared_ptr<MapPoint>> held_;
   int setAsideCarried();
   // The last geometry.anchor_frames tracked frames (keypoints, descriptors,
   // depth, final pose; no matches), oldest first: the geometry module's
@@ -100,7 +112,10 @@ class Tracker {
   void rememberAnchor();
   // Squared error of feature i of the current frame against world point p_w
   // under the current pose, in units of its measurement sigma (3 dof with depth).
-  double evidenceChi2(int i, const Vec3& p_w) const;
+  double evidenceChi2(int i, const Vec3& p_w) const { return evidenceResidual(i, p_w).squaredNorm(); }
+  // Its components: image u, v and the depth term (virtual right u or depth),
+  // each over its sigma (predicted minus measured).
+  Vec3 evidenceResidual(int i, const Vec3& p_w) const;
 };
 
 }  // namespace stillpoint::slam
