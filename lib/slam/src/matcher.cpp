@@ -53,7 +53,8 @@ void filterByOrientation(const std::vector<float>& rotation_deg, std::vector<int
   *match_indices = std::move(out);
 }
 
-int searchByProjection(Frame* current, const Frame& last, float radius) {
+int searchByProjection(Frame* current, const Frame& last, float radius, std::vector<float>* ratio_out,
+                       float max_ratio) {
   std::vector<float> rotations;
   std::vector<int> matched;
   const LevelInfo& lv = *current->levels;
@@ -69,18 +70,32 @@ int searchByProjection(Frame* current, const Frame& last, float radius) {
                                                 static_cast<float>(uv.y()), r, std::max(0, level - 1),
                                                 std::min(lv.levels - 1, level + 1));
     const double ur_pred = uv.x() - current->camera->bf() / p_c.z();
-    int best = 256, best_idx = -1;
+    // The second best counts every keypoint in the window, taken or not: it
+    // measures how distinctive the point is there.
+    int best = 256, best_idx = -1, second = 256, best_any = 256;
     for (int j : candidates) {
-      if (current->points[j] && !current->points[j]->bad) continue;
-      if (current->dynamic[j]) continue;
       if (current->u_right[j] >= 0 && std::abs(ur_pred - current->u_right[j]) > r) continue;
       const int d = hammingDistance(point->descriptor.data(), current->descriptor(j));
-      if (d < best) {
+      const bool free = !(current->points[j] && !current->points[j]->bad) && !current->dynamic[j];
+      if (free && d < best) {
         best = d;
         best_idx = j;
       }
+      if (d < best_any) {
+        second = best_any;
+        best_any = d;
+      } else if (d < second) {
+        second = d;
+      }
     }
-    if (best_idx >= 0 && best <= kMatchThresholdHigh) {
+    // The best free keypoint against the best other one in the window; a
+    // lone candidate against the distance of a good match (kMatchThresholdLow):
+    // the right keypoint was often not detected, and a far one is accepted.
+    if (best_idx >= 0 && best > best_any) second = best_any;
+    const float ratio =
+        static_cast<float>(best) / static_cast<float>(std::max(second >= 256 ? kMatchThresholdLow : second, 1));
+    if (best_idx >= 0 && best <= kMatchThresholdHigh && (max_ratio <= 0 || ratio <= max_ratio)) {
+      if (ratio_out) (*ratio_out)[best_idx] = ratio;
       current->points[best_idx] = point;
       current->outlier[best_idx] = 0;
       rotations.push_back(last.keys[i].angle - current->keys[best_idx].angle);

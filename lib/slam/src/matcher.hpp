@@ -12,8 +12,13 @@ constexpr int kMatchThresholdHigh = 100;
 constexpr int kMatchThresholdLow = 50;
 
 // Projects the matched points of `last` into `current` (pose already
-// predicted) and matches in a window of `radius` x scale pixels.
-int searchByProjection(Frame* current, const Frame& last, float radius);
+// predicted) and matches in a window of `radius` x scale pixels. `ratio_out`
+// (optional, sized to `current`) receives per matched keypoint the ratio of
+// the best Hamming distance to the second best among all keypoints in the
+// window (a lone candidate: against kMatchThresholdLow): a match on
+// repetitive texture has a close second. `max_ratio` > 0 rejects matches above that ratio.
+int searchByProjection(Frame* current, const Frame& last, float radius, std::vector<float>* ratio_out = nullptr,
+                       float max_ratio = 0);
 
 // Projects local map points into `current`; `radius_factor` widens windows.
 int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint>>& points,

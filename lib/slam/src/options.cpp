@@ -58,6 +58,8 @@ Status GeometryOptions::validate() const {
     return Error{"geometry.frame_sigma_quantile must be in [0, 1]"};
   if (!(frame_sigma_min_scale > 0 && frame_sigma_min_scale <= 1))
     return Error{"geometry.frame_sigma_min_scale must be in (0, 1]"};
+  if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
+  if (!(projection_ratio >= 0 && projection_ratio <= 1)) return Error{"geometry.projection_ratio must be in [0, 1]"};
   return Status::success();
 }
 
@@ -154,6 +156,9 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "frame_sigma_from", o.geometry.frame_sigma_from);
   v("geometry", "frame_sigma_quantile", o.geometry.frame_sigma_quantile);
   v("geometry", "frame_sigma_min_scale", o.geometry.frame_sigma_min_scale);
+  v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
+  v("geometry", "projection_ratio", o.geometry.projection_ratio);
+  v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
   v("semantic", "enabled", o.semantic.enabled);
   v("semantic", "model_card", o.semantic.model_card);
   v("semantic", "model_dirs", o.semantic.model_dirs);

@@ -722,6 +722,49 @@ TEST(SlamSystemGeometry, SecondJudgementKeepsTheBoardFlagged) {
   EXPECT_GE(precision, 0.9);
 }
 
+// geometry.evidence_ratio and exclude_known_movers: ambiguous projection
+// matches are not judged (every reported non-anchor feature passed the ratio),
+// the board's clusters are kept out of the initial pose while it moves, and it
+// is still found.
+TEST(SlamSystemGeometry, RatioTestedEvidenceKeepsTheBoardFlagged) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  const Sequence& seq = data.seq;
+  SlamOptions options = sequentialOptions();
+  options.geometry.evidence_ratio = 0.9;
+  options.geometry.exclude_known_movers = true;
+  auto system = makeSystem(seq.camera, options);
+  ASSERT_TRUE(system);
+  int true_positive = 0, false_positive = 0, false_negative = 0, ratio_reported = 0;
+  std::vector<SE3> online;
+  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+    const auto out = system->track(seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    online.push_back(out->T_w_c);
+    for (const JudgedFeature& f : out->geometry.judged) {
+      if (f.evidence != JudgedFeature::Evidence::kAnchor) {
+        EXPECT_LE(f.ratio, 0.9f) << "frame " << i;
+        ratio_reported += f.ratio > 0;
+      }
+      if (i < 10) continue;
+      const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
+      true_positive += on_board && f.dynamic;
+      false_positive += !on_board && f.dynamic;
+      false_negative += on_board && !f.dynamic;
+    }
+  }
+  system->finish();
+  const double precision = true_positive / std::max(1.0, double(true_positive + false_positive));
+  const double recall = true_positive / std::max(1.0, double(true_positive + false_negative));
+  const PoseErrors on = compare(online, seq.T_w_c);
+  std::printf("moving board, ratio-tested evidence: precision %.3f recall %.3f (%d/%d/%d), rms %.2f mm\n", precision,
+              recall, true_positive, false_positive, false_negative, on.rms_translation * 1e3);
+  EXPECT_GT(ratio_reported, 0);  // the motion model's matches carry their ratio
+  EXPECT_GE(recall, 0.9);
+  EXPECT_GE(precision, 0.9);
+  EXPECT_LT(on.rms_translation, 0.01);
+}
+
 // The sequence other modules' tests use, read back through TumDataset (the
 // replay path: colour PNG to grey, 16-bit depth to metres). One
 // fronto-parallel plane is a weak scene: a small tilt and a sideways shift

@@ -44,6 +44,10 @@ Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const Le
 
 KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, TrackOutput* out) {
   current_ = std::move(frame);
+  match_ratio_.assign(current_.size(), 0.0f);
+  clusters_pending_ = clusters_pending && clustering_;
+  clusters_fetched_ = false;
+  clusters_.reset();
   times_ = StageTimes{};
   geometry_ = GeometryOutput{};
   semantic_marked_ = 0;
@@ -310,12 +314,8 @@ int Tracker::countMapInliers() const {
 
 void Tracker::removeDynamicFeatures() {
   ScopedStageTimer timer(&times_.geometry);
-  const auto deadline = std::chrono::microseconds(static_cast<std::int64_t>(options_.geometry.deadline_ms * 1000));
-  const auto clusters = clustering_->result(current_.id, deadline);
-  if (!clusters) {
-    geometry_.deadline_missed = true;
-    return;
-  }
+  const auto clusters = currentClusters();
+  if (!clusters) return;
   geometry_.clustering_ms = clustering_->lastClusteringMs();
   geometry_.clusters = clusters->clusters;
   geometry_.labels = clusters;
@@ -328,6 +328,23 @@ void Tracker::removeDynamicFeatures() {
   std::vector<std::shared_ptr<MapPoint>> evidence(current_.points);
   for (std::size_t i = 0; i < carried_.size(); ++i)
     if (!evidence[i] && carried_[i]) evidence[i] = carried_[i];
+  // Matches of the projection search with a close second in the window are
+  // mostly mismatches on repetitive texture (README): not evidence.
+  // Their map points still learn the verdict of the cluster they fell in
+  // (below): the culling of mapped movers should not lose them.
+  std::vector<char> ambiguous(current_.size(), 0);
+  std::vector<std::shared_ptr<MapPoint>> ambiguous_points;
+  std::vector<int> ambiguous_features;
+  if (options_.geometry.evidence_ratio > 0)
+    for (int i = 0; i < current_.size(); ++i)
+      if (evidence[i] && match_ratio_[i] > options_.geometry.evidence_ratio) {
+        if (evidence[i] == current_.points[i] && !evidence[i]->isTemporary()) {
+          ambiguous_points.push_back(evidence[i]);
+          ambiguous_features.push_back(i);
+        }
+        evidence[i] = nullptr;
+        ambiguous[i] = 1;
+      }
   // Only where stage 1 has no map point: a map-point match already measures
   // the motion since mapping, and window-free matching has more mismatches.
   if (anchors_.empty() && reference_ && !reference_->bad)
@@ -342,7 +359,7 @@ void Tracker::removeDynamicFeatures() {
   std::vector<int> anchor_distance(current_.size(), 0);
   // Matched to a feature that lay in a dynamic cluster (anchor or last frame).
   std::vector<char> inherited(current_.size(), 0);
-  for (std::size_t i = 0; i < carried_.size(); ++i) inherited[i] = carried_[i] != nullptr;
+  for (std::size_t i = 0; i < carried_.size(); ++i) inherited[i] = carried_[i] != nullptr && !ambiguous[i];
   // Features following a semantic mask count as moving before too: they keep
   // their anchor evidence and hold their cluster like the module's own.
   for (int i = 0; i < current_.size(); ++i) inherited[i] |= current_.dynamic[i] == kSemanticDynamic;
@@ -369,6 +386,7 @@ void Tracker::removeDynamicFeatures() {
   std::vector<int> matched;
   std::vector<JudgedFeature::Evidence> kinds;
   std::vector<EvidenceError> errors;
+  std::vector<Vec3> residual_vectors(current_.size(), Vec3::Zero());
   const auto judge = [&](bool anchored) {
     residuals.clear();
     matched.clear();
@@ -382,6 +400,7 @@ void Tracker::removeDynamicFeatures() {
       if (!by_anchor && ((anchored && anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
       const EvidenceError e = evidenceError(i, by_anchor ? anchor_point[i] : p->position);
       errors.push_back(e);
+      residual_vectors[i] = e.residual;
       residuals.push_back({c, e.level_chi2, inherited[i] != 0});
       matched.push_back(i);
       kinds.push_back(by_anchor     ? JudgedFeature::Evidence::kAnchor
@@ -477,9 +496,20 @@ void Tracker::removeDynamicFeatures() {
                              : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
     geometry_.judged.push_back({current_.keys[i].pt.x, current_.keys[i].pt.y, dynamic, current_.cluster[i],
                                 static_cast<float>(residuals[k].chi2), kinds[k], residuals[k].inherited,
-                                current_.depth[i], distance});
+                                current_.depth[i], distance,
+                                kinds[k] == JudgedFeature::Evidence::kAnchor ? 0.0f : match_ratio_[i],
+                                residual_vectors[i].cast<float>()});
     const auto& p = evidence[i];
     if (!p || p->bad || p->isTemporary()) continue;
+    const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
+    p->dynamic_score.store(score, std::memory_order_relaxed);
+    if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
+  }
+  for (std::size_t k = 0; k < ambiguous_points.size(); ++k) {
+    const int c = current_.cluster[ambiguous_features[k]];
+    const auto& p = ambiguous_points[k];
+    if (c < 0 || p->bad) continue;
+    const bool dynamic = verdict.clusters[c].dynamic;
     const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
     p->dynamic_score.store(score, std::memory_order_relaxed);
     if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
@@ -502,10 +532,13 @@ Tracker::EvidenceError Tracker::evidenceError(int i, const Vec3& p_w) const {
   const Vec3 p = current_.T_c_w * p_w;
   if (p.z() <= 1e-6) {
     e.depth_chi2 = e.level_chi2 = 1e6;
+    e.residual = Vec3(1e3, 0, 0);
     return e;
   }
   const double u = camera_.fx * p.x() / p.z() + camera_.cx, v = camera_.fy * p.y() / p.z() + camera_.cy;
   const double du = u - current_.un[i].x, dv = v - current_.un[i].y;
+  const double inv_sigma = std::sqrt(e.inv_level_sigma2);
+  e.residual = Vec3(du * inv_sigma, dv * inv_sigma, 0);
   e.pixel2 = du * du + dv * dv;
   e.dof = 2;
   e.level_chi2 = e.pixel2 * e.inv_level_sigma2;
@@ -513,14 +546,52 @@ Tracker::EvidenceError Tracker::evidenceError(int i, const Vec3& p_w) const {
   if (z > 0 && options_.geometry.depth_sigma_at_1m > 0) {
     const double sigma = options_.geometry.depth_sigma_at_1m * z * z;
     e.depth_chi2 = (p.z() - z) * (p.z() - z) / (sigma * sigma);
+    e.residual.z() = (p.z() - z) / sigma;
     e.level_chi2 += e.depth_chi2;
   } else if (current_.u_right[i] >= 0) {
     const double ur = u - camera_.bf() / p.z() - current_.u_right[i];
     e.pixel2 += ur * ur;
+    e.residual.z() = ur * inv_sigma;
     e.dof = 3;
     e.level_chi2 += ur * ur * e.inv_level_sigma2;
   }
   return e;
+}
+
+std::shared_ptr<const geometry::DepthClusters> Tracker::currentClusters() {
+  if (clusters_fetched_ || !clusters_pending_) return clusters_;
+  clusters_fetched_ = true;
+  const auto deadline = std::chrono::microseconds(static_cast<std::int64_t>(options_.geometry.deadline_ms * 1000));
+  clusters_ = clustering_->result(current_.id, deadline);
+  if (!clusters_) geometry_.deadline_missed = true;
+  return clusters_;
+}
+
+void Tracker::holdKnownMoversOutOfPose() {
+  // A mover flagged in the last frame reaches this one as carried matches,
+  // which never enter the pose; but its features that were not flagged then
+  // (a cluster only partly on it, a feature without depth) match ordinary
+  // points and pull the pose along with it: on the overlays a poster filling
+  // 30-40 % of the view drags the pose until the static scene is flagged
+  // instead. Clusters mostly matched to last frame's dynamic features are
+  // kept out of the initial pose; they are judged as usual.
+  const auto clusters = currentClusters();
+  if (!clusters || clusters->clusters == 0) return;
+  std::vector<int> label(current_.size(), -1), carried(clusters->clusters, 0), matched(clusters->clusters, 0);
+  for (int i = 0; i < current_.size(); ++i) {
+    const cv::Point2f& px = current_.keys[i].pt;
+    label[i] = clusters->labelAt(camera_, px.x, px.y, current_.depth[i]);
+    if (label[i] < 0) continue;
+    if (i < static_cast<int>(carried_.size()) && carried_[i]) ++carried[label[i]];
+    else if (current_.points[i]) ++matched[label[i]];
+  }
+  held_.assign(current_.size(), nullptr);
+  const int min_features = options_.geometry.verdict.min_features;
+  for (int i = 0; i < current_.size(); ++i) {
+    const int c = label[i];
+    if (c < 0 || !current_.points[i] || carried[c] < min_features || carried[c] < matched[c]) continue;
+    held_[i] = std::move(current_.points[i]);
+  }
 }
 
 void Tracker::rememberAnchor() {
@@ -556,18 +627,25 @@ int Tracker::setAsideCarried() {
 bool Tracker::trackWithMotionModel() {
   current_.T_c_w = renormalized(velocity_ * last_.T_c_w);
   current_.clearMatches();
-  int matches = searchByProjection(&current_, last_, 7.0f);
+  const auto max_ratio = static_cast<float>(options_.geometry.projection_ratio);
+  match_ratio_.assign(current_.size(), 0.0f);
+  int matches = searchByProjection(&current_, last_, 7.0f, &match_ratio_, max_ratio);
   matches -= setAsideCarried();
   if (matches < 20) {
     current_.clearMatches();
-    matches = searchByProjection(&current_, last_, 14.0f);
+    match_ratio_.assign(current_.size(), 0.0f);
+    matches = searchByProjection(&current_, last_, 14.0f, &match_ratio_, max_ratio);
     matches -= setAsideCarried();
   }
   if (matches < 20) {
     SP_DEBUG(logger, "frame " << current_.id << ": motion model found " << matches << " matches");
     return false;
   }
+  held_.clear();
+  if (options_.geometry.exclude_known_movers) holdKnownMoversOutOfPose();
   timedOptimizePose();
+  for (std::size_t i = 0; i < held_.size(); ++i)
+    if (held_[i]) current_.points[i] = std::move(held_[i]), current_.outlier[i] = 1;
   const int kept = countMapInliers();
   SP_DEBUG(logger, "frame " << current_.id << ": motion model " << matches << " matches, " << kept << " map inliers");
   return kept >= 10;
@@ -576,6 +654,7 @@ bool Tracker::trackWithMotionModel() {
 bool Tracker::trackReferenceKeyFrame() {
   if (!reference_ || reference_->bad) return false;
   current_.clearMatches();
+  match_ratio_.assign(current_.size(), 0.0f);  // ratio-tested matches
   const int matches = searchByDescriptor(&current_, *reference_, 0.7f);
   SP_DEBUG(logger, "frame " << current_.id << ": reference keyframe " << reference_->id << " gave " << matches
                             << " matches");

@@ -92,6 +92,18 @@ class Tracker {
   std::vector<std::shared_ptr<MapPoint>> dynamic_suspects_;
   // Stage-1 matches to last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
+  // Per keypoint of the current frame: best / second-best Hamming distance of
+  // its motion-model match (0: none, or matched by a ratio-tested search).
+  std::vector<float> match_ratio_;
+  // The current frame's depth clusters, fetched once (null: none or late).
+  bool clusters_pending_ = false, clusters_fetched_ = false;
+  std::shared_ptr<const geometry::DepthClusters> clusters_;
+  std::shared_ptr<const geometry::DepthClusters> currentClusters();
+  // geometry.exclude_known_movers: keeps the stage-1 matches of clusters
+  // mostly matched to the last frame's dynamic features out of the initial
+  // pose (returned as outliers, still evidence).
+  void holdKnownMoversOutOfPose();
+  std::vector<std::shared_ptr<MapPoint>> held_;
   int setAsideCarried();
   // The last geometry.anchor_frames tracked frames (keypoints, descriptors,
   // depth, final pose; no matches), oldest first: the geometry module's
@@ -106,6 +118,7 @@ class Tracker {
     double inv_level_sigma2 = 1;
     double depth_chi2 = 0;  // depth_sigma_at_1m's term, or 1e6 behind the camera
     double level_chi2 = 0;  // the whole error normalised by the level sigma
+    Vec3 residual = Vec3::Zero();  // its components (u, v, depth term) over the level sigma, predicted minus measured
   };
   EvidenceError evidenceError(int i, const Vec3& p_w) const;
 };

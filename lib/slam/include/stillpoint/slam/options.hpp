@@ -110,6 +110,22 @@ struct GeometryOptions {
   std::string frame_sigma_from = "reference";
   double frame_sigma_quantile = 0.5;
   double frame_sigma_min_scale = 1.0;
+  // Uniqueness of the evidence matches that come from the motion model's
+  // projection search (stage-1 matches to the last frame's points, and
+  // matches carried from its dynamic features): such a match is judged only
+  // when its Hamming distance is at most this ratio of the second best
+  // keypoint's in the search window, and only then passes on "dynamic before"
+  // (memory). 0 = every match (the search has no ratio test). 0.9 raises
+  // precision 0.02-0.06 on every generated sequence but the overlays' ATE
+  // gets worse (6-run sweeps, lib/geometry/README.md): off.
+  double evidence_ratio = 0.0;
+  // The same test on the motion model's matches for the pose too (0 = off;
+  // 0.9 lost the poster-walk overlay, ATE 0.146 m: README).
+  double projection_ratio = 0.0;
+  // Keep the motion model's matches in clusters mostly matched to the last
+  // frame's dynamic features out of the initial pose (they are still judged).
+  // No effect beyond noise on the poster-walk overlay (README): off.
+  bool exclude_known_movers = false;
   Status validate() const;
 };
 

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <Eigen/Core>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -59,6 +60,11 @@ struct JudgedFeature {
   bool inherited = false;  // matched to a feature that was dynamic before
   float depth = 0;         // keypoint depth in metres (0: none)
   int distance = 0;        // Hamming distance of the evidence match
+  // Its distance over the second best in the search window (0: none or not a
+  // projection match; anchor and keyframe matches passed a 0.7 ratio test).
+  float ratio = 0;
+  // chi2's components: u, v and the depth term, each over its sigma.
+  Eigen::Vector3f residual = Eigen::Vector3f::Zero();
 };
 
 // What the geometry module saw in one frame (for visualisation and scoring).

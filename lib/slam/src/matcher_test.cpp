@@ -1,0 +1,105 @@
+// The motion model's projection search reports how distinctive each match is
+// (best over second-best Hamming distance in the search window), and can
+// reject ambiguous matches.
+#include "matcher.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+#include <vector>
+
+namespace stillpoint::slam {
+namespace {
+
+const LevelInfo& oneLevel() {
+  static const LevelInfo lv = [] {
+    LevelInfo l;
+    l.levels = 1;
+    l.scale_factor = 1.2;
+    l.log_scale_factor = std::log(1.2);
+    l.scales = l.sigma2 = l.inv_sigma2 = {1.0};
+    return l;
+  }();
+  return lv;
+}
+
+const CameraModel& camera() {
+  static const CameraModel c = [] {
+    CameraModel m;
+    m.width = 640;
+    m.height = 480;
+    m.fx = m.fy = 500;
+    m.cx = 320;
+    m.cy = 240;
+    return m;
+  }();
+  return c;
+}
+
+// A frame with keypoints at `pixels` (level 0, no depth) and descriptors
+// whose first `ones[i]` bits are set.
+Frame frameWith(const std::vector<cv::Point2f>& pixels, const std::vector<int>& ones) {
+  Frame f;
+  f.camera = &camera();
+  f.levels = &oneLevel();
+  for (const cv::Point2f& p : pixels) f.keys.emplace_back(p, 7.0f, 0.0f, 0.0f, 0);
+  f.un = pixels;
+  f.depth.assign(pixels.size(), -1.0f);
+  f.u_right.assign(pixels.size(), -1.0f);
+  f.descriptors = cv::Mat::zeros(static_cast<int>(pixels.size()), 32, CV_8U);
+  for (std::size_t i = 0; i < ones.size(); ++i)
+    for (int b = 0; b < ones[i]; ++b) f.descriptors.at<std::uint8_t>(static_cast<int>(i), b / 8) |= 1 << (b % 8);
+  f.grid.build(f.un, camera().width, camera().height);
+  f.dynamic.assign(pixels.size(), 0);
+  f.clearMatches();
+  return f;
+}
+
+// Last frame: three points seen at (100, 100), (300, 200) and (500, 300),
+// all with the all-zero descriptor, at 2 m.
+Frame lastFrame() {
+  Frame last = frameWith({{100, 100}, {300, 200}, {500, 300}}, {0, 0, 0});
+  for (int i = 0; i < last.size(); ++i) {
+    const Vec3 p = camera().unproject(Vec2(last.un[i].x, last.un[i].y), 2.0);
+    last.points[i] = std::make_shared<MapPoint>(i, p, nullptr);
+  }
+  return last;
+}
+
+TEST(SearchByProjection, ReportsHowDistinctiveEachMatchIs) {
+  const Frame last = lastFrame();
+  // Point 0: its match (5 bits off) and a far worse one (60 bits). Point 1:
+  // two near-identical keypoints (10 and 11 bits off). Point 2: one keypoint
+  // alone in its window, 40 bits off.
+  Frame current = frameWith({{101, 100}, {103, 101}, {300, 201}, {302, 199}, {500, 301}}, {5, 60, 10, 11, 40});
+  std::vector<float> ratio(current.size(), -1.0f);
+  EXPECT_EQ(searchByProjection(&current, last, 7.0f, &ratio), 3);
+  ASSERT_EQ(current.points[0], last.points[0]);
+  ASSERT_EQ(current.points[2], last.points[1]);
+  ASSERT_EQ(current.points[4], last.points[2]);
+  EXPECT_NEAR(ratio[0], 5.0f / 60.0f, 1e-6);
+  EXPECT_NEAR(ratio[2], 10.0f / 11.0f, 1e-6);
+  // A lone candidate is measured against the distance of a good match.
+  EXPECT_NEAR(ratio[4], 40.0f / kMatchThresholdLow, 1e-6);
+  EXPECT_EQ(ratio[1], -1.0f);  // unmatched keypoints are left alone
+  EXPECT_EQ(ratio[3], -1.0f);
+}
+
+TEST(SearchByProjection, MaxRatioRejectsAmbiguousMatches) {
+  const Frame last = lastFrame();
+  Frame current = frameWith({{101, 100}, {103, 101}, {300, 201}, {302, 199}, {500, 301}}, {5, 60, 10, 11, 40});
+  std::vector<float> ratio(current.size(), 0.0f);
+  EXPECT_EQ(searchByProjection(&current, last, 7.0f, &ratio, 0.85f), 2);
+  EXPECT_EQ(current.points[0], last.points[0]);
+  EXPECT_EQ(current.points[2], nullptr);
+  EXPECT_EQ(current.points[3], nullptr);
+  EXPECT_EQ(current.points[4], last.points[2]);
+  // Without the limit the same search keeps all three.
+  current.clearMatches();
+  EXPECT_EQ(searchByProjection(&current, last, 7.0f), 3);
+  EXPECT_EQ(current.points[2], last.points[1]);
+}
+
+}  // namespace
+}  // namespace stillpoint::slam
