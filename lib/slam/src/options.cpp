@@ -85,6 +85,8 @@ Status SemanticOptions::validate() const {
     return Error{"semantic.propagate_grow_px must be in [0, 200]"};
   if (!(propagate_warp_px >= 0 && propagate_warp_px <= 200))
     return Error{"semantic.propagate_warp_px must be in [0, 200]"};
+  if (!(propagate_motion_px >= 0 && propagate_motion_px <= 200))
+    return Error{"semantic.propagate_motion_px must be in [0, 200]"};
   for (const std::string& d : model_dirs)
     if (d.empty()) return Error{"semantic.model_dirs: empty folder name"};
   return Status::success();
@@ -178,6 +180,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "propagate_masks", o.semantic.propagate_masks);
   v("semantic", "propagate_grow_px", o.semantic.propagate_grow_px);
   v("semantic", "propagate_warp_px", o.semantic.propagate_warp_px);
+  v("semantic", "propagate_motion_px", o.semantic.propagate_motion_px);
   v("", "sequential", o.sequential);
 }
 

@@ -239,11 +239,12 @@ TEST(SemanticModule, MasksFollowTheirFeaturesBetweenKeyframes) {
 // 24 % with the growth radius around it.
 TEST(SemanticModule, GrownMasksStayAroundTheirMatches) {
   const Frames& frames = planeFrames();
-  auto run = [&](float grow, float warp, int* features) {
+  auto run = [&](float grow, float warp, int* features, float gate = 0.0f) {
     SlamOptions options = semanticOptions();
     options.semantic.propagate_masks = true;
     options.semantic.propagate_grow_px = grow;
     options.semantic.propagate_warp_px = warp;
+    options.semantic.propagate_motion_px = gate;
     auto system = SlamSystem::create(frames.camera, options, std::make_unique<RectangleSegmenter>(kRect, false));
     EXPECT_TRUE(system.ok()) << system.error();
     if (!system.ok()) return 0;
@@ -275,6 +276,95 @@ TEST(SemanticModule, GrownMasksStayAroundTheirMatches) {
   EXPECT_LT(grown, features_grown * 3 / 10) << grown << " of " << features_grown << " features marked";
   EXPECT_GT(warped, grown * 11 / 10) << "grown " << grown << ", warped " << warped;
   EXPECT_LT(warped, features_warped * 3 / 10) << warped << " of " << features_warped << " features marked";
+  // The rectangle masks static texture: its matches land where the motion
+  // model puts them, so the motion gate leaves the mask unwarped.
+  int features_gated = 0;
+  const int gated = run(16.0f, 16.0f, &features_gated, 2.0f);
+  std::printf("with the motion gate: %d marked\n", gated);
+  EXPECT_EQ(gated, grown) << "grown " << grown << ", warped " << warped;
+}
+
+// A textured card 0.5 m in front of the plane slides down the image while the
+// camera moves sideways; it is the only thing the fake segmenter labels (its
+// colour pixels have no blue). Its matches miss the motion model's
+// reprojection by its own motion, so the gated warp still carries its mask.
+class BlueFreeSegmenter : public RectangleSegmenter {
+ public:
+  BlueFreeSegmenter() : RectangleSegmenter(cv::Rect(0, 0, 1, 1), false) {}
+  Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
+    if (bgr.empty() || bgr.type() != CV_8UC3) return Error{"not a BGR image"};
+    std::vector<cv::Mat> channels;
+    cv::split(bgr, channels);
+    cv::Mat mask = (channels[0] == 0) & (channels[1] > 0);
+    const cv::Rect r = cv::boundingRect(mask);
+    semantic::Segmentation seg;
+    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
+    seg.labels.setTo(0, mask);
+    seg.movable_mask = mask;
+    if (r.area() == 0) return seg;
+    semantic::Instance inst;
+    inst.class_id = 0;
+    inst.class_name = "person";
+    inst.score = 0.9f;
+    inst.box = r;
+    inst.mask = mask(r).clone();
+    inst.area = cv::countNonZero(mask);
+    inst.movable = true;
+    seg.instances.push_back(inst);
+    seg.movable_pixels = inst.area;
+    return seg;
+  }
+};
+
+TEST(SemanticModule, MotionGateStillWarpsAMovingMask) {
+  const Frames& plane = planeFrames();
+  ASSERT_FALSE(plane.inputs.empty());
+  cv::Mat coarse(25, 19, CV_8U), card;  // random blocks of 8 px, like the plane's texture
+  cv::RNG rng(7);
+  rng.fill(coarse, cv::RNG::UNIFORM, 20, 236);  // green > 0 everywhere: the segmenter needs it
+  cv::resize(coarse, card, cv::Size(), 8, 8, cv::INTER_NEAREST);
+  cv::GaussianBlur(card, card, cv::Size(3, 3), 0.8);
+  card = card(cv::Rect(0, 0, 150, 200)).clone();
+  std::vector<RgbdInput> inputs;
+  for (std::size_t k = 0; k < plane.inputs.size(); ++k) {
+    RgbdInput in{plane.inputs[k].stamp, plane.inputs[k].gray.clone(), plane.inputs[k].depth_m.clone(),
+                 plane.inputs[k].bgr.clone()};
+    const cv::Rect r(420, 40 + 6 * static_cast<int>(k), card.cols, card.rows);
+    card.copyTo(in.gray(r));
+    in.depth_m(r).setTo(1.0f);
+    cv::Mat colour;
+    cv::merge(std::vector<cv::Mat>{cv::Mat::zeros(card.size(), CV_8U), card, card}, colour);
+    colour.copyTo(in.bgr(r));
+    inputs.push_back(std::move(in));
+  }
+  auto run = [&](float warp, float gate) {
+    SlamOptions options = semanticOptions();
+    options.semantic.propagate_masks = true;
+    options.semantic.propagate_grow_px = 16.0f;
+    options.semantic.propagate_warp_px = warp;
+    options.semantic.propagate_motion_px = gate;
+    auto system = SlamSystem::create(plane.camera, options, std::make_unique<BlueFreeSegmenter>());
+    EXPECT_TRUE(system.ok()) << system.error();
+    if (!system.ok()) return 0;
+    int marked = 0;
+    for (const RgbdInput& input : inputs) {
+      const auto out = (*system)->track(input);
+      EXPECT_TRUE(out.ok()) << out.error();
+      if (!out.ok()) return 0;
+      EXPECT_EQ(out->state, TrackingState::kOk);
+      marked += out->semantic_features;
+    }
+    (*system)->finish();
+    return marked;
+  };
+  const int grown = run(0.0f, 0.0f);
+  const int warped = run(16.0f, 0.0f);
+  const int gated = run(16.0f, 2.0f);
+  std::printf("moving card, marked between keyframes: %d grown, %d warped, %d warped with the gate\n", grown, warped,
+              gated);
+  ASSERT_GT(grown, 0);
+  EXPECT_GT(warped, grown * 11 / 10);
+  EXPECT_GT(gated, grown * 11 / 10) << "the gate took a moving card for a static one";
 }
 
 TEST(SemanticModule, SequentialModeIsDeterministic) {
@@ -459,6 +549,7 @@ TEST(SemanticOptions, EachOutOfRangeValueNamesItsField) {
       {"semantic.point_masked_ratio", [](SemanticOptions& o) { o.point_masked_ratio = 1; }},
       {"semantic.propagate_grow_px", [](SemanticOptions& o) { o.propagate_grow_px = -1; }},
       {"semantic.propagate_warp_px", [](SemanticOptions& o) { o.propagate_warp_px = 201; }},
+      {"semantic.propagate_motion_px", [](SemanticOptions& o) { o.propagate_motion_px = -1; }},
       {"semantic.model_dirs", [](SemanticOptions& o) { o.model_dirs = {""}; }},
   };
   for (const auto& [field, spoil] : cases) {

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <chrono>
+#include <cmath>
 #include <mutex>
 #include <numeric>
 #include <unordered_map>
@@ -142,6 +143,76 @@ void Tracker::releaseCulledKeyFrames() {
   if (released > 0) SP_DEBUG(logger, "freed " << released << " culled keyframes");
 }
 
+bool Tracker::maskMoves(const Frame& f, const std::vector<std::pair<int, int>>& still,
+                        const std::vector<std::pair<int, int>>& mask, float gate_px) const {
+  // (current, keyframe) index pairs -> world points and pixels.
+  const auto collect = [&](const std::vector<std::pair<int, int>>& pairs, std::vector<cv::Point3f>* w,
+                           std::vector<cv::Point2f>* px) {
+    for (const auto& [j, i] : pairs) {
+      if (f.depth[i] <= 0) continue;
+      const Vec3 p = f.unprojectToWorld(i);
+      w->emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+      px->push_back(current_.un[j]);
+    }
+  };
+  std::vector<cv::Point3f> still_w, mask_w;
+  std::vector<cv::Point2f> still_px, mask_px;
+  collect(still, &still_w, &still_px);
+  collect(mask, &mask_w, &mask_px);
+  if (mask_w.size() < 6 || still_w.size() < 10) return true;  // too few to tell: moving
+  const auto misses = [&](const SE3& T, const std::vector<cv::Point3f>& w, const std::vector<cv::Point2f>& px) {
+    std::vector<float> miss(w.size(), 1e9f);
+    for (std::size_t k = 0; k < w.size(); ++k) {
+      const Vec3 p = T * Vec3(w[k].x, w[k].y, w[k].z);
+      if (p.z() <= 0) continue;
+      const Vec2 uv = camera_.project(p);
+      miss[k] = static_cast<float>(std::hypot(uv.x() - px[k].x, uv.y() - px[k].y));
+    }
+    return miss;
+  };
+  const auto median = [](std::vector<float> v) {
+    auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+    std::nth_element(v.begin(), mid, v.end());
+    return *mid;
+  };
+  const SE3 last = last_record_ ? last_record_->T_c_w() : last_.T_c_w;
+  SE3 T = has_velocity_ ? renormalized(velocity_ * last) : last;
+  // Refine the predicted pose on the other matches: drop the clear
+  // mismatches, then Levenberg-Marquardt from the prediction (a local step:
+  // it cannot jump to another solution); keep it only if it fits better.
+  const std::vector<float> before = misses(T, still_w, still_px);
+  const float s0 = median(before);
+  std::vector<cv::Point3f> fit_w;
+  std::vector<cv::Point2f> fit_px;
+  for (std::size_t k = 0; k < before.size(); ++k)
+    if (before[k] < std::max(4.0f, 3.0f * s0)) fit_w.push_back(still_w[k]), fit_px.push_back(still_px[k]);
+  float s = s0;
+  if (fit_w.size() >= 10) {
+    const cv::Mat K = (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
+    cv::Mat R(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) R.at<double>(r, c) = T.linear()(r, c);
+      tvec.at<double>(r) = T.translation()(r);
+    }
+    cv::Rodrigues(R, rvec);
+    cv::solvePnPRefineLM(fit_w, fit_px, K, cv::noArray(), rvec, tvec);
+    cv::Rodrigues(rvec, R);
+    SE3 refined = SE3::Identity();
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) refined.linear()(r, c) = R.at<double>(r, c);
+      refined.translation()(r) = tvec.at<double>(r);
+    }
+    const float s1 = median(misses(refined, still_w, still_px));
+    if (s1 < s0) T = refined, s = s1;
+  }
+  const float m = median(misses(T, mask_w, mask_px));
+  const bool moving = m > gate_px && m > 2.0f * s;
+  SP_DEBUG(logger, "frame " << current_.id << ": " << mask_w.size() << " masked matches miss " << m << " px, "
+                              << still_w.size() << " others " << s << " px (motion model " << s0
+                              << "): " << (moving ? "moving" : "static"));
+  return moving;
+}
+
 void Tracker::markSemanticMovers() {
   // The newest segmented keyframe near the camera: features inside its
   // movable masks are looked up in this frame by descriptor alone (the
@@ -161,13 +232,20 @@ void Tracker::markSemanticMovers() {
   // rotation consistency: window-free matching on repetitive texture
   // mismatches, and a static feature marked here is lost to the pose.
   const float warp = options_.semantic.propagate_warp_px;
+  const float gate = options_.semantic.propagate_motion_px;
   std::vector<cv::Point2f> from, to;
   std::vector<float> depth_change;
   const std::vector<char>& in_mask = source->in_mask;
-  for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true)) {
-    if (f.dynamic[i] != kSemanticDynamic) continue;
+  const auto matches = matchByDescriptor(current_, f, 0.7f, false, true);
+  std::vector<std::pair<int, int>> warp_pairs, still_pairs;
+  for (const auto& [j, i] : matches) {
+    if (f.dynamic[i] != kSemanticDynamic) {
+      if (warp > 0 && gate > 0 && !f.dynamic[i]) still_pairs.emplace_back(j, i);
+      continue;
+    }
     current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
     if (warp <= 0 || in_mask.empty() || !in_mask[i]) continue;
+    warp_pairs.emplace_back(j, i);
     from.push_back(f.un[i]);
     to.push_back(current_.un[j]);
     if (f.depth[i] > 0 && current_.depth[j] > 0) depth_change.push_back(current_.depth[j] - f.depth[i]);
@@ -198,7 +276,18 @@ void Tracker::markSemanticMovers() {
     std::vector<unsigned char> inlier;
     const cv::Mat A = cv::estimateAffinePartial2D(from, to, inlier, cv::RANSAC, 3.0);
     const int inliers = static_cast<int>(std::count(inlier.begin(), inlier.end(), 1));
-    if (!A.empty() && inliers >= 6 && 2 * inliers >= static_cast<int>(from.size())) {
+    bool fits = !A.empty() && inliers >= 6 && 2 * inliers >= static_cast<int>(from.size());
+    if (fits && gate > 0) {
+      // Motion gate: an object that stands still (a person who stopped, a
+      // false positive) lands where the static scene says it should, one
+      // that moves does not. Judged on the matches that agree with the
+      // similarity (window-free matching has mismatches).
+      std::vector<std::pair<int, int>> agreed;
+      for (std::size_t k = 0; k < inlier.size(); ++k)
+        if (inlier[k]) agreed.push_back(warp_pairs[k]);
+      fits = maskMoves(f, still_pairs, agreed, gate);
+    }
+    if (fits) {
       auto mid = depth_change.begin() + static_cast<std::ptrdiff_t>(depth_change.size() / 2);
       std::nth_element(depth_change.begin(), mid, depth_change.end());
       const float dz = *mid;
@@ -217,6 +306,7 @@ void Tracker::markSemanticMovers() {
         }
       }
       semantic_marked_ += warped;
+      SP_DEBUG(logger, "frame " << current_.id << ": warped " << warped);
     }
   }
   SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of keyframe " << source->id);

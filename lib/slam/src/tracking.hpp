@@ -4,6 +4,7 @@
 #include <deque>
 #include <memory>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include "map.hpp"
@@ -54,6 +55,12 @@ class Tracker {
   void removeDynamicFeatures();
   // Features matching the masked features of the newest segmented keyframe.
   void markSemanticMovers();
+  // Motion gate of the mask warp: whether the `mask` matches ((current,
+  // keyframe f) index pairs) miss by more than `gate_px` (median) and twice the
+  // `still` matches, reprojected through the motion model's pose refined on
+  // the still matches.
+  bool maskMoves(const Frame& f, const std::vector<std::pair<int, int>>& still,
+                 const std::vector<std::pair<int, int>>& mask, float gate_px) const;
   int timedOptimizePose();
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();

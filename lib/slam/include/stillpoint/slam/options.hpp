@@ -185,8 +185,16 @@ struct SemanticOptions {
   // radius (pixels) of one at its depth (10 cm + 5 %, after the matches'
   // median depth change) is kept out too. 0 (default): off. At 16 semantic
   // only on a cut-out walking person 0.0183 -> 0.0140 m, but both modules on
-  // the real excerpt 0.0089 -> 0.0098 m (6-run sweep means; lib/slam/README.md).
+  // the real excerpt 0.0089 -> 0.0098 m without the motion gate below, 0.0089 m
+  // with it (6-run sweep means; lib/slam/README.md).
   float propagate_warp_px = 0.0f;
+  // Motion gate of the warp: the pose of the frame (motion model, refined on
+  // the keyframe's other matches) reprojects the mask matches that agree with
+  // the similarity; the mask is warped only when they miss by more than this
+  // many pixels (median) and by more than twice the other matches. A masked
+  // object that stands still (a person who stopped, a false positive) is not
+  // warped. 0: no gate. Acts only with propagate_warp_px > 0.
+  float propagate_motion_px = 2.0f;
   Status validate() const;
 };
 
