@@ -594,11 +594,25 @@ MovingBoardSequence movingBoardSequence(int n_frames) {
   return out;
 }
 
+// Judged features against the board's mask, counted from its first moving frame.
+struct BoardScore {
+  int true_positive = 0, false_positive = 0, false_negative = 0;
+  void add(const cv::Mat& mask, const JudgedFeature& f) {
+    const bool on_board = mask.at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
+    true_positive += on_board && f.dynamic;
+    false_positive += !on_board && f.dynamic;
+    false_negative += on_board && !f.dynamic;
+  }
+  double precision() const { return true_positive / std::max(1.0, double(true_positive + false_positive)); }
+  double recall() const { return true_positive / std::max(1.0, double(true_positive + false_negative)); }
+};
+
 TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
   const MovingBoardSequence data = movingBoardSequence(45);
   const Sequence& seq = data.seq;
   std::vector<SE3> online[2];
-  int true_positive = 0, false_positive = 0, false_negative = 0, static_flags_before_motion = 0;
+  BoardScore score;
+  int static_flags_before_motion = 0;
   for (int module = 0; module < 2; ++module) {
     SlamOptions options = sequentialOptions();
     options.geometry.enabled = module == 1;
@@ -615,23 +629,19 @@ TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
         EXPECT_EQ(out->geometry.clusters, 24);
       }
       for (const JudgedFeature& f : out->geometry.judged) {
-        const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
         if (i < 10) {
           static_flags_before_motion += f.dynamic;
           continue;
         }
-        true_positive += on_board && f.dynamic;
-        false_positive += !on_board && f.dynamic;
-        false_negative += on_board && !f.dynamic;
+        score.add(data.masks[i], f);
       }
     }
     system->finish();
   }
-  const double precision = true_positive / std::max(1.0, double(true_positive + false_positive));
-  const double recall = true_positive / std::max(1.0, double(true_positive + false_negative));
+  const double precision = score.precision(), recall = score.recall();
   const PoseErrors off = compare(online[0], seq.T_w_c), on = compare(online[1], seq.T_w_c);
   std::printf("moving board: precision %.3f recall %.3f (%d/%d/%d), flags while still %d\n", precision, recall,
-              true_positive, false_positive, false_negative, static_flags_before_motion);
+              score.true_positive, score.false_positive, score.false_negative, static_flags_before_motion);
   std::printf("  online error: module off max %.2f mm rms %.2f mm; on max %.2f mm rms %.2f mm\n",
               off.max_translation * 1e3, off.rms_translation * 1e3, on.max_translation * 1e3,
               on.rms_translation * 1e3);
@@ -657,7 +667,7 @@ TEST(SlamSystemGeometry, FrameSigmaFindsTheBoardWithThreeLevels) {
   auto system = makeSystem(seq.camera, options);
   ASSERT_TRUE(system);
   std::vector<SE3> online;
-  int true_positive = 0, false_positive = 0, false_negative = 0;
+  BoardScore score;
   for (std::size_t i = 0; i < seq.frames.size(); ++i) {
     const auto out = system->track(seq.frames[i]);
     ASSERT_TRUE(out.ok()) << out.error();
@@ -665,15 +675,11 @@ TEST(SlamSystemGeometry, FrameSigmaFindsTheBoardWithThreeLevels) {
     online.push_back(out->T_w_c);
     if (i < 10) continue;
     for (const JudgedFeature& f : out->geometry.judged) {
-      const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
-      true_positive += on_board && f.dynamic;
-      false_positive += !on_board && f.dynamic;
-      false_negative += on_board && !f.dynamic;
+      score.add(data.masks[i], f);
     }
   }
   system->finish();
-  const double precision = true_positive / std::max(1.0, double(true_positive + false_positive));
-  const double recall = true_positive / std::max(1.0, double(true_positive + false_negative));
+  const double precision = score.precision(), recall = score.recall();
   const PoseErrors on = compare(online, seq.T_w_c);
   std::printf("moving board, 3 levels, frame sigma: precision %.3f recall %.3f, online rms %.2f mm\n", precision,
               recall, on.rms_translation * 1e3);
@@ -693,7 +699,8 @@ TEST(SlamSystemGeometry, SecondJudgementKeepsTheBoardFlagged) {
   options.geometry.rejudge = true;
   auto system = makeSystem(seq.camera, options);
   ASSERT_TRUE(system);
-  int true_positive = 0, false_positive = 0, false_negative = 0, rejudged = 0;
+  BoardScore score;
+  int rejudged = 0;
   for (std::size_t i = 0; i < seq.frames.size(); ++i) {
     const auto out = system->track(seq.frames[i]);
     ASSERT_TRUE(out.ok()) << out.error();
@@ -706,18 +713,14 @@ TEST(SlamSystemGeometry, SecondJudgementKeepsTheBoardFlagged) {
       EXPECT_EQ(f.dynamic, out->geometry.scores[f.cluster].dynamic) << "frame " << i;
       flagged += f.dynamic;
       if (i < 10) continue;
-      const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
-      true_positive += on_board && f.dynamic;
-      false_positive += !on_board && f.dynamic;
-      false_negative += on_board && !f.dynamic;
+      score.add(data.masks[i], f);
     }
     EXPECT_LE(flagged, out->geometry.dynamic_features) << "frame " << i;
   }
   system->finish();
-  const double precision = true_positive / std::max(1.0, double(true_positive + false_positive));
-  const double recall = true_positive / std::max(1.0, double(true_positive + false_negative));
+  const double precision = score.precision(), recall = score.recall();
   std::printf("moving board, second judgement: precision %.3f recall %.3f (%d/%d/%d), %d verdicts changed\n",
-              precision, recall, true_positive, false_positive, false_negative, rejudged);
+              precision, recall, score.true_positive, score.false_positive, score.false_negative, rejudged);
   EXPECT_GE(recall, 0.9);
   EXPECT_GE(precision, 0.9);
 }
@@ -734,7 +737,8 @@ TEST(SlamSystemGeometry, RatioTestedEvidenceKeepsTheBoardFlagged) {
   options.geometry.exclude_known_movers = true;
   auto system = makeSystem(seq.camera, options);
   ASSERT_TRUE(system);
-  int true_positive = 0, false_positive = 0, false_negative = 0, ratio_reported = 0;
+  BoardScore score;
+  int ratio_reported = 0;
   std::vector<SE3> online;
   for (std::size_t i = 0; i < seq.frames.size(); ++i) {
     const auto out = system->track(seq.frames[i]);
@@ -747,18 +751,14 @@ TEST(SlamSystemGeometry, RatioTestedEvidenceKeepsTheBoardFlagged) {
         ratio_reported += f.ratio > 0;
       }
       if (i < 10) continue;
-      const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
-      true_positive += on_board && f.dynamic;
-      false_positive += !on_board && f.dynamic;
-      false_negative += on_board && !f.dynamic;
+      score.add(data.masks[i], f);
     }
   }
   system->finish();
-  const double precision = true_positive / std::max(1.0, double(true_positive + false_positive));
-  const double recall = true_positive / std::max(1.0, double(true_positive + false_negative));
+  const double precision = score.precision(), recall = score.recall();
   const PoseErrors on = compare(online, seq.T_w_c);
   std::printf("moving board, ratio-tested evidence: precision %.3f recall %.3f (%d/%d/%d), rms %.2f mm\n", precision,
-              recall, true_positive, false_positive, false_negative, on.rms_translation * 1e3);
+              recall, score.true_positive, score.false_positive, score.false_negative, on.rms_translation * 1e3);
   EXPECT_GT(ratio_reported, 0);  // the motion model's matches carry their ratio
   EXPECT_GE(recall, 0.9);
   EXPECT_GE(precision, 0.9);
