@@ -22,8 +22,10 @@ trap 'rm -rf "$work"' EXIT
 run() {
   local n=$1
   printf 'orb:\n  num_features: %s\n%s%s' "$n" "$orb_extra" "$extra" > "$work/$n.yaml"
-  "$replay" "$sequence" --camera fr3 --sequential --config "$work/$n.yaml" --output "$work/$n.txt" 2>/dev/null |
-    sed -n 's/.*ate_rmse_m=\([0-9.]*\).*/\1/p' | head -n 1 > "$work/$n.ate"
+  "$replay" "$sequence" --camera fr3 --sequential --config "$work/$n.yaml" --output "$work/$n.txt" 2>/dev/null \
+    > "$work/$n.out" || true
+  sed -n 's/.*ate_rmse_m=\([0-9.]*\).*/\1/p' "$work/$n.out" | head -n 1 > "$work/$n.ate"
+  sed -n 's/.* lost=\([0-9]*\).*/\1/p' "$work/$n.out" | tail -n 1 > "$work/$n.lost"
 }
 export -f run
 export replay sequence extra orb_extra work
@@ -32,5 +34,8 @@ cat "$work"/*.ate | sort -n | awk '{a[NR] = $1; s += $1}
   END {
     if (NR == 0) { print "ate-sweep: no run produced an ATE" > "/dev/stderr"; exit 1 }
     printf "ATE [m]:"; for (i = 1; i <= NR; ++i) printf " %.4f", a[i]
-    printf "  mean %.4f  median %.4f  (%d runs)\n", s / NR, (a[int((NR + 1) / 2)] + a[int(NR / 2) + 1]) / 2, NR
+    printf "  mean %.4f  median %.4f  (%d runs)", s / NR, (a[int((NR + 1) / 2)] + a[int(NR / 2) + 1]) / 2, NR
   }'
+# Lost frames are left out of the ATE: a run that lost half the sequence can
+# score well on the rest, so the sweep reports them.
+cat "$work"/*.lost | awk '{s += $1} END {printf "  lost frames %d\n", s}'

@@ -289,6 +289,21 @@ void linearisePose(const PoseProblem& problem, const std::vector<char>& active, 
     out->H.noalias() += weight * J.topRows(rows).transpose() * J.topRows(rows);
     out->b.noalias() += weight * J.topRows(rows).transpose() * r.head(rows);
   }
+  if (problem.prior_sqrt_information.any()) {
+    // Left-perturbation residual of T against the prior; its Jacobian is
+    // close to the identity near the prior (the step is checked on the exact cost).
+    const Mat3 dR = T.linear() * problem.prior.linear().transpose();
+    Eigen::Matrix<double, 6, 1> r;
+    r.head<3>() = logSO3(dR);
+    r.tail<3>() = T.translation() - dR * problem.prior.translation();
+    const Eigen::Matrix<double, 6, 1>& s = problem.prior_sqrt_information;
+    r.array() *= s.array();
+    out->cost += r.squaredNorm();
+    if (with_jacobians) {
+      out->H.diagonal().array() += s.array().square();
+      out->b.array() += s.array() * r.array();
+    }
+  }
 }
 
 SE3 retract(const Eigen::Matrix<double, 6, 1>& dx, const SE3& T) {
@@ -347,9 +362,13 @@ PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int roun
   return result;
 }
 
-int optimizeFramePose(Frame* frame) {
+int optimizeFramePose(Frame* frame, const SE3* prior, const Eigen::Matrix<double, 6, 1>* prior_sqrt_information) {
   PoseProblem problem;
   problem.camera = frame->camera;
+  if (prior && prior_sqrt_information) {
+    problem.prior = *prior;
+    problem.prior_sqrt_information = *prior_sqrt_information;
+  }
   std::vector<int> index;
   for (int i = 0; i < frame->size(); ++i) {
     const auto& p = frame->points[i];

@@ -22,6 +22,11 @@ struct PoseProblem {
   const CameraModel* camera = nullptr;
   std::vector<Vec3> points_w;
   std::vector<Observation> observations;
+  // Optional prior on the pose (e.g. the motion model's prediction): adds
+  // r^T r with r = sqrt_information * [log(R R_p^T); t - R R_p^T t_p].
+  // Zero sqrt_information (the default) = no prior.
+  SE3 prior = SE3::Identity();
+  Eigen::Matrix<double, 6, 1> prior_sqrt_information = Eigen::Matrix<double, 6, 1>::Zero();
 };
 
 struct PoseResult {
@@ -43,7 +48,9 @@ PoseResult optimizePoseCeres(const PoseProblem& problem, const SE3& initial, int
 
 // Convenience: optimises frame->T_c_w against its matched points, sets
 // frame->outlier; returns the number of inliers.
-int optimizeFramePose(Frame* frame);
+// `prior` (optional): PoseProblem::prior and its sqrt information.
+int optimizeFramePose(Frame* frame, const SE3* prior = nullptr,
+                      const Eigen::Matrix<double, 6, 1>* prior_sqrt_information = nullptr);
 
 // Squared, sigma-normalised reprojection error of a point seen in a camera.
 double reprojectionChi2(const CameraModel& camera, const SE3& T_c_w, const Vec3& p_w, const Observation& obs,

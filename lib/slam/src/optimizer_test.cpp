@@ -94,6 +94,42 @@ TEST(PoseOptimisation, AgreesWithCeresReference) {
   EXPECT_EQ(ours.inliers, ceres.inliers);
 }
 
+// The motion model's prior: weighed against the observations by its sigma.
+// Exact observations of pose A, a prior at B 2 mm away: a tight prior gives
+// B, a loose one A, one of the observations' strength a pose in between.
+TEST(PoseOptimisation, PriorIsWeighedAgainstTheObservations) {
+  std::mt19937 rng(5);
+  const CameraModel cam = testCamera();
+  const SE3 A = pose(0.02, -0.03, 0.01, 0.05, -0.02, 0.1);
+  SE3 B = A;
+  B.translation() += Vec3(0.002, 0, 0);
+  PoseProblem problem;
+  problem.camera = &cam;
+  for (const Vec3& p_w : randomPoints(40, &rng)) {
+    const Vec3 p_c = A * p_w;
+    if (p_c.z() <= 0.2) continue;
+    const Vec2 uv = cam.project(p_c);
+    problem.points_w.push_back(p_w);
+    problem.observations.push_back({uv.x(), uv.y(), -1, 1.0});
+  }
+  problem.prior = B;
+  const auto solve = [&](double sigma_m) {
+    problem.prior_sqrt_information.head<3>().setConstant(1.0 / (0.1 * M_PI / 180));
+    problem.prior_sqrt_information.tail<3>().setConstant(1.0 / sigma_m);
+    const PoseResult r = optimizePose(problem, A);
+    return Vec3(r.T_c_w.translation());
+  };
+  problem.prior_sqrt_information.setZero();
+  const PoseResult no_prior = optimizePose(problem, B);
+  EXPECT_LT((no_prior.T_c_w.translation() - A.translation()).norm(), 1e-6);
+  EXPECT_LT((solve(1e-6) - B.translation()).norm(), 1e-4);
+  EXPECT_LT((solve(10.0) - A.translation()).norm(), 1e-5);
+  const Vec3 between = solve(0.0005);
+  EXPECT_GT((between - A.translation()).norm(), 2e-4);
+  EXPECT_GT((between - B.translation()).norm(), 2e-4);
+  EXPECT_LT((between - A.translation()).norm() + (between - B.translation()).norm(), 0.0025);
+}
+
 TEST(PoseOptimisation, FewPointsAreReportedNotInvented) {
   const CameraModel cam = testCamera();
   PoseProblem problem;

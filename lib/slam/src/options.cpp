@@ -17,6 +17,8 @@ Status TrackingOptions::validate() const {
   if (local_keyframes_max < 1) return Error{"tracking.local_keyframes_max must be >= 1"};
   if (relocalisation_candidates < 1) return Error{"tracking.relocalisation_candidates must be >= 1"};
   if (trajectory_records < -1) return Error{"tracking.trajectory_records must be >= -1 (-1: every frame)"};
+  if (motion_prior_sigma_m < 0) return Error{"tracking.motion_prior_sigma_m must be >= 0 (0: no prior)"};
+  if (motion_prior_sigma_deg <= 0) return Error{"tracking.motion_prior_sigma_deg must be > 0"};
   return Status::success();
 }
 
@@ -117,6 +119,8 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("tracking", "local_keyframes_max", o.tracking.local_keyframes_max);
   v("tracking", "relocalisation_candidates", o.tracking.relocalisation_candidates);
   v("tracking", "trajectory_records", o.tracking.trajectory_records);
+  v("tracking", "motion_prior_sigma_m", o.tracking.motion_prior_sigma_m);
+  v("tracking", "motion_prior_sigma_deg", o.tracking.motion_prior_sigma_deg);
   v("keyframes", "max_interval_s", o.keyframes.max_interval_s);
   v("keyframes", "min_interval_frames", o.keyframes.min_interval_frames);
   v("keyframes", "tracked_ratio", o.keyframes.tracked_ratio);

@@ -61,7 +61,9 @@ class Tracker {
   // the still matches.
   bool maskMoves(const Frame& f, const std::vector<std::pair<int, int>>& still,
                  const std::vector<std::pair<int, int>>& mask, float gate_px) const;
-  int timedOptimizePose();
+  int timedOptimizePose(const SE3* prior = nullptr);
+  // The motion model's pose for current_, from `last` (the last frame's pose).
+  SE3 predictedPose(const SE3& last) const;
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
 
@@ -84,6 +86,7 @@ class Tracker {
   std::int64_t reloc_window_next_id_ = -1;
   SE3 velocity_ = SE3::Identity();
   bool has_velocity_ = false;
+  double velocity_dt_ = 0;  // s between the two frames velocity_ was measured on
   int inliers_ = 0;
   int semantic_marked_ = 0;
   std::vector<KeyFrame*> local_keyframes_;

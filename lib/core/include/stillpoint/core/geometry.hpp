@@ -34,6 +34,12 @@ inline Mat3 expSO3(const Vec3& w) {
   return Eigen::AngleAxisd(theta, w / theta).toRotationMatrix();
 }
 
+// Logarithm map of SO(3): rotation matrix -> rotation vector.
+inline Vec3 logSO3(const Mat3& R) {
+  const Eigen::AngleAxisd aa(R);
+  return aa.angle() * aa.axis();
+}
+
 // Rotation angle of R in radians.
 inline double rotationAngle(const Mat3& R) {
   return Eigen::AngleAxisd(R).angle();

@@ -24,6 +24,10 @@ struct TrackingOptions {
   // -1 = every frame (evaluation, a trajectory file), 0 = none, N = the most
   // recent N. A long-running process that writes no trajectory keeps none.
   int trajectory_records = -1;
+  // Stage 1 (motion model): the predicted pose is a prior of this standard
+  // deviation per frame (m, degrees); 0 = no prior.
+  double motion_prior_sigma_m = 0.002;
+  double motion_prior_sigma_deg = 1.0;
   Status validate() const;
 };
 
