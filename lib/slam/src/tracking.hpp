@@ -62,6 +62,7 @@ class Tracker {
   bool maskMoves(const Frame& f, const std::vector<std::pair<int, int>>& still,
                  const std::vector<std::pair<int, int>>& mask, float gate_px) const;
   int timedOptimizePose();
+  void updateProbation();
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
 
