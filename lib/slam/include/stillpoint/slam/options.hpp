@@ -132,6 +132,9 @@ struct GeometryOptions {
   // cluster). A mover mapped while it went unflagged (it entered the view,
   // or its evidence was too weak) then cannot drag the pose it is judged by.
   // Held out only while at least probation_min_trusted other matches remain.
+  // 3 takes the overlays' 6-run sweep means 0.0238 / 0.0274 m to 0.0104 /
+  // 0.0102 m (clean excerpt unchanged) but room-walker halfsphere 0.0068 ->
+  // 0.0079 m (lib/geometry/README.md): off.
   int probation_frames = 0;
   int probation_min_trusted = 30;
   Status validate() const;
