@@ -70,6 +70,10 @@ class MapPoint {
   // Temporary point of a feature the geometry module found moving in the
   // previous frame: matched for evidence only, never used for the pose.
   bool moving = false;
+  // Geometry module, tracking thread only: frames this point must still be
+  // matched consistently with a pose estimated without it before it may
+  // enter the pose (geometry.probation_frames; 0 = trusted).
+  int probation = 0;
 
   double foundRatio() const { return static_cast<double>(found) / visible; }
   // Level at which a feature of this point is expected at distance d.

@@ -123,6 +123,8 @@ class BundleAdjustmentCost final : public ceres::SizedCostFunction<3, 6, 3> {
   Observation obs_;
 };
 
+}  // namespace
+
 Observation observationOf(const Frame& f, int i) {
   Observation o;
   o.u = f.un[i].x;
@@ -131,8 +133,6 @@ Observation observationOf(const Frame& f, int i) {
   o.inv_sigma = 1.0 / f.levels->scales[f.keys[i].octave];
   return o;
 }
-
-}  // namespace
 
 double reprojectionChi2(const CameraModel& cam, const SE3& T_c_w, const Vec3& p_w, const Observation& obs,
                         bool* behind) {

@@ -52,6 +52,10 @@ PoseResult optimizePoseCeres(const PoseProblem& problem, const SE3& initial, int
 int optimizeFramePose(Frame* frame, const SE3* prior = nullptr,
                       const Eigen::Matrix<double, 6, 1>* prior_sqrt_information = nullptr);
 
+// The observation of keypoint i of a frame (undistorted position, virtual
+// right coordinate, level sigma).
+Observation observationOf(const Frame& f, int i);
+
 // Squared, sigma-normalised reprojection error of a point seen in a camera.
 double reprojectionChi2(const CameraModel& camera, const SE3& T_c_w, const Vec3& p_w, const Observation& obs,
                         bool* behind = nullptr);

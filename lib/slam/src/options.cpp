@@ -62,6 +62,9 @@ Status GeometryOptions::validate() const {
     return Error{"geometry.frame_sigma_min_scale must be in (0, 1]"};
   if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
   if (!(projection_ratio >= 0 && projection_ratio <= 1)) return Error{"geometry.projection_ratio must be in [0, 1]"};
+  if (probation_frames < 0 || probation_frames > 100) return Error{"geometry.probation_frames must be in [0, 100]"};
+  if (probation_min_trusted < 10 || probation_min_trusted > 1000)
+    return Error{"geometry.probation_min_trusted must be in [10, 1000]"};
   return Status::success();
 }
 
@@ -165,6 +168,8 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
   v("geometry", "projection_ratio", o.geometry.projection_ratio);
   v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
+  v("geometry", "probation_frames", o.geometry.probation_frames);
+  v("geometry", "probation_min_trusted", o.geometry.probation_min_trusted);
   v("semantic", "enabled", o.semantic.enabled);
   v("semantic", "model_card", o.semantic.model_card);
   v("semantic", "model_dirs", o.semantic.model_dirs);

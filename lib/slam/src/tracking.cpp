@@ -72,6 +72,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       if (ok && clusters_pending) removeDynamicFeatures();
       if (ok) discardOutliers();
       if (ok) ok = trackLocalMap(options_.tracking.min_inliers_local_map);
+      if (ok && clusters_pending_) updateProbation();
     } else {
       ScopedStageTimer timer(&times_.initial_pose);
       ok = relocalise();
@@ -315,12 +316,52 @@ void Tracker::markSemanticMovers() {
 
 int Tracker::timedOptimizePose(const SE3* prior) {
   ScopedStageTimer timer(&times_.pose_optimisation);
+  // The motion model's prediction as a prior (stage 1 only, `prior` set).
   const TrackingOptions& t = options_.tracking;
-  if (!prior || t.motion_prior_sigma_m <= 0) return optimizeFramePose(&current_);
   Eigen::Matrix<double, 6, 1> sqrt_information;
   sqrt_information.head<3>().setConstant(1.0 / (t.motion_prior_sigma_deg * M_PI / 180.0));
-  sqrt_information.tail<3>().setConstant(1.0 / t.motion_prior_sigma_m);
-  return optimizeFramePose(&current_, prior, &sqrt_information);
+  sqrt_information.tail<3>().setConstant(t.motion_prior_sigma_m > 0 ? 1.0 / t.motion_prior_sigma_m : 0.0);
+  const bool use_prior = prior && t.motion_prior_sigma_m > 0;
+  const auto optimise = [&] {
+    return use_prior ? optimizeFramePose(&current_, prior, &sqrt_information) : optimizeFramePose(&current_);
+  };
+  // Map points on probation (new, not yet seen to stay put) are left out of
+  // the fit and judged by it: a mover mapped while it went unflagged cannot
+  // pull the pose before it has shown its motion. Only when enough trusted
+  // matches remain; then their inlier flags come from the fitted pose.
+  std::vector<int> held;
+  int trusted = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    if (!p || p->bad) continue;
+    if (!p->isTemporary() && p->probation > 0)
+      held.push_back(i);
+    else
+      ++trusted;
+  }
+  if (held.empty() || trusted < options_.geometry.probation_min_trusted) return optimise();
+  std::vector<std::shared_ptr<MapPoint>> aside;
+  aside.reserve(held.size());
+  for (int i : held) aside.push_back(std::move(current_.points[i]));
+  const int inliers = optimise();
+  for (std::size_t k = 0; k < held.size(); ++k) {
+    const int i = held[k];
+    current_.points[i] = std::move(aside[k]);
+    const Observation o = observationOf(current_, i);
+    const double chi2 = reprojectionChi2(camera_, current_.T_c_w, current_.points[i]->position, o);
+    current_.outlier[i] = chi2 > (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
+  }
+  return inliers;
+}
+
+void Tracker::updateProbation() {
+  // A point on probation matched consistently with the final pose (which it
+  // did not influence), outside any dynamic cluster, has one frame less to go.
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    if (!p || p->bad || p->isTemporary() || p->probation <= 0 || current_.outlier[i] || current_.dynamic[i]) continue;
+    --p->probation;
+  }
 }
 
 bool Tracker::initialise() {
@@ -986,6 +1027,7 @@ KeyFrame* Tracker::createKeyFrame() {
   for (const auto& [z, i] : by_depth) {
     if (z > close_depth_ && created >= options_.keyframes.min_new_points) break;
     auto p = map_->createPoint(kf->frame.unprojectToWorld(i), kf);
+    if (clustering_) p->probation = options_.geometry.probation_frames;
     kf->addObservation(p, i);
     p->updateFromObservations();
     current_.points[i] = p;

@@ -64,6 +64,7 @@ class Tracker {
   int timedOptimizePose(const SE3* prior = nullptr);
   // The motion model's pose for current_, from `last` (the last frame's pose).
   SE3 predictedPose(const SE3& last) const;
+  void updateProbation();
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
 

@@ -130,6 +130,17 @@ struct GeometryOptions {
   // frame's dynamic features out of the initial pose (they are still judged).
   // No effect beyond noise on the poster-walk overlay (README): off.
   bool exclude_known_movers = false;
+  // Probation for new map points (0 = off): a point made by a keyframe stays
+  // out of the frame pose fits until it has been matched this many frames
+  // consistently with a pose fitted without it (chi2 inlier, not in a dynamic
+  // cluster). A mover mapped while it went unflagged (it entered the view,
+  // or its evidence was too weak) then cannot drag the pose it is judged by.
+  // Held out only while at least probation_min_trusted other matches remain.
+  // 3 takes the overlays' 6-run sweep means 0.0238 / 0.0274 m to 0.0104 /
+  // 0.0102 m (clean excerpt unchanged) but room-walker halfsphere 0.0068 ->
+  // 0.0079 m (lib/geometry/README.md): off.
+  int probation_frames = 0;
+  int probation_min_trusted = 30;
   Status validate() const;
 };
 
