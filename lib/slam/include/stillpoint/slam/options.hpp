@@ -138,8 +138,10 @@ struct GeometryOptions {
   // Held out only while at least probation_min_trusted other matches remain.
   // 3 takes the overlays' 6-run sweep means 0.0238 / 0.0274 m to 0.0104 /
   // 0.0102 m (clean excerpt unchanged) but room-walker halfsphere 0.0068 ->
-  // 0.0079 m (lib/geometry/README.md): off.
-  int probation_frames = 0;
+  // 0.0079 m (lib/geometry/README.md). With the stage-1 motion prior: overlays
+  // 0.0106 / 0.0101 m, excerpt 0.0082 m, halfsphere 0.0073 -> 0.0080 m (still
+  // within 1.5x of the room without movers, 0.0057 m): on.
+  int probation_frames = 3;
   int probation_min_trusted = 30;
   Status validate() const;
 };
