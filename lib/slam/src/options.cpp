@@ -88,6 +88,10 @@ Status SemanticOptions::validate() const {
     return Error{"semantic.point_masked_ratio must be in [0, 1)"};
   if (!(propagate_grow_px >= 0 && propagate_grow_px <= 200))
     return Error{"semantic.propagate_grow_px must be in [0, 200]"};
+  if (propagate_grow_passes < 1 || propagate_grow_passes > 20)
+    return Error{"semantic.propagate_grow_passes must be in [1, 20]"};
+  if (propagate_mask_window < 0 || propagate_mask_window > 100)
+    return Error{"semantic.propagate_mask_window must be in [0, 100]"};
   if (!(propagate_warp_px >= 0 && propagate_warp_px <= 200))
     return Error{"semantic.propagate_warp_px must be in [0, 200]"};
   if (!(propagate_motion_px >= 0 && propagate_motion_px <= 200))
@@ -188,6 +192,9 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "point_masked_ratio", o.semantic.point_masked_ratio);
   v("semantic", "propagate_masks", o.semantic.propagate_masks);
   v("semantic", "propagate_grow_px", o.semantic.propagate_grow_px);
+  v("semantic", "propagate_grow_passes", o.semantic.propagate_grow_passes);
+  v("semantic", "propagate_from_last", o.semantic.propagate_from_last);
+  v("semantic", "propagate_mask_window", o.semantic.propagate_mask_window);
   v("semantic", "propagate_warp_px", o.semantic.propagate_warp_px);
   v("semantic", "propagate_motion_px", o.semantic.propagate_motion_px);
   v("", "sequential", o.sequential);

@@ -316,20 +316,37 @@ class BlueFreeSegmenter : public RectangleSegmenter {
   }
 };
 
-TEST(SemanticModule, MotionGateStillWarpsAMovingMask) {
+// The plane sequence with a textured card 0.5 m in front of it sliding down
+// the image (6 px a frame); the card is the only thing without blue.
+cv::Rect slidingCardRect(std::size_t frame) { return cv::Rect(420, 40 + 6 * static_cast<int>(frame), 150, 200); }
+
+// scroll_px > 0: the card's texture also scrolls up inside it by that many
+// pixels a frame, new texture entering at its bottom edge (an object showing
+// new sides as it turns); noise > 0: Gaussian noise of that sigma on the
+// card in every frame (its features then match their keyframe in some frames
+// and not in others).
+std::vector<RgbdInput> slidingCardInputs(int scroll_px = 0, double noise = 0) {
   const Frames& plane = planeFrames();
-  ASSERT_FALSE(plane.inputs.empty());
-  cv::Mat coarse(25, 19, CV_8U), card;  // random blocks of 8 px, like the plane's texture
+  const int rows = 200 + scroll_px * static_cast<int>(plane.inputs.size());
+  cv::Mat coarse((rows + 7) / 8, 19, CV_8U), texture;  // random blocks of 8 px, like the plane's texture
   cv::RNG rng(7);
   rng.fill(coarse, cv::RNG::UNIFORM, 20, 236);  // green > 0 everywhere: the segmenter needs it
-  cv::resize(coarse, card, cv::Size(), 8, 8, cv::INTER_NEAREST);
-  cv::GaussianBlur(card, card, cv::Size(3, 3), 0.8);
-  card = card(cv::Rect(0, 0, 150, 200)).clone();
+  cv::resize(coarse, texture, cv::Size(), 8, 8, cv::INTER_NEAREST);
+  cv::GaussianBlur(texture, texture, cv::Size(3, 3), 0.8);
   std::vector<RgbdInput> inputs;
   for (std::size_t k = 0; k < plane.inputs.size(); ++k) {
     RgbdInput in{plane.inputs[k].stamp, plane.inputs[k].gray.clone(), plane.inputs[k].depth_m.clone(),
                  plane.inputs[k].bgr.clone()};
-    const cv::Rect r(420, 40 + 6 * static_cast<int>(k), card.cols, card.rows);
+    const cv::Rect r = slidingCardRect(k);
+    cv::Mat card = texture(cv::Rect(0, scroll_px * static_cast<int>(k), 150, 200)).clone();
+    if (noise > 0) {
+      cv::Mat n(card.size(), CV_16S);
+      rng.fill(n, cv::RNG::NORMAL, 0, noise);
+      cv::Mat sum;
+      cv::add(card, n, sum, cv::noArray(), CV_16S);
+      sum.convertTo(card, CV_8U);
+      cv::max(card, 1, card);  // green > 0
+    }
     card.copyTo(in.gray(r));
     in.depth_m(r).setTo(1.0f);
     cv::Mat colour;
@@ -337,6 +354,13 @@ TEST(SemanticModule, MotionGateStillWarpsAMovingMask) {
     colour.copyTo(in.bgr(r));
     inputs.push_back(std::move(in));
   }
+  return inputs;
+}
+
+TEST(SemanticModule, MotionGateStillWarpsAMovingMask) {
+  const Frames& plane = planeFrames();
+  ASSERT_FALSE(plane.inputs.empty());
+  const std::vector<RgbdInput> inputs = slidingCardInputs();
   auto run = [&](float warp, float gate) {
     SlamOptions options = semanticOptions();
     options.semantic.propagate_masks = true;
@@ -365,6 +389,87 @@ TEST(SemanticModule, MotionGateStillWarpsAMovingMask) {
   ASSERT_GT(grown, 0);
   EXPECT_GT(warped, grown * 11 / 10);
   EXPECT_GT(gated, grown * 11 / 10) << "the gate took a moving card for a static one";
+}
+
+// Finds nothing in its calls [first, last): a detector's miss while the card
+// is still in view.
+class MissingSegmenter : public BlueFreeSegmenter {
+ public:
+  MissingSegmenter(int first, int last) : first_(first), last_(last) {}
+  Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
+    const int call = calls_++;
+    if (call < first_ || call >= last_) return BlueFreeSegmenter::segment(bgr);
+    semantic::Segmentation seg;
+    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
+    seg.movable_mask = cv::Mat(bgr.size(), CV_8U, cv::Scalar(0));
+    return seg;
+  }
+
+ private:
+  int first_, last_, calls_ = 0;
+};
+
+// The lookups beyond the newest segmented keyframe's matches (more growing
+// passes, the last frame's flags, an older keyframe's mask across a miss)
+// each keep more of the sliding card out, and none spreads over the plane.
+TEST(SemanticModule, MoreLookupsFollowAMovingCardThroughDetectorMisses) {
+  const Frames& plane = planeFrames();
+  ASSERT_FALSE(plane.inputs.empty());
+  const std::vector<RgbdInput> inputs = slidingCardInputs(0, 12.0);
+  struct Count {
+    int marked = 0;        // features kept out between keyframes
+    int plane_flagged = 0;  // keyframe features well off the card flagged dynamic
+    int plane = 0;
+  };
+  auto run = [&](int passes, bool from_last, int window) {
+    SlamOptions options = semanticOptions();
+    options.semantic.propagate_masks = true;
+    options.semantic.propagate_grow_px = 16.0f;
+    options.semantic.propagate_grow_passes = passes;
+    options.semantic.propagate_from_last = from_last;
+    options.semantic.propagate_mask_window = window;
+    options.geometry.enabled = false;  // its verdict would take over the card's flags
+    Count c;
+    auto system = SlamSystem::create(plane.camera, options, std::make_unique<MissingSegmenter>(2, 6));
+    EXPECT_TRUE(system.ok()) << system.error();
+    if (!system.ok()) return c;
+    for (const RgbdInput& input : inputs) {
+      const auto out = (*system)->track(input);
+      EXPECT_TRUE(out.ok()) << out.error();
+      if (!out.ok()) return c;
+      EXPECT_EQ(out->state, TrackingState::kOk);
+      c.marked += out->semantic_features;
+    }
+    (*system)->finish();
+    for (const KeyFrameView& kf : (*system)->keyframes()) {
+      std::size_t k = 0;
+      while (k < inputs.size() && inputs[k].stamp != kf.stamp) ++k;
+      if (k == inputs.size()) continue;
+      const cv::Rect near = slidingCardRect(k) + cv::Size(40, 40) - cv::Point(20, 20);
+      for (const KeyFrameFeature& f : kf.features) {
+        if (near.contains(cv::Point(static_cast<int>(f.u), static_cast<int>(f.v)))) continue;
+        ++c.plane;
+        c.plane_flagged += f.dynamic;
+      }
+    }
+    return c;
+  };
+  const Count base = run(1, false, 0);
+  const Count passes = run(3, false, 0);
+  const Count last = run(1, true, 0);
+  const Count window = run(1, false, 4);
+  std::printf("sliding card, 4 of its keyframes missed: marked %d (default), %d (3 passes), %d (last frame), "
+              "%d (window 4); plane features flagged %d/%d %d/%d %d/%d %d/%d\n",
+              base.marked, passes.marked, last.marked, window.marked, base.plane_flagged, base.plane,
+              passes.plane_flagged, passes.plane, last.plane_flagged, last.plane, window.plane_flagged, window.plane);
+  ASSERT_GT(base.marked, 0);
+  EXPECT_GT(passes.marked, base.marked);
+  EXPECT_GT(last.marked, base.marked);
+  EXPECT_GT(window.marked, base.marked);
+  for (const Count& c : {base, passes, last, window}) {
+    ASSERT_GT(c.plane, 100);
+    EXPECT_LE(c.plane_flagged, c.plane / 50) << "flags spread over the plane";
+  }
 }
 
 TEST(SemanticModule, SequentialModeIsDeterministic) {
@@ -548,6 +653,8 @@ TEST(SemanticOptions, EachOutOfRangeValueNamesItsField) {
       {"semantic.max_removed_fraction", [](SemanticOptions& o) { o.max_removed_fraction = 1.5; }},
       {"semantic.point_masked_ratio", [](SemanticOptions& o) { o.point_masked_ratio = 1; }},
       {"semantic.propagate_grow_px", [](SemanticOptions& o) { o.propagate_grow_px = -1; }},
+      {"semantic.propagate_grow_passes", [](SemanticOptions& o) { o.propagate_grow_passes = 0; }},
+      {"semantic.propagate_mask_window", [](SemanticOptions& o) { o.propagate_mask_window = -1; }},
       {"semantic.propagate_warp_px", [](SemanticOptions& o) { o.propagate_warp_px = 201; }},
       {"semantic.propagate_motion_px", [](SemanticOptions& o) { o.propagate_motion_px = -1; }},
       {"semantic.model_dirs", [](SemanticOptions& o) { o.model_dirs = {""}; }},

@@ -227,9 +227,31 @@ void Tracker::markSemanticMovers() {
   consider(reference_);
   for (const KeyFrame* kf : local_keyframes_) consider(kf);
   if (!source) return;
-  const Frame& f = source->frame;
+  // A keyframe whose segmentation found nothing (a detector's miss while the
+  // object is still in view) holds only what it inherited by propagation:
+  // the newest keyframe with a mask of its own, a few keyframes older, is
+  // looked up too.
+  const KeyFrame* masked = nullptr;
+  const int window = options_.semantic.propagate_mask_window;
+  if (window > 0 && source->in_mask.empty()) {
+    const auto consider_masked = [&](const KeyFrame* kf) {
+      if (kf && !kf->bad && kf->segmented && !kf->in_mask.empty() && kf->id < source->id &&
+          source->id - kf->id <= window && (!masked || kf->id > masked->id))
+        masked = kf;
+    };
+    consider_masked(reference_);
+    for (const KeyFrame* kf : local_keyframes_) consider_masked(kf);
+  }
+  const auto has_flags = [](const KeyFrame* kf) {
+    return std::find(kf->frame.dynamic.begin(), kf->frame.dynamic.end(), kSemanticDynamic) != kf->frame.dynamic.end();
+  };
   // Most keyframes mask nothing: skip the brute-force pass then.
-  if (std::find(f.dynamic.begin(), f.dynamic.end(), kSemanticDynamic) == f.dynamic.end()) return;
+  if (!has_flags(source)) {
+    if (!masked) return;
+    source = masked;
+    masked = nullptr;
+  }
+  const Frame& f = source->frame;
   // Mutual nearest neighbours over all the keyframe's features, ratio 0.7 and
   // rotation consistency: window-free matching on repetitive texture
   // mismatches, and a static feature marked here is lost to the pose.
@@ -252,9 +274,29 @@ void Tracker::markSemanticMovers() {
     to.push_back(current_.un[j]);
     if (f.depth[i] > 0 && current_.depth[j] > 0) depth_change.push_back(current_.depth[j] - f.depth[i]);
   }
+  if (masked) {
+    int older = 0;
+    for (const auto& [j, i] : matchByDescriptor(current_, masked->frame, 0.7f, false, true))
+      if (masked->frame.dynamic[i] == kSemanticDynamic && !current_.dynamic[j])
+        current_.dynamic[j] = kSemanticDynamic, ++older;
+    semantic_marked_ += older;
+    SP_DEBUG(logger, "frame " << current_.id << ": " << older << " more from the masks of keyframe " << masked->id);
+  }
+  if (options_.semantic.propagate_from_last && has_last_ && last_.size() > 0 &&
+      std::find(last_.dynamic.begin(), last_.dynamic.end(), kSemanticDynamic) != last_.dynamic.end()) {
+    // The last frame's flagged features, looked up here: from frame to frame
+    // an object changes less than since its keyframe. (Features the geometry
+    // module flagged carry its flag instead and are not followed.)
+    int chained = 0;
+    for (const auto& [j, i] : matchByDescriptor(current_, last_, 0.7f, false, true))
+      if (last_.dynamic[i] == kSemanticDynamic && !current_.dynamic[j])
+        current_.dynamic[j] = kSemanticDynamic, ++chained;
+    semantic_marked_ += chained;
+    SP_DEBUG(logger, "frame " << current_.id << ": " << chained << " flagged from the last frame");
+  }
   const float grow = options_.semantic.propagate_grow_px;
-  if (grow > 0 && semantic_marked_ >= 5) {
-    // One pass of region growing from the matches (not from what it adds).
+  for (int pass = 0; grow > 0 && semantic_marked_ >= 5 && pass < options_.semantic.propagate_grow_passes; ++pass) {
+    // Region growing from the matches, then (more passes) from what it added.
     std::vector<int> grown;
     for (int j = 0; j < current_.size(); ++j) {
       const float z = current_.depth[j];
@@ -267,6 +309,7 @@ void Tracker::markSemanticMovers() {
     }
     for (int j : grown) current_.dynamic[j] = kSemanticDynamic;
     semantic_marked_ += static_cast<int>(grown.size());
+    if (grown.empty()) break;
   }
   if (warp > 0 && from.size() >= 6 && !depth_change.empty()) {
     // The object's motion in the image since the keyframe (it does not

@@ -196,6 +196,18 @@ struct SemanticOptions {
   // segmented keyframe. 0: matches only. Default 16: on the real excerpt the
   // ATE stays as it was (both modules, 6-run sweep mean 0.0089 m vs 0.0091 m).
   float propagate_grow_px = 16.0f;
+  // Passes of that growing: each pass grows from what the previous ones
+  // flagged too (a depth-connected region grown step by step). 1: from the
+  // matches only.
+  int propagate_grow_passes = 1;
+  // ...and looks up the features the last frame kept out this way (by
+  // descriptor, mutual nearest neighbours) before growing: a moving object's
+  // features change less from frame to frame than since the keyframe.
+  bool propagate_from_last = false;
+  // When the newest segmented keyframe found no movable object of its own (a
+  // detector's miss while the object is still in view), the newest one that
+  // did, at most this many keyframes older, is looked up too. 0: off.
+  int propagate_mask_window = 0;
   // ...and carries the keyframe's whole mask along with the matches: a
   // similarity (RANSAC) fitted to the matches moves every masked feature of
   // the keyframe to where the object is now, and a feature within this
