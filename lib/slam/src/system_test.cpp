@@ -576,7 +576,10 @@ struct MovingBoardSequence {
   std::vector<cv::Mat> masks;
 };
 
-MovingBoardSequence movingBoardSequence(int n_frames) {
+// The board over the room seen along the slow camera path, shifted by
+// offset(k) in frame k.
+template <typename Offset>
+MovingBoardSequence boardSequence(int n_frames, Offset offset) {
   RoomScene scene(5);
   scene.addMovingBoard(Vec3(-0.9, -0.5, 1.3), 0.6, 0.7, 77);
   MovingBoardSequence out;
@@ -584,14 +587,17 @@ MovingBoardSequence movingBoardSequence(int n_frames) {
   for (int k = 0; k < n_frames; ++k) {
     const double s = static_cast<double>(k) / 30.0;
     const SE3 T_w_c = pose(Vec3(0.02 * std::sin(2 * s), 0.05 * std::sin(1.5 * s), 0), Vec3(0.15 * s, 0.02 * s, 0.05 * s));
-    // Still for the first 10 frames (it enters the map), then it moves.
-    const Vec3 offset(k < 10 ? 0.0 : 0.015 * (k - 10), 0, 0);
     cv::Mat mask;
     out.seq.T_w_c.push_back(T_w_c);
-    out.seq.frames.push_back(scene.render(out.seq.camera, T_w_c, frameStamp(k), offset, &mask));
+    out.seq.frames.push_back(scene.render(out.seq.camera, T_w_c, frameStamp(k), offset(k), &mask));
     out.masks.push_back(mask);
   }
   return out;
+}
+
+MovingBoardSequence movingBoardSequence(int n_frames) {
+  // Still for the first 10 frames (it enters the map), then it moves.
+  return boardSequence(n_frames, [](int k) { return Vec3(k < 10 ? 0.0 : 0.015 * (k - 10), 0, 0); });
 }
 
 // Judged features against the board's mask, counted from its first moving frame.
@@ -606,6 +612,29 @@ struct BoardScore {
   double precision() const { return true_positive / std::max(1.0, double(true_positive + false_positive)); }
   double recall() const { return true_positive / std::max(1.0, double(true_positive + false_negative)); }
 };
+
+// Tracks the board sequence with `options` (every frame must track) and
+// scores the judged features from the board's first moving frame.
+struct BoardRun {
+  BoardScore score;
+  PoseErrors errors;  // online poses against the truth
+};
+
+void runBoard(const MovingBoardSequence& data, const SlamOptions& options, BoardRun* run) {
+  auto system = makeSystem(data.seq.camera, options);
+  ASSERT_TRUE(system);
+  std::vector<SE3> online;
+  for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
+    const auto out = system->track(data.seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    online.push_back(out->T_w_c);
+    if (i < 10) continue;
+    for (const JudgedFeature& f : out->geometry.judged) run->score.add(data.masks[i], f);
+  }
+  system->finish();
+  run->errors = compare(online, data.seq.T_w_c);
+}
 
 TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
   const MovingBoardSequence data = movingBoardSequence(45);
@@ -657,35 +686,18 @@ TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
 // static noise, estimated from the reference clusters only and allowed below
 // the level sigma on clean images, the board is caught at once.
 TEST(SlamSystemGeometry, FrameSigmaFindsTheBoardWithThreeLevels) {
-  const MovingBoardSequence data = movingBoardSequence(45);
-  const Sequence& seq = data.seq;
   SlamOptions options = sequentialOptions();
   options.orb.num_levels = 3;
   options.geometry.frame_sigma_factor = 3.0;
   options.geometry.frame_sigma_from = "reference";
   options.geometry.frame_sigma_min_scale = 0.5;
-  auto system = makeSystem(seq.camera, options);
-  ASSERT_TRUE(system);
-  std::vector<SE3> online;
-  BoardScore score;
-  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
-    const auto out = system->track(seq.frames[i]);
-    ASSERT_TRUE(out.ok()) << out.error();
-    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-    online.push_back(out->T_w_c);
-    if (i < 10) continue;
-    for (const JudgedFeature& f : out->geometry.judged) {
-      score.add(data.masks[i], f);
-    }
-  }
-  system->finish();
-  const double precision = score.precision(), recall = score.recall();
-  const PoseErrors on = compare(online, seq.T_w_c);
-  std::printf("moving board, 3 levels, frame sigma: precision %.3f recall %.3f, online rms %.2f mm\n", precision,
-              recall, on.rms_translation * 1e3);
-  EXPECT_GE(recall, 0.9);
-  EXPECT_GE(precision, 0.9);
-  EXPECT_LT(on.rms_translation, 0.005);
+  BoardRun run;
+  ASSERT_NO_FATAL_FAILURE(runBoard(movingBoardSequence(45), options, &run));
+  std::printf("moving board, 3 levels, frame sigma: precision %.3f recall %.3f, online rms %.2f mm\n",
+              run.score.precision(), run.score.recall(), run.errors.rms_translation * 1e3);
+  EXPECT_GE(run.score.recall(), 0.9);
+  EXPECT_GE(run.score.precision(), 0.9);
+  EXPECT_LT(run.errors.rms_translation, 0.005);
 }
 
 // tracking.motion_prior_sigma_m: the board covers few features (8 % of the
@@ -695,32 +707,19 @@ TEST(SlamSystemGeometry, FrameSigmaFindsTheBoardWithThreeLevels) {
 // the motion and flags the room instead (precision 0.87). The motion model's
 // prediction as a 2 mm prior holds stage 1 in place.
 TEST(SlamSystemGeometry, MotionPriorHoldsStageOneOffTheBoard) {
-  const MovingBoardSequence data = movingBoardSequence(45);
-  const Sequence& seq = data.seq;
   SlamOptions options = sequentialOptions();
   options.orb.num_levels = 3;
   options.geometry.frame_sigma_factor = 0.0;  // the level sigma
   options.tracking.motion_prior_sigma_m = 0.002;
   options.tracking.motion_prior_sigma_deg = 1.0;
-  auto system = makeSystem(seq.camera, options);
-  ASSERT_TRUE(system);
-  std::vector<SE3> online;
-  BoardScore score;
-  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
-    const auto out = system->track(seq.frames[i]);
-    ASSERT_TRUE(out.ok()) << out.error();
-    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-    online.push_back(out->T_w_c);
-    if (i < 10) continue;
-    for (const JudgedFeature& f : out->geometry.judged) score.add(data.masks[i], f);
-  }
-  system->finish();
-  const PoseErrors on = compare(online, seq.T_w_c);
+  BoardRun run;
+  ASSERT_NO_FATAL_FAILURE(runBoard(movingBoardSequence(45), options, &run));
   std::printf("moving board, 3 levels, motion prior: precision %.3f recall %.3f, online rms %.2f mm, max %.2f mm\n",
-              score.precision(), score.recall(), on.rms_translation * 1e3, on.max_translation * 1e3);
-  EXPECT_GE(score.recall(), 0.9);
-  EXPECT_GE(score.precision(), 0.9);
-  EXPECT_LT(on.max_translation, 0.01);
+              run.score.precision(), run.score.recall(), run.errors.rms_translation * 1e3,
+              run.errors.max_translation * 1e3);
+  EXPECT_GE(run.score.recall(), 0.9);
+  EXPECT_GE(run.score.precision(), 0.9);
+  EXPECT_LT(run.errors.max_translation, 0.01);
 }
 
 // geometry.rejudge: the frame is judged again under the pose refitted without
@@ -805,21 +804,10 @@ TEST(SlamSystemGeometry, RatioTestedEvidenceKeepsTheBoardFlagged) {
 // evidence noise at first, so keyframes map it as new ground before it is
 // flagged (the poster-walk overlay's failure, lib/geometry/README.md).
 MovingBoardSequence appearingBoardSequence(int n_frames) {
-  RoomScene scene(5);
-  scene.addMovingBoard(Vec3(-0.9, -0.5, 1.3), 0.6, 0.7, 77);
-  MovingBoardSequence out;
-  out.seq.camera = RoomScene::camera();
-  for (int k = 0; k < n_frames; ++k) {
-    const double s = static_cast<double>(k) / 30.0;
-    const SE3 T_w_c = pose(Vec3(0.02 * std::sin(2 * s), 0.05 * std::sin(1.5 * s), 0), Vec3(0.15 * s, 0.02 * s, 0.05 * s));
+  return boardSequence(n_frames, [](int k) {
     const double t = std::clamp((k - 10) / 40.0, 0.0, 1.0);  // 0.4 m over 40 frames
-    const Vec3 offset = k < 10 ? Vec3(0, 0, 50) : Vec3(0.2 * (1 - std::cos(M_PI * t)), 0, 0);
-    cv::Mat mask;
-    out.seq.T_w_c.push_back(T_w_c);
-    out.seq.frames.push_back(scene.render(out.seq.camera, T_w_c, frameStamp(k), offset, &mask));
-    out.masks.push_back(mask);
-  }
-  return out;
+    return k < 10 ? Vec3(0, 0, 50) : Vec3(0.2 * (1 - std::cos(M_PI * t)), 0, 0);
+  });
 }
 
 // geometry.probation_frames: map points made by keyframes stay out of the
