@@ -242,11 +242,21 @@ void Tracker::markSemanticMovers() {
     consider_masked(reference_);
     for (const KeyFrame* kf : local_keyframes_) consider_masked(kf);
   }
-  const auto has_flags = [](const KeyFrame* kf) {
-    return std::find(kf->frame.dynamic.begin(), kf->frame.dynamic.end(), kSemanticDynamic) != kf->frame.dynamic.end();
+  const auto has_flags = [](const Frame& other) {
+    return std::find(other.dynamic.begin(), other.dynamic.end(), kSemanticDynamic) != other.dynamic.end();
+  };
+  // Flags the current features matched to `other`'s semantic-dynamic ones;
+  // returns how many were newly flagged.
+  const auto adopt_flags = [&](const Frame& other) {
+    int adopted = 0;
+    for (const auto& [j, i] : matchByDescriptor(current_, other, 0.7f, false, true))
+      if (other.dynamic[i] == kSemanticDynamic && !current_.dynamic[j])
+        current_.dynamic[j] = kSemanticDynamic, ++adopted;
+    semantic_marked_ += adopted;
+    return adopted;
   };
   // Most keyframes mask nothing: skip the brute-force pass then.
-  if (!has_flags(source)) {
+  if (!has_flags(source->frame)) {
     if (!masked) return;
     source = masked;
     masked = nullptr;
@@ -275,23 +285,14 @@ void Tracker::markSemanticMovers() {
     if (f.depth[i] > 0 && current_.depth[j] > 0) depth_change.push_back(current_.depth[j] - f.depth[i]);
   }
   if (masked) {
-    int older = 0;
-    for (const auto& [j, i] : matchByDescriptor(current_, masked->frame, 0.7f, false, true))
-      if (masked->frame.dynamic[i] == kSemanticDynamic && !current_.dynamic[j])
-        current_.dynamic[j] = kSemanticDynamic, ++older;
-    semantic_marked_ += older;
+    const int older = adopt_flags(masked->frame);
     SP_DEBUG(logger, "frame " << current_.id << ": " << older << " more from the masks of keyframe " << masked->id);
   }
-  if (options_.semantic.propagate_from_last && has_last_ && last_.size() > 0 &&
-      std::find(last_.dynamic.begin(), last_.dynamic.end(), kSemanticDynamic) != last_.dynamic.end()) {
+  if (options_.semantic.propagate_from_last && has_last_ && has_flags(last_)) {
     // The last frame's flagged features, looked up here: from frame to frame
     // an object changes less than since its keyframe. (Features the geometry
     // module flagged carry its flag instead and are not followed.)
-    int chained = 0;
-    for (const auto& [j, i] : matchByDescriptor(current_, last_, 0.7f, false, true))
-      if (last_.dynamic[i] == kSemanticDynamic && !current_.dynamic[j])
-        current_.dynamic[j] = kSemanticDynamic, ++chained;
-    semantic_marked_ += chained;
+    const int chained = adopt_flags(last_);
     SP_DEBUG(logger, "frame " << current_.id << ": " << chained << " flagged from the last frame");
   }
   const float grow = options_.semantic.propagate_grow_px;
