@@ -9,6 +9,7 @@
 #   EXTRA_YAML is appended to each run's config, e.g. $'mapping:\n  ba_iterations: 20\n'.
 #   ORB_EXTRA (environment) holds more `orb:` keys, as indented lines, e.g. $'  num_levels: 3\n'
 #   (an `orb:` block in EXTRA_YAML would clash with the sweep's own).
+#   BUDGETS (environment) replaces the six feature budgets, e.g. "1400 1450 1500 1550 1600 1650".
 set -euo pipefail
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 sequence=${1:-$repo/../shared/data/tum_fr3_teddy_200}
@@ -29,7 +30,8 @@ run() {
 }
 export -f run
 export replay sequence extra orb_extra work
-printf '%s\n' 900 950 1000 1050 1100 1150 | xargs -P 2 -I{} bash -c 'run {}'
+budgets=${BUDGETS:-900 950 1000 1050 1100 1150}
+printf '%s\n' $budgets | xargs -P 2 -I{} bash -c 'run {}'
 cat "$work"/*.ate | sort -n | awk '{a[NR] = $1; s += $1}
   END {
     if (NR == 0) { print "ate-sweep: no run produced an ATE" > "/dev/stderr"; exit 1 }

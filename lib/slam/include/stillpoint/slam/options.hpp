@@ -40,9 +40,9 @@ struct KeyframeOptions {
   // 0.6 -> 0.0086, 99 keyframes; 0.75 -> 0.0080, 163 keyframes, at 5x the
   // local-mapping time). In threaded mode a busy mapper defers insertion.
   double tracked_ratio = 0.6;
-  int close_tracked_min = 100;      // ...or too few close points are tracked
-  int close_untracked_min = 70;     // ...while this many close points could be added
-  int min_new_points = 100;         // new keyframe creates at least this many points
+  int close_tracked_min = 100;      // ...or too few keypoints with depth are tracked
+  int close_untracked_min = 70;     // ...while this many with depth could be added
+  int min_new_points = 500;         // new keyframe (and the last frame's temporary points) at least this many, nearest first
   Status validate() const;
 };
 
