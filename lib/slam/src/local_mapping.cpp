@@ -230,6 +230,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     }
     applied[k + 1] = 1;
     ++st.instances_applied;
+    if (r.regions[k].continued) ++st.instances_continued;
   }
 
   int features_removed = 0, points_removed = 0, points_culled = 0;

@@ -96,6 +96,11 @@ Status SemanticOptions::validate() const {
     return Error{"semantic.propagate_warp_px must be in [0, 200]"};
   if (!(propagate_motion_px >= 0 && propagate_motion_px <= 200))
     return Error{"semantic.propagate_motion_px must be in [0, 200]"};
+  if (!(track_score_ratio >= 0 && track_score_ratio <= 1))
+    return Error{"semantic.track_score_ratio must be in [0, 1]"};
+  if (!(track_iou > 0 && track_iou <= 1)) return Error{"semantic.track_iou must be in (0, 1]"};
+  if (track_max_keyframes < 1 || track_max_keyframes > 100)
+    return Error{"semantic.track_max_keyframes must be in [1, 100]"};
   for (const std::string& d : model_dirs)
     if (d.empty()) return Error{"semantic.model_dirs: empty folder name"};
   return Status::success();
@@ -197,6 +202,10 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "propagate_mask_window", o.semantic.propagate_mask_window);
   v("semantic", "propagate_warp_px", o.semantic.propagate_warp_px);
   v("semantic", "propagate_motion_px", o.semantic.propagate_motion_px);
+  v("semantic", "track_score_ratio", o.semantic.track_score_ratio);
+  v("semantic", "track_iou", o.semantic.track_iou);
+  v("semantic", "track_max_keyframes", o.semantic.track_max_keyframes);
+  v("semantic", "track_any_class", o.semantic.track_any_class);
   v("", "sequential", o.sequential);
 }
 

@@ -224,6 +224,21 @@ struct SemanticOptions {
   // object that stands still (a person who stopped, a false positive) is not
   // warped. 0: no gate. Acts only with propagate_warp_px > 0.
   float propagate_motion_px = 2.0f;
+  // Detector hysteresis across keyframes (instance models, e.g. COCO). A
+  // keyframe segmented after one that kept a movable instance also keeps a
+  // weaker detection of it: an instance of the same class whose box overlaps
+  // the previous instance's box (IoU >= track_iou) is kept when its score
+  // reaches track_score_ratio x the card's score threshold, even if the
+  // post-filter dropped it as the same object as a static instance. Like a
+  // tracker's continuation threshold; a track lives at most
+  // track_max_keyframes keyframes in a row on such weak evidence. 0: off.
+  double track_score_ratio = 0.0;
+  double track_iou = 0.3;
+  int track_max_keyframes = 4;
+  // ...and a track may also be continued by an instance of another class (a
+  // static one too: COCO calls the cut-out person in front of the teddy bear
+  // "teddy bear"), which then counts as the track's class.
+  bool track_any_class = false;
   Status validate() const;
 };
 
