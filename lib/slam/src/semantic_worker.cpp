@@ -43,11 +43,16 @@ int continueTracks(const SemanticOptions& options, double strong_score, semantic
   }
   std::vector<SemanticTrack> next;
   int continued = 0;
+  std::vector<int> hits(n, 1);  // of the strong instances' tracks
   for (const SemanticTrack& track : *tracks) {
-    bool seen = false;  // a strong instance continues it (and starts a track below)
-    for (std::size_t i = 0; i < n && !seen; ++i)
-      seen = strong[i] && insts[i].class_id == track.class_id && boxIou(insts[i].box, track.box) >= options.track_iou;
-    if (seen || track.weak_keyframes >= options.track_max_keyframes) continue;
+    bool seen = false;  // a strong instance continues it
+    for (std::size_t i = 0; i < n; ++i)
+      if (strong[i] && insts[i].class_id == track.class_id && boxIou(insts[i].box, track.box) >= options.track_iou) {
+        hits[i] = std::max(hits[i], track.hits + 1);
+        seen = true;
+      }
+    // A one-off detection (a false positive, often) is not carried on.
+    if (seen || track.weak_keyframes >= options.track_max_keyframes || track.hits < options.track_min_hits) continue;
     int best = -1;
     double best_iou = 0;
     for (std::size_t i = 0; i < n; ++i) {
@@ -79,11 +84,11 @@ int continueTracks(const SemanticOptions& options, double strong_score, semantic
     inst.kept = true;
     inst.continued = true;
     inst.drop_reason.clear();
-    next.push_back({inst.box, track.class_id, track.class_name, track.weak_keyframes + 1});
+    next.push_back({inst.box, track.class_id, track.class_name, track.weak_keyframes + 1, track.hits});
     ++continued;
   }
   for (std::size_t i = 0; i < n; ++i)
-    if (strong[i]) next.push_back({insts[i].box, insts[i].class_id, insts[i].class_name, 0});
+    if (strong[i]) next.push_back({insts[i].box, insts[i].class_id, insts[i].class_name, 0, hits[i]});
   seg->movable_mask.setTo(0);
   for (const semantic::Instance& inst : insts)
     if (inst.movable && inst.kept && inst.area > 0 && !inst.mask.empty()) seg->movable_mask(inst.box).setTo(255, inst.mask);

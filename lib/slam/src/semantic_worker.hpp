@@ -61,12 +61,14 @@ struct SemanticTrack {
   int class_id = -1;
   std::string class_name;
   int weak_keyframes = 0;  // keyframes in a row continued by weak evidence only
+  int hits = 1;            // keyframes with a strong detection of it
 };
 
 // Detector hysteresis (SemanticOptions::track_*): drops the kept movable
 // instances below `strong_score` except those that continue one of `tracks`
 // (box IoU >= track_iou; same class, or any class with track_any_class; at
-// least track_score_ratio x strong_score), keeps the weaker continuations the
+// least track_score_ratio x strong_score; a track seen strong in at least
+// track_min_hits keyframes), keeps the weaker continuations the
 // post-filter dropped, rebuilds movable_mask, and replaces `tracks` by this
 // keyframe's kept instances. Returns how many instances were continued.
 int continueTracks(const SemanticOptions& options, double strong_score, semantic::Segmentation* seg,
