@@ -356,8 +356,9 @@ int main(int argc, char** argv) {
     std::printf("              %d keyframes segmented, %d dropped (queue full), %d without colour, %d failed\n",
                 map.semantic_keyframes_segmented, map.semantic_keyframes_dropped, map.semantic_keyframes_no_colour,
                 map.semantic_failures);
-    std::printf("              %d instances applied, %d unconfirmed by geometry, %d over the removal cap\n",
-                map.semantic_instances_applied, map.semantic_instances_unconfirmed, map.semantic_instances_capped);
+    std::printf("              %d instances applied (%d by hysteresis), %d unconfirmed by geometry, %d over the removal cap\n",
+                map.semantic_instances_applied, map.semantic_instances_continued, map.semantic_instances_unconfirmed,
+                map.semantic_instances_capped);
     std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks)\n",
                 map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled);
     std::printf("              %.1f features per frame followed from the last segmented keyframe's masks%s\n",

@@ -202,6 +202,33 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     judged[k] += f.cluster[i] >= 0;
   }
   const SemanticOptions& o = options_.semantic;
+  // The mask, grown over the keyframe's features at its depth: a detector's
+  // mask misses parts of its object (edges, limbs, what depth agreement cut),
+  // and those parts would become map points.
+  for (int pass = 0; o.mask_grow_px > 0 && n_regions > 0 && pass < o.mask_grow_passes; ++pass) {
+    std::vector<std::pair<int, int>> grown;  // feature, label
+    for (int i = 0; i < f.size(); ++i) {
+      const float z = f.depth[i];
+      if (region_of[i] || z <= 0) continue;
+      std::vector<int> support(n_regions + 1, 0);
+      int best = 0;
+      for (int s : f.grid.query(f.keys, f.un, f.un[i].x, f.un[i].y, o.mask_grow_px, 0, -1)) {
+        const int label = region_of[s];
+        if (!label || f.depth[s] <= 0 || std::abs(f.depth[s] - z) >= 0.1f + 0.05f * z) continue;
+        if (++support[label] > support[best]) best = label;
+      }
+      if (best && support[best] >= 2) grown.emplace_back(i, best);
+    }
+    if (grown.empty()) break;
+    for (const auto& [i, label] : grown) {
+      region_of[i] = label;
+      const int k = label - 1;
+      members[k].push_back(i);
+      with_point[k] += f.points[i] && !f.points[i]->bad;
+      flagged[k] += f.dynamic[i] != 0;
+      judged[k] += f.cluster[i] >= 0;
+    }
+  }
   std::vector<char> confirmed(n_regions, 0);
   std::vector<int> order(n_regions);
   for (int k = 0; k < n_regions; ++k) {
@@ -230,6 +257,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     }
     applied[k + 1] = 1;
     ++st.instances_applied;
+    if (r.regions[k].continued) ++st.instances_continued;
   }
 
   int features_removed = 0, points_removed = 0, points_culled = 0;

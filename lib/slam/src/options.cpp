@@ -70,6 +70,8 @@ Status GeometryOptions::validate() const {
 
 Status SemanticOptions::validate() const {
   if (mask_dilation_px < 0 || mask_dilation_px > 100) return Error{"semantic.mask_dilation_px must be in 0..100"};
+  if (!(mask_grow_px >= 0 && mask_grow_px <= 200)) return Error{"semantic.mask_grow_px must be in [0, 200]"};
+  if (mask_grow_passes < 1 || mask_grow_passes > 20) return Error{"semantic.mask_grow_passes must be in [1, 20]"};
   if (queue_capacity < 1 || queue_capacity > 1000) return Error{"semantic.queue_capacity must be in 1..1000"};
   if (threads < 0 || threads > 64) return Error{"semantic.threads must be in 0..64"};
   if (!(min_region_fraction >= 0 && min_region_fraction < 1))
@@ -96,6 +98,14 @@ Status SemanticOptions::validate() const {
     return Error{"semantic.propagate_warp_px must be in [0, 200]"};
   if (!(propagate_motion_px >= 0 && propagate_motion_px <= 200))
     return Error{"semantic.propagate_motion_px must be in [0, 200]"};
+  if (!(temp_exclusion_px >= 0 && temp_exclusion_px <= 200))
+    return Error{"semantic.temp_exclusion_px must be in [0, 200]"};
+  if (!(track_score_ratio >= 0 && track_score_ratio <= 1))
+    return Error{"semantic.track_score_ratio must be in [0, 1]"};
+  if (!(track_iou > 0 && track_iou <= 1)) return Error{"semantic.track_iou must be in (0, 1]"};
+  if (track_max_keyframes < 1 || track_max_keyframes > 100)
+    return Error{"semantic.track_max_keyframes must be in [1, 100]"};
+  if (track_min_hits < 1 || track_min_hits > 100) return Error{"semantic.track_min_hits must be in [1, 100]"};
   for (const std::string& d : model_dirs)
     if (d.empty()) return Error{"semantic.model_dirs: empty folder name"};
   return Status::success();
@@ -179,6 +189,8 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "model_dirs", o.semantic.model_dirs);
   v("semantic", "movable_furniture", o.semantic.movable_furniture);
   v("semantic", "mask_dilation_px", o.semantic.mask_dilation_px);
+  v("semantic", "mask_grow_px", o.semantic.mask_grow_px);
+  v("semantic", "mask_grow_passes", o.semantic.mask_grow_passes);
   v("semantic", "queue_capacity", o.semantic.queue_capacity);
   v("semantic", "threads", o.semantic.threads);
   v("semantic", "min_region_fraction", o.semantic.min_region_fraction);
@@ -197,6 +209,12 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "propagate_mask_window", o.semantic.propagate_mask_window);
   v("semantic", "propagate_warp_px", o.semantic.propagate_warp_px);
   v("semantic", "propagate_motion_px", o.semantic.propagate_motion_px);
+  v("semantic", "temp_exclusion_px", o.semantic.temp_exclusion_px);
+  v("semantic", "track_score_ratio", o.semantic.track_score_ratio);
+  v("semantic", "track_iou", o.semantic.track_iou);
+  v("semantic", "track_max_keyframes", o.semantic.track_max_keyframes);
+  v("semantic", "track_min_hits", o.semantic.track_min_hits);
+  v("semantic", "track_any_class", o.semantic.track_any_class);
   v("", "sequential", o.sequential);
 }
 

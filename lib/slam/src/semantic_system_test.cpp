@@ -193,6 +193,42 @@ TEST(SemanticModule, SequentialRunDropsTheMaskedFeaturesOfEveryKeyframe) {
   EXPECT_EQ(run.stats.semantic_failures, 0);
 }
 
+// mask_grow_px: a keyframe's mask also takes features next to it at its
+// depth (on the plane, any with two masked ones within the radius), one
+// radius per pass and no further.
+TEST(SemanticModule, KeyframeMaskGrowsByItsRadiusPerPass) {
+  for (const float grow : {0.0f, 16.0f}) {
+    SCOPED_TRACE("mask_grow_px " + std::to_string(grow));
+    SlamOptions options = semanticOptions();
+    options.semantic.mask_grow_px = grow;
+    options.semantic.mask_grow_passes = 1;
+    const RunResult run = runWith(options, std::make_unique<RectangleSegmenter>(kRect, false));
+    ASSERT_FALSE(run.keyframes.empty());
+    const float reach = 5 + grow + 2;  // dilation, one pass, rounding
+    int band = 0, band_dynamic = 0;
+    for (const KeyFrameView& kf : run.keyframes)
+      for (const KeyFrameFeature& f : kf.features) {
+        if (f.dynamic) {
+          EXPECT_FALSE(f.mapped) << "feature at " << f.u << "," << f.v;
+        }
+        if (!inside(f, kRect, -reach)) {
+          EXPECT_FALSE(f.dynamic) << "feature at " << f.u << "," << f.v;
+        }
+        if (!inside(f, kRect, -8) && inside(f, kRect, -18)) {  // 8-18 px outside the rectangle
+          ++band;
+          band_dynamic += f.dynamic;
+        }
+      }
+    ASSERT_GT(band, 50);
+    // Two masked features within the radius: at ~1000 features per image
+    // (one per 17 px square) a fraction of the band qualifies.
+    if (grow > 0)
+      EXPECT_GE(band_dynamic, 5) << band_dynamic << " of " << band;
+    else
+      EXPECT_EQ(band_dynamic, 0);
+  }
+}
+
 // With propagation, every frame after the first segmented keyframe looks up
 // that keyframe's masked features (world texture that lay in the rectangle)
 // and keeps them out of the pose; keyframes never map a feature so marked.
@@ -657,6 +693,13 @@ TEST(SemanticOptions, EachOutOfRangeValueNamesItsField) {
       {"semantic.propagate_mask_window", [](SemanticOptions& o) { o.propagate_mask_window = -1; }},
       {"semantic.propagate_warp_px", [](SemanticOptions& o) { o.propagate_warp_px = 201; }},
       {"semantic.propagate_motion_px", [](SemanticOptions& o) { o.propagate_motion_px = -1; }},
+      {"semantic.track_score_ratio", [](SemanticOptions& o) { o.track_score_ratio = 1.5; }},
+      {"semantic.track_iou", [](SemanticOptions& o) { o.track_iou = 0; }},
+      {"semantic.track_max_keyframes", [](SemanticOptions& o) { o.track_max_keyframes = 0; }},
+      {"semantic.track_min_hits", [](SemanticOptions& o) { o.track_min_hits = 0; }},
+      {"semantic.temp_exclusion_px", [](SemanticOptions& o) { o.temp_exclusion_px = -1; }},
+      {"semantic.mask_grow_px", [](SemanticOptions& o) { o.mask_grow_px = 201; }},
+      {"semantic.mask_grow_passes", [](SemanticOptions& o) { o.mask_grow_passes = 0; }},
       {"semantic.model_dirs", [](SemanticOptions& o) { o.model_dirs = {""}; }},
   };
   for (const auto& [field, spoil] : cases) {
@@ -687,6 +730,14 @@ TEST(SemanticOptions, YamlRoundTrip) {
   o.semantic.confirm_ratio = 0.25;
   o.semantic.max_removed_fraction = 0.3;
   o.semantic.point_masked_ratio = 0.6;
+  o.semantic.track_score_ratio = 0.5;
+  o.semantic.track_iou = 0.4;
+  o.semantic.track_max_keyframes = 6;
+  o.semantic.track_any_class = true;
+  o.semantic.track_min_hits = 3;
+  o.semantic.temp_exclusion_px = 12;
+  o.semantic.mask_grow_px = 20;
+  o.semantic.mask_grow_passes = 2;
   const fs::path file = fs::temp_directory_path() / ("stillpoint_semantic_options_" + std::to_string(::getpid()) + ".yaml");
   std::ofstream(file) << toYaml(o);
   const auto loaded = loadSlamOptions(file.string());
@@ -739,6 +790,113 @@ TEST(SemanticModule, DilationGrowsTheMaskByItsRadius) {
   EXPECT_EQ(r.labels.at<std::uint8_t>(45, 35), 1);  // 5 px left of the box
   EXPECT_EQ(r.labels.at<std::uint8_t>(45, 34), 0);
   EXPECT_EQ(r.labels.at<std::uint8_t>(5, 5), 0);
+}
+
+// Detector hysteresis: a keyframe's instance is kept at a lower score (or
+// under another label) only where the previous keyframe kept one.
+semantic::Instance boxInstance(int class_id, const std::string& name, float score, cv::Rect box, bool movable,
+                               bool kept = true, const std::string& drop_reason = "") {
+  semantic::Instance inst;
+  inst.class_id = class_id;
+  inst.class_name = name;
+  inst.score = score;
+  inst.box = box;
+  inst.mask = cv::Mat(box.size(), CV_8U, cv::Scalar(255));
+  inst.area = box.area();
+  inst.movable = movable;
+  inst.kept = kept;
+  inst.drop_reason = drop_reason;
+  return inst;
+}
+
+semantic::Segmentation segmentationOf(std::vector<semantic::Instance> instances) {
+  semantic::Segmentation seg;
+  seg.movable_mask = cv::Mat(200, 300, CV_8U, cv::Scalar(0));
+  for (const semantic::Instance& inst : instances)
+    if (inst.movable && inst.kept) seg.movable_mask(inst.box).setTo(255, inst.mask);
+  seg.instances = std::move(instances);
+  return seg;
+}
+
+TEST(SemanticWorker, HysteresisContinuesAWeakDetectionOfATrackOnly) {
+  SemanticOptions o;
+  o.track_score_ratio = 0.5;  // strong 0.25, weak 0.125
+  o.track_iou = 0.3;
+  o.track_max_keyframes = 2;
+  const cv::Rect person(100, 50, 40, 100), moved(108, 52, 40, 100), elsewhere(10, 10, 40, 100);
+  std::vector<SemanticTrack> tracks;
+  // Keyframe 1: a weak person and no track: dropped.
+  semantic::Segmentation seg = segmentationOf({boxInstance(0, "person", 0.2f, person, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  EXPECT_FALSE(seg.instances[0].kept);
+  EXPECT_EQ(seg.movable_pixels, 0);
+  EXPECT_TRUE(tracks.empty());
+  // Keyframe 2: a strong person starts a track, but one strong keyframe is
+  // not enough (track_min_hits 2): a weak person there is not carried on.
+  seg = segmentationOf({boxInstance(0, "person", 0.8f, person, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  EXPECT_TRUE(seg.instances[0].kept);
+  ASSERT_EQ(tracks.size(), 1u);
+  EXPECT_EQ(tracks[0].hits, 1);
+  std::vector<SemanticTrack> once = tracks;
+  semantic::Segmentation weak = segmentationOf({boxInstance(0, "person", 0.2f, moved, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &weak, &once), 0);
+  EXPECT_FALSE(weak.instances[0].kept);
+  // Keyframe 2b: seen strong again.
+  seg = segmentationOf({boxInstance(0, "person", 0.7f, person, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  ASSERT_EQ(tracks.size(), 1u);
+  EXPECT_EQ(tracks[0].hits, 2);
+  // Keyframe 3: the person, moved a little, at 0.2 (and a weak one elsewhere,
+  // and one below the weak score where it moved): the overlapping one is kept.
+  seg = segmentationOf({boxInstance(0, "person", 0.2f, moved, true), boxInstance(0, "person", 0.2f, elsewhere, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 1);
+  EXPECT_TRUE(seg.instances[0].kept);
+  EXPECT_TRUE(seg.instances[0].continued);
+  EXPECT_FALSE(seg.instances[1].kept);
+  EXPECT_EQ(seg.movable_pixels, moved.area());
+  ASSERT_EQ(tracks.size(), 1u);
+  EXPECT_EQ(tracks[0].weak_keyframes, 1);
+  // Keyframe 4: dropped by the post-filter as the same object as a static
+  // label: continued too. A "teddy bear" on the same box is not, without
+  // track_any_class.
+  seg = segmentationOf({boxInstance(0, "person", 0.3f, moved, true, false, "same object as static 'teddy bear'"),
+                        boxInstance(1, "teddy bear", 0.6f, person, false)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 1);
+  EXPECT_TRUE(seg.instances[0].kept);
+  EXPECT_FALSE(seg.instances[1].movable);
+  EXPECT_EQ(tracks[0].weak_keyframes, 2);
+  // Keyframe 5: track_max_keyframes weak keyframes in a row: the track ends.
+  seg = segmentationOf({boxInstance(0, "person", 0.2f, moved, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  EXPECT_FALSE(seg.instances[0].kept);
+  EXPECT_TRUE(tracks.empty());
+  // Below the weak score nothing continues a track.
+  tracks = {{person, 0, "person", 0, 2}};
+  seg = segmentationOf({boxInstance(0, "person", 0.1f, moved, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  EXPECT_FALSE(seg.instances[0].kept);
+}
+
+TEST(SemanticWorker, HysteresisAcrossLabelsNeedsTheTracksOwnBox) {
+  SemanticOptions o;
+  o.track_score_ratio = 0.5;
+  o.track_any_class = true;
+  const cv::Rect person(100, 50, 40, 100), bear_behind(95, 45, 60, 120);
+  // The person seen as "teddy bear" on nearly its own box: continued, as a person.
+  std::vector<SemanticTrack> tracks = {{person, 0, "person", 0, 2}};
+  semantic::Segmentation seg = segmentationOf({boxInstance(1, "teddy bear", 0.5f, cv::Rect(102, 50, 40, 100), false)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 1);
+  EXPECT_TRUE(seg.instances[0].movable);
+  EXPECT_TRUE(seg.instances[0].kept);
+  EXPECT_EQ(seg.instances[0].class_id, 0);
+  // A larger static object behind it (box IoU 0.56: enough for the same
+  // class at track_iou 0.3, below the 0.6 another label needs): not continued.
+  tracks = {{person, 0, "person", 0, 2}};
+  seg = segmentationOf({boxInstance(1, "teddy bear", 0.8f, bear_behind, false)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  EXPECT_FALSE(seg.instances[0].movable);
+  EXPECT_EQ(seg.movable_pixels, 0);
 }
 
 // The real in-tree person model on real TUM frames: it takes the teddy bear

@@ -11,6 +11,90 @@
 namespace stillpoint::slam {
 namespace {
 log::Logger logger("semantic");
+
+// Box IoU a detection of another class needs to continue a track.
+constexpr double kOtherClassIou = 0.6;
+
+double boxIou(const cv::Rect& a, const cv::Rect& b) {
+  const double inter = (a & b).area();
+  const double uni = double(a.area()) + double(b.area()) - inter;
+  return uni > 0 ? inter / uni : 0.0;
+}
+}  // namespace
+
+int continueTracks(const SemanticOptions& options, double strong_score, semantic::Segmentation* seg,
+                   std::vector<SemanticTrack>* tracks) {
+  std::vector<semantic::Instance>& insts = seg->instances;
+  const std::size_t n = insts.size();
+  const double weak_score = options.track_score_ratio * strong_score;
+  // Strong: what the segmenter keeps at the card's own threshold. Kept
+  // instances below it (the decoder ran at the lower continuation score) wait
+  // for a track.
+  std::vector<char> strong(n, 0), used(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    semantic::Instance& inst = insts[i];
+    if (!inst.movable || !inst.kept || inst.area == 0) continue;
+    if (inst.score >= strong_score) {
+      strong[i] = 1;
+    } else {
+      inst.kept = false;
+      inst.drop_reason = "score";
+    }
+  }
+  std::vector<SemanticTrack> next;
+  int continued = 0;
+  std::vector<int> hits(n, 1);  // of the strong instances' tracks
+  for (const SemanticTrack& track : *tracks) {
+    bool seen = false;  // a strong instance continues it
+    for (std::size_t i = 0; i < n; ++i)
+      if (strong[i] && insts[i].class_id == track.class_id && boxIou(insts[i].box, track.box) >= options.track_iou) {
+        hits[i] = std::max(hits[i], track.hits + 1);
+        seen = true;
+      }
+    // A one-off detection (a false positive, often) is not carried on.
+    if (seen || track.weak_keyframes >= options.track_max_keyframes || track.hits < options.track_min_hits) continue;
+    int best = -1;
+    double best_iou = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const semantic::Instance& inst = insts[i];
+      if (strong[i] || used[i] || inst.area == 0 || inst.mask.empty() || inst.score < weak_score) continue;
+      if (inst.drop_reason == "area") continue;
+      const bool same_class = inst.movable && inst.class_id == track.class_id;
+      if (!same_class && !options.track_any_class) continue;
+      // Another label must sit on the track's box itself: a larger object
+      // behind the track (the teddy bear behind the person) overlaps it by
+      // less.
+      const double min_iou = same_class ? options.track_iou : std::max(options.track_iou, kOtherClassIou);
+      const double iou = boxIou(inst.box, track.box);
+      if (iou >= min_iou && iou > best_iou) {
+        best = static_cast<int>(i);
+        best_iou = iou;
+      }
+    }
+    if (best < 0) continue;
+    semantic::Instance& inst = insts[best];
+    used[best] = 1;
+    SP_DEBUG(logger, "track '" << track.class_name << "' continued by '" << inst.class_name << "' " << inst.score
+                               << " (box IoU " << best_iou << ", " << track.weak_keyframes + 1 << " weak in a row)");
+    if (inst.class_id != track.class_id) {
+      inst.class_name = track.class_name + " (seen as " + inst.class_name + ")";
+      inst.class_id = track.class_id;
+    }
+    inst.movable = true;
+    inst.kept = true;
+    inst.continued = true;
+    inst.drop_reason.clear();
+    next.push_back({inst.box, track.class_id, track.class_name, track.weak_keyframes + 1, track.hits});
+    ++continued;
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    if (strong[i]) next.push_back({insts[i].box, insts[i].class_id, insts[i].class_name, 0, hits[i]});
+  seg->movable_mask.setTo(0);
+  for (const semantic::Instance& inst : insts)
+    if (inst.movable && inst.kept && inst.area > 0 && !inst.mask.empty()) seg->movable_mask(inst.box).setTo(255, inst.mask);
+  seg->movable_pixels = cv::countNonZero(seg->movable_mask);
+  *tracks = std::move(next);
+  return continued;
 }
 
 void buildRegions(const semantic::Segmentation& seg, int dilation_px, SemanticResult* out) {
@@ -39,7 +123,7 @@ void buildRegions(const semantic::Segmentation& seg, int dilation_px, SemanticRe
     if (dilation_px > 0) cv::dilate(local, local, kernel);
     const int label = static_cast<int>(out->regions.size()) + 1;
     out->labels(grown).setTo(label, local);
-    out->regions.push_back({inst->class_name, inst->score, cv::countNonZero(local)});
+    out->regions.push_back({inst->class_name, inst->score, cv::countNonZero(local), inst->continued});
   }
 }
 
@@ -60,6 +144,11 @@ SemanticResult SemanticWorker::process(const SemanticJob& job) {
   } else if (seg->movable_mask.size() != job.bgr.size()) {
     out.error = "segmenter returned a mask of another size than the keyframe";
   } else {
+    if (options_.track_score_ratio > 0) {
+      const semantic::ModelCard& card = segmenter_->card();
+      const double strong = card.decoder.type == semantic::DecoderType::kYoloInstance ? card.decoder.score_threshold : 0.0;
+      continueTracks(options_, strong, &*seg, &tracks_);
+    }
     if (options_.depth_agreement && !job.depth_m.empty()) {
       if (auto agreed = semantic::applyDepthAgreement(job.depth_m, {}, &*seg); !agreed)
         SP_DEBUG(logger, "keyframe " << job.keyframe_id << ": depth agreement: " << agreed.error());

@@ -40,6 +40,7 @@ struct SemanticRegion {
   std::string class_name;
   float score = 0;
   int pixels = 0;
+  bool continued = false;  // kept only as the continuation of a track (hysteresis)
 };
 
 struct SemanticResult {
@@ -53,6 +54,25 @@ struct SemanticResult {
   double segment_ms = 0;  // segment() + depth agreement + dilation
   SteadyTime created;
 };
+
+// A movable instance followed from keyframe to keyframe (detector hysteresis).
+struct SemanticTrack {
+  cv::Rect box;
+  int class_id = -1;
+  std::string class_name;
+  int weak_keyframes = 0;  // keyframes in a row continued by weak evidence only
+  int hits = 1;            // keyframes with a strong detection of it
+};
+
+// Detector hysteresis (SemanticOptions::track_*): drops the kept movable
+// instances below `strong_score` except those that continue one of `tracks`
+// (box IoU >= track_iou; same class, or any class with track_any_class; at
+// least track_score_ratio x strong_score; a track seen strong in at least
+// track_min_hits keyframes), keeps the weaker continuations the
+// post-filter dropped, rebuilds movable_mask, and replaces `tracks` by this
+// keyframe's kept instances. Returns how many instances were continued.
+int continueTracks(const SemanticOptions& options, double strong_score, semantic::Segmentation* seg,
+                   std::vector<SemanticTrack>* tracks);
 
 class SemanticWorker {
  public:
@@ -79,6 +99,7 @@ class SemanticWorker {
 
   std::unique_ptr<semantic::Segmenter> segmenter_;
   SemanticOptions options_;
+  std::vector<SemanticTrack> tracks_;  // only touched by process() (one caller at a time)
   Sink sink_;
   mutable std::mutex mutex_;
   std::condition_variable_any cv_;

@@ -123,6 +123,11 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
   so.min_region_fraction = options.semantic.min_region_fraction;
   so.min_region_confidence = options.semantic.min_region_confidence;
   so.static_overlap_iou = options.semantic.static_overlap_iou;
+  // Hysteresis: the decoder keeps detections down to the continuation score;
+  // the worker keeps those below the card's threshold only when they continue
+  // a track.
+  if (options.semantic.track_score_ratio > 0 && model->card.decoder.type == semantic::DecoderType::kYoloInstance)
+    so.score_threshold = model->card.decoder.score_threshold * options.semantic.track_score_ratio;
   auto segmenter = semantic::createSegmenter(model->card, so);
   if (!segmenter) return Error{"semantic model '" + model->card.card_path.string() + "': " + segmenter.error()};
   auto system = create(camera, options, std::move(*segmenter), hooks);
@@ -279,6 +284,7 @@ MapStats SlamSystem::mapStats() const {
     stats.semantic_instances_applied = st.instances_applied;
     stats.semantic_instances_unconfirmed = st.instances_unconfirmed;
     stats.semantic_instances_capped = st.instances_capped;
+    stats.semantic_instances_continued = st.instances_continued;
     std::tie(stats.semantic_latency_ms_median, stats.semantic_latency_ms_p95) = medianP95(st.latency_ms.values());
     std::tie(stats.segmentation_ms_median, stats.segmentation_ms_p95) = medianP95(st.segment_ms.values());
     stats.semantic_model = impl_->semantic_model;

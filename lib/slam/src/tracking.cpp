@@ -455,6 +455,20 @@ void Tracker::refreshLastFrame() {
     last_.points[i] = std::move(p);
     last_.outlier[i] = 0;
   }
+  const float exclusion = options_.semantic.enabled ? options_.semantic.temp_exclusion_px : 0.0f;
+  if (exclusion > 0 && std::find(last_.dynamic.begin(), last_.dynamic.end(), kSemanticDynamic) != last_.dynamic.end()) {
+    // The unflagged rest of a masked object (its features nearest to the
+    // camera get temporary points first) lends none.
+    std::erase_if(by_depth, [&](const std::pair<float, int>& e) {
+      const auto [z, i] = e;
+      if (last_.points[i] && !last_.points[i]->bad) return false;
+      int support = 0;
+      for (int s : last_.grid.query(last_.keys, last_.un, last_.un[i].x, last_.un[i].y, exclusion, 0, -1))
+        support += last_.dynamic[s] == kSemanticDynamic && last_.depth[s] > 0 &&
+                   std::abs(last_.depth[s] - z) < 0.1f + 0.05f * z;
+      return support >= 2;
+    });
+  }
   std::sort(by_depth.begin(), by_depth.end());
   int added = 0;
   for (const auto& [z, i] : by_depth) {

@@ -23,6 +23,9 @@ struct Instance {
   // the movable mask; kept in the list so the drop is visible.
   bool kept = true;
   std::string drop_reason;  // why kept is false ("area", "confidence", "same object as static 'teddy bear'")
+  // Kept only as the continuation of an instance of the previous keyframe
+  // (the SLAM's detector hysteresis, SemanticOptions::track_*).
+  bool continued = false;
 };
 
 struct SegmentationTiming {

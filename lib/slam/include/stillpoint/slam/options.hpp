@@ -160,6 +160,12 @@ struct SemanticOptions {
   std::vector<std::string> model_dirs;
   bool movable_furniture = false;  // chairs, couches, ... count as movable too
   int mask_dilation_px = 5;        // instance masks grow by this much before features are dropped
+  // A keyframe's masks also grow over its features: a feature with at least
+  // two masked ones within this radius (pixels) at its depth (10 cm + 5 %)
+  // joins their mask, repeated up to mask_grow_passes times (a
+  // depth-connected region). 0: off.
+  float mask_grow_px = 0.0f;
+  int mask_grow_passes = 3;
   // Keyframes waiting for the segmentation thread; when full the oldest
   // waiting keyframe is left unsegmented (drop-oldest: tracking never waits).
   int queue_capacity = 4;
@@ -224,6 +230,30 @@ struct SemanticOptions {
   // object that stands still (a person who stopped, a false positive) is not
   // warped. 0: no gate. Acts only with propagate_warp_px > 0.
   float propagate_motion_px = 2.0f;
+  // The last frame's features lend tracking temporary points from depth;
+  // one with at least two semantically flagged features within this radius
+  // (pixels) at its depth (10 cm + 5 %) lends none: the unflagged rest of a
+  // masked object, nearest to the camera, would be the first to get one. The
+  // flags and the map are unchanged. 0: off.
+  float temp_exclusion_px = 0.0f;
+  // Detector hysteresis across keyframes (instance models, e.g. COCO). A
+  // keyframe segmented after one that kept a movable instance also keeps a
+  // weaker detection of it: an instance of the same class whose box overlaps
+  // the previous instance's box (IoU >= track_iou) is kept when its score
+  // reaches track_score_ratio x the card's score threshold, even if the
+  // post-filter dropped it as the same object as a static instance. Like a
+  // tracker's continuation threshold; a track lives at most
+  // track_max_keyframes keyframes in a row on such weak evidence. 0: off.
+  double track_score_ratio = 0.0;
+  double track_iou = 0.3;
+  int track_max_keyframes = 4;
+  // ...and only a track detected strongly in at least this many keyframes (a
+  // one-off false positive, the teddy bear called "cat" once, is not carried on).
+  int track_min_hits = 2;
+  // ...and a track may also be continued by an instance of another class (a
+  // static one too: COCO calls the cut-out person in front of the teddy bear
+  // "teddy bear"), which then counts as the track's class.
+  bool track_any_class = false;
   Status validate() const;
 };
 
