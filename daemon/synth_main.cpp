@@ -27,7 +27,7 @@ constexpr const char* kUsage =
     "                        (--config MOVERS.yaml | --preset NAME) [common options]\n"
     "       stillpoint-synth room OUTPUT_DIR (--config ROOM.yaml | --preset NAME)\n"
     "                        [--motion static|xyz|rpy|halfsphere] [--frames N] [--size WxH] [common options]\n"
-    "       stillpoint-synth score SEQUENCE_DIR FEATURES.txt [--min-features N] [--per-frame]\n"
+    "       stillpoint-synth score SEQUENCE_DIR FEATURES.txt [--min-features N] [--min-speed M_S] [--per-frame]\n"
     "       stillpoint-synth presets\n"
     "common options: [--seed N] [--blur] [--threads N] [--max-frames N] [--png-compression 0-9 (default 0: uncompressed, fastest)]\n"
     "                [--no-write] [--photo-dir DIR] [--cutout MASK.png] [--face-camera]\n"
@@ -38,6 +38,8 @@ constexpr const char* kUsage =
     "room: renders a textured room with movers along a TUM-like camera motion.\n"
     "score: FEATURES.txt has one line per feature 'timestamp u v flagged(0/1)' (timestamps as in\n"
     "  rgb.txt, '#' comments); prints precision/recall of flagged features against the masks.\n"
+    "  --min-speed M_S: movers slower than this in a frame (movers.txt) are still there: their\n"
+    "  features count for no recall, and flags on them are no false positives.\n"
     "--cutout cuts every poster mover along MASK.png (kept where >= 128), e.g. a person cut out of\n"
     "  its photo: stillpoint-segment --card CARD --out DIR PHOTO writes DIR/<photo>_mask.png.\n"
     "--face-camera turns every poster mover to face the camera in each frame (a cut-out person\n"
@@ -50,6 +52,7 @@ struct Args {
   std::vector<std::string> positional;
   std::string camera, config, preset, motion, photo_dir = STILLPOINT_PHOTO_DIR, size, cutout;
   long seed = -1, threads = 2, max_frames = 0, frames = 0, png_compression = 0, min_features = 10;
+  double min_speed = 0;
   bool blur = false, no_write = false, per_frame = false, face_camera = false;
 };
 
@@ -100,6 +103,13 @@ bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
     else if (s == "--frames") ok = number(1, 100000, &a->frames);
     else if (s == "--png-compression") ok = number(0, 9, &a->png_compression);
     else if (s == "--min-features") ok = number(1, 1000000, &a->min_features);
+    else if (s == "--min-speed") {
+      std::string text;
+      char* end = nullptr;
+      ok = value(&text);
+      if (ok) a->min_speed = std::strtod(text.c_str(), &end);
+      ok = ok && !text.empty() && *end == '\0' && a->min_speed >= 0 && a->min_speed < 100;
+    }
     else if (s == "--blur") a->blur = true;
     else if (s == "--face-camera") a->face_camera = true;
     else if (s == "--no-write") a->no_write = true;
@@ -123,7 +133,8 @@ std::string fmt(double v) {
 }
 
 int runScore(const Args& a) {
-  Result<SequenceScoreReport> r = scoreSequence(a.positional[0], a.positional[1], static_cast<int>(a.min_features));
+  Result<SequenceScoreReport> r =
+      scoreSequence(a.positional[0], a.positional[1], static_cast<int>(a.min_features), a.min_speed);
   if (!r.ok()) {
     std::fprintf(stderr, "stillpoint-synth: %s\n", r.error().c_str());
     return 1;
@@ -145,8 +156,12 @@ int runScore(const Args& a) {
   }
   std::printf("frames scored %d (%d sequence frames without features), static frames with flags %d\n", q.frames,
               r->frames_without_features, q.static_frames_with_flags);
-  std::printf("pooled: features=%ld flagged=%ld on_movers=%ld true_positives=%ld\n", q.features, q.flagged,
+  std::printf("pooled: features=%ld flagged=%ld on_movers=%ld true_positives=%ld", q.features, q.flagged,
               q.on_movers, q.true_positives);
+  if (a.min_speed > 0)
+    std::printf(" on_still_movers=%ld flagged_on_still=%ld (min speed %.3f m/s)", q.on_still, q.still_flagged,
+                a.min_speed);
+  std::printf("\n");
   std::printf("precision_mean=%s recall_mean=%s eligible_precision_mean=%s eligible_recall_mean=%s "
               "eligible_frames=%d min_features=%ld\n",
               fmt(q.precision_mean).c_str(), fmt(q.recall_mean).c_str(), fmt(q.eligible_precision_mean).c_str(),

@@ -157,6 +157,21 @@ void emitVec(YAML::Emitter& e, const Vec3& v) {
   e << YAML::Flow << YAML::BeginSeq << v.x() << v.y() << v.z() << YAML::EndSeq;
 }
 
+// movers.txt: one line per frame and mover, "timestamp id speed_m_s" (moverSpeed).
+std::string moverSpeedLines(const SynthConfig& config, const std::string& stamp, double t) {
+  std::string out;
+  char line[160];
+  for (std::size_t k = 0; k < config.movers.size(); ++k) {
+    std::snprintf(line, sizeof(line), "%s %zu %.4f\n", stamp.c_str(), k + 1, moverSpeed(config.movers[k], t));
+    out += line;
+  }
+  return out;
+}
+
+constexpr const char* kMoverSpeedHeader =
+    "# mover speeds: an upper bound on the speed of any point of the mover (m/s)\n"
+    "# timestamp id speed_m_s\n";
+
 Status writeMoversYaml(const fs::path& path, const std::string& mode, const std::string& source,
                        const SynthConfig& c, const CameraModel& cam, const SE3& T_w_s,
                        const GenerationReport& r) {
@@ -340,7 +355,7 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
 
   const std::size_t n = last - first;
   std::vector<FrameResult> results(n);
-  std::vector<std::string> rgb_lines(n), depth_lines(n), mask_lines(n);
+  std::vector<std::string> rgb_lines(n), depth_lines(n), mask_lines(n), speed_lines(n);
   std::vector<char> used(n, 0);
   std::atomic<int> skipped_bad{0};
   Status status = runParallel(n, options.threads, [&](std::size_t j) -> Status {
@@ -372,6 +387,7 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
     rgb_lines[j] = stamp + " " + rgb_name + "\n";
     depth_lines[j] = f->depth_stamp.toSecondsString() + " " + depth_name + "\n";
     mask_lines[j] = stamp + " " + mask_name + "\n";
+    speed_lines[j] = moverSpeedLines(config, stamp, secondsBetween(f->stamp, t0));
     if (!options.write_images) return Status::success();
     const auto t_write = Clock::now();
     long any = 0;
@@ -397,12 +413,14 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
   std::string rgb_list = "# color images\n# stillpoint-synth overlay of " + input_dir + "\n# timestamp filename\n";
   std::string depth_list = "# depth maps\n# stillpoint-synth overlay of " + input_dir + "\n# timestamp filename\n";
   std::string mask_list = "# mover masks (16-bit PNG, 0 = static, k = mover id in movers.yaml)\n# timestamp filename\n";
+  std::string speed_list = kMoverSpeedHeader;
   for (std::size_t j = 0; j < n; ++j) {
     if (!used[j]) continue;
     kept.push_back(results[j]);
     rgb_list += rgb_lines[j];
     depth_list += depth_lines[j];
     mask_list += mask_lines[j];
+    speed_list += speed_lines[j];
   }
   report.skipped_no_pose = static_cast<int>(first + (n - kept.size())) - skipped_bad.load();
   summarise(kept, config, camera.width, camera.height, &report);
@@ -410,6 +428,7 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
     if (Status s = writeText(root / "rgb.txt", rgb_list); !s) return Error{s.error()};
     if (Status s = writeText(root / "depth.txt", depth_list); !s) return Error{s.error()};
     if (Status s = writeText(root / "mask.txt", mask_list); !s) return Error{s.error()};
+    if (Status s = writeText(root / "movers.txt", speed_list); !s) return Error{s.error()};
     std::error_code ec;
     fs::copy_file(data->groundTruthPath(), root / "groundtruth.txt", fs::copy_options::overwrite_existing, ec);
     if (ec) return Error{"cannot copy " + data->groundTruthPath() + ": " + ec.message()};
@@ -476,11 +495,13 @@ Result<GenerationReport> generateRoom(const std::string& output_dir, const Synth
     std::string dep = "# depth maps\n" + origin + "# timestamp filename\n";
     std::string msk = "# mover masks (16-bit PNG, 0 = static, k = mover id in movers.yaml)\n# timestamp filename\n";
     std::string gt = "# ground truth trajectory\n" + origin + "# timestamp tx ty tz qx qy qz qw\n";
+    std::string speeds = kMoverSpeedHeader;
     for (std::size_t k = 0; k < n; ++k) {
       const std::string stamp = stampOf(k).toSecondsString();
       rgb += stamp + " rgb/" + stamp + ".png\n";
       dep += stamp + " depth/" + stamp + ".png\n";
       msk += stamp + " mask/" + stamp + ".png\n";
+      speeds += moverSpeedLines(config, stamp, k / ro.rate_hz);
       const SE3 T = roomCameraPose(ro.motion, k / ro.rate_hz);
       Eigen::Quaterniond q(T.linear());
       if (q.w() < 0) q.coeffs() *= -1;
@@ -490,7 +511,8 @@ Result<GenerationReport> generateRoom(const std::string& output_dir, const Synth
       gt += line;
     }
     for (const auto& [name, text] : {std::pair<const char*, const std::string*>{"rgb.txt", &rgb},
-                                     {"depth.txt", &dep}, {"mask.txt", &msk}, {"groundtruth.txt", &gt}}) {
+                                     {"depth.txt", &dep}, {"mask.txt", &msk}, {"groundtruth.txt", &gt},
+                                     {"movers.txt", &speeds}}) {
       if (Status s = writeText(root / name, *text); !s) return Error{s.error()};
     }
     report.wall_s = std::chrono::duration<double>(Clock::now() - wall_start).count();

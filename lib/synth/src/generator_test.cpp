@@ -5,6 +5,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <numbers>
 #include <sstream>
 
 #include <unistd.h>
@@ -115,6 +116,23 @@ TEST(Overlay, RealPixelsUntouchedOutsideMask) {
   }
   EXPECT_EQ(readFile(in / "groundtruth.txt"), readFile(out / "groundtruth.txt"));
   EXPECT_TRUE(fs::exists(out / "movers.yaml"));
+  // movers.txt: one speed per frame and mover, at the frames' stamps.
+  std::ifstream speeds(out / "movers.txt");
+  std::string line;
+  int rows = 0;
+  double t0 = -1;
+  while (std::getline(speeds, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream ss(line);
+    double stamp = 0, speed = -1;
+    int id = 0;
+    ASSERT_TRUE(ss >> stamp >> id >> speed) << line;
+    if (t0 < 0) t0 = stamp;
+    EXPECT_EQ(id, 1);
+    EXPECT_NEAR(speed, moverSpeed(config.movers[0], stamp - t0), 1e-3) << line;
+    ++rows;
+  }
+  EXPECT_EQ(rows, 6);
   fs::remove_all(in);
   fs::remove_all(out);
 }
@@ -244,7 +262,7 @@ TEST(Room, DeterministicBySeedWhateverTheThreads) {
     if (rel.string().rfind("depth/", 0) == 0) depth_differs += readFile(entry.path()) != readFile(c / rel);
     ++compared;
   }
-  EXPECT_EQ(compared, 3 * 3 + 4);
+  EXPECT_EQ(compared, 3 * 3 + 5);
   EXPECT_EQ(depth_differs, 3);  // another seed, other noise
   fs::remove_all(a);
   fs::remove_all(b);
@@ -337,6 +355,17 @@ TEST(Paths, FollowTheirDefinitions) {
   EXPECT_GT(evaluatePath(p, 2).velocity.x(), 0);
   EXPECT_LT(evaluatePath(p, 6).velocity.x(), 0);
   EXPECT_NEAR(evaluatePath(p, 6).travelled_m, 3.0, 0.01);
+  // Speeds: the path's, nought at the ends of a walk leg, plus a spin.
+  MoverSpec m;
+  m.path = p;
+  EXPECT_NEAR(moverSpeed(m, 0.0), 0.0, 1e-3);
+  EXPECT_NEAR(moverSpeed(m, 2.0), evaluatePath(p, 2).velocity.norm(), 1e-9);
+  EXPECT_GT(moverSpeed(m, 2.0), 0.5);  // eased: faster than the mean mid-leg
+  m.size = Vec3(0.6, 1.0, 0.05);
+  m.yaw_rate_deg_s = 90;
+  EXPECT_NEAR(moverSpeed(m, 0.0), 0.3 * std::numbers::pi / 2, 1e-3);
+  m.shape = MoverShape::kWalker;  // walkers face where they walk: no spin
+  EXPECT_NEAR(moverSpeed(m, 0.0), 0.0, 1e-3);
   p.type = PathType::kStopAndGo;
   p.go_s = 1;
   p.stop_s = 1;

@@ -167,6 +167,11 @@ PathState evaluatePath(const PathSpec& path, double t_in) {
   return s;
 }
 
+double moverSpeed(const MoverSpec& spec, double t) {
+  const double spin = spec.shape == MoverShape::kWalker ? 0.0 : std::abs(spec.yaw_rate_deg_s) * kPi / 180.0;
+  return evaluatePath(spec.path, t).velocity.norm() + spin * 0.5 * spec.size.x();
+}
+
 Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string& base_dir,
                                         std::uint64_t seed) {
   MoverTextures out;

@@ -1,11 +1,13 @@
 #include "stillpoint/synth/score.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <optional>
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
@@ -31,11 +33,12 @@ bool isNumber(const std::string& text) {
 
 }  // namespace
 
-double FrameScore::precision() const { return ratio(true_positives, flagged); }
+double FrameScore::precision() const { return ratio(true_positives + still_flagged, flagged); }
 double FrameScore::recall() const { return ratio(true_positives, on_movers); }
 double FrameScore::eligibleRecall() const { return ratio(eligible_flagged, eligible_features); }
 
-FrameScore scoreFrame(const cv::Mat& mask, std::span<const FlaggedFeature> features, int min_mover_features) {
+FrameScore scoreFrame(const cv::Mat& mask, std::span<const FlaggedFeature> features, int min_mover_features,
+                      std::span<const std::uint16_t> still) {
   FrameScore s;
   std::map<std::uint16_t, MoverFeatureCount> movers;
   for (const FlaggedFeature& f : features) {
@@ -48,6 +51,11 @@ FrameScore scoreFrame(const cv::Mat& mask, std::span<const FlaggedFeature> featu
     s.flagged += f.flagged;
     const std::uint16_t id = mask.at<std::uint16_t>(static_cast<int>(y), static_cast<int>(x));
     if (id == 0) continue;
+    if (std::find(still.begin(), still.end(), id) != still.end()) {
+      ++s.on_still;
+      s.still_flagged += f.flagged;
+      continue;
+    }
     ++s.on_movers;
     s.true_positives += f.flagged;
     MoverFeatureCount& m = movers[id];
@@ -78,7 +86,7 @@ SequenceScore averageScores(std::span<const FrameScore> frames, int min_mover_fe
     if (f.on_movers > 0) {
       r += f.recall();
       ++q.recall_frames;
-    } else if (f.flagged > 0) {
+    } else if (f.flagged > f.still_flagged) {
       ++q.static_frames_with_flags;
     }
     if (f.eligible_movers > 0) {
@@ -93,6 +101,8 @@ SequenceScore averageScores(std::span<const FrameScore> frames, int min_mover_fe
     q.flagged += f.flagged;
     q.on_movers += f.on_movers;
     q.true_positives += f.true_positives;
+    q.on_still += f.on_still;
+    q.still_flagged += f.still_flagged;
     for (const MoverFeatureCount& m : f.movers) {
       MoverFeatureCount& t = q.movers[m.id];
       t.id = m.id;
@@ -138,8 +148,37 @@ Result<std::map<Timestamp, std::vector<FlaggedFeature>>> readFlaggedFeatures(con
   return out;
 }
 
+namespace {
+
+// movers.txt: "timestamp id speed_m_s" per frame and mover -> the ids slower
+// than min_speed per frame.
+Result<std::map<Timestamp, std::vector<std::uint16_t>>> readStillMovers(const fs::path& path, double min_speed) {
+  std::ifstream in(path);
+  if (!in) return Error{"cannot open " + path.string() + " (--min-speed needs the mover speeds: regenerate the sequence)"};
+  std::map<Timestamp, std::vector<std::uint16_t>> still;
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    if (isSkippable(line)) continue;
+    std::istringstream ss(line);
+    std::string stamp_text;
+    long id = -1;
+    double speed = -1;
+    const bool parsed = static_cast<bool>(ss >> stamp_text >> id >> speed);
+    const std::optional<Timestamp> stamp = parsed ? Timestamp::parseSeconds(stamp_text) : std::nullopt;
+    if (!stamp || id < 1 || id > 65535 || !(speed >= 0))
+      return Error{path.string() + ":" + std::to_string(number) + ": expected 'timestamp id speed_m_s'"};
+    std::vector<std::uint16_t>& ids = still[*stamp];  // every listed frame gets an entry
+    if (speed < min_speed) ids.push_back(static_cast<std::uint16_t>(id));
+  }
+  return still;
+}
+
+}  // namespace
+
 Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const std::string& features_path,
-                                          int min_mover_features) {
+                                          int min_mover_features, double min_speed_m_s) {
   const fs::path list = fs::path(sequence_dir) / "mask.txt";
   std::ifstream in(list);
   if (!in) return Error{"cannot open " + list.string() + " (not a stillpoint-synth sequence?)"};
@@ -157,6 +196,13 @@ Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const
   }
   Result<std::map<Timestamp, std::vector<FlaggedFeature>>> features = readFlaggedFeatures(features_path);
   if (!features.ok()) return Error{features.error()};
+  std::map<Timestamp, std::vector<std::uint16_t>> still;
+  if (min_speed_m_s > 0) {
+    Result<std::map<Timestamp, std::vector<std::uint16_t>>> s =
+        readStillMovers(fs::path(sequence_dir) / "movers.txt", min_speed_m_s);
+    if (!s.ok()) return Error{s.error()};
+    still = std::move(*s);
+  }
   SequenceScoreReport report;
   std::vector<FrameScore> scores;
   for (const auto& [stamp, list_features] : *features) {
@@ -171,7 +217,13 @@ Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const
       return Error{"cannot read mask " + it->second + ": " + e.what()};
     }
     if (mask.empty() || mask.type() != CV_16UC1) return Error{"mask " + it->second + " is missing or not 16-bit"};
-    report.frames.emplace_back(stamp, scoreFrame(mask, list_features, min_mover_features));
+    std::span<const std::uint16_t> still_ids;
+    if (min_speed_m_s > 0) {
+      auto st = still.find(stamp);
+      if (st == still.end()) return Error{"movers.txt has no speeds for timestamp " + stamp.toSecondsString()};
+      still_ids = st->second;
+    }
+    report.frames.emplace_back(stamp, scoreFrame(mask, list_features, min_mover_features, still_ids));
     scores.push_back(report.frames.back().second);
   }
   report.frames_without_features = static_cast<int>(masks.size() - report.frames.size());

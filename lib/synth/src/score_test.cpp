@@ -103,6 +103,59 @@ TEST(Score, ScoresAFeatureFileAgainstASequence) {
   fs::remove_all(dir);
 }
 
+TEST(Score, StillMoversCountForNeitherRecallNorFalsePositives) {
+  std::vector<FlaggedFeature> f;
+  for (int i = 0; i < 4; ++i) f.push_back({1.0, double(i), i < 3});   // mover 1: 3 of 4 flagged
+  for (int i = 0; i < 3; ++i) f.push_back({17.0, double(i), i < 1});  // mover 2: 1 of 3 flagged
+  f.push_back({10.0, 5.0, true});                                     // static, flagged
+  const std::vector<std::uint16_t> still = {2};
+  const FrameScore s = scoreFrame(twoMovers(), f, 3, still);
+  EXPECT_EQ(s.on_movers, 4);
+  EXPECT_EQ(s.true_positives, 3);
+  EXPECT_EQ(s.on_still, 3);
+  EXPECT_EQ(s.still_flagged, 1);
+  EXPECT_DOUBLE_EQ(s.recall(), 3.0 / 4.0);
+  EXPECT_DOUBLE_EQ(s.precision(), 4.0 / 5.0);  // the flag on the still mover is no false positive
+  EXPECT_EQ(s.eligible_movers, 1);
+  ASSERT_EQ(s.movers.size(), 1u);
+  EXPECT_EQ(s.movers[0].id, 1);
+  // Both still: nothing to find; flags on them alone are no false alarm.
+  const std::vector<std::uint16_t> both = {1, 2};
+  const std::vector<FlaggedFeature> on_still = {{1, 1, true}, {17, 1, true}};
+  const FrameScore b = scoreFrame(twoMovers(), on_still, 1, both);
+  EXPECT_TRUE(std::isnan(b.recall()));
+  EXPECT_DOUBLE_EQ(b.precision(), 1.0);
+  const std::vector<FrameScore> frames = {b};
+  EXPECT_EQ(averageScores(frames, 1).static_frames_with_flags, 0);
+}
+
+TEST(Score, MinSpeedReadsTheMoverSpeedsOfTheSequence) {
+  const fs::path dir = writeSequence("speed");
+  std::ofstream(dir / "features.txt") << "1.000000 1 1 0\n1.000000 17 1 1\n1.033333 1 1 0\n1.033333 17 1 1\n";
+  const std::string f = (dir / "features.txt").string();
+  Result<SequenceScoreReport> r = scoreSequence(dir.string(), f, 1, 0.05);
+  ASSERT_FALSE(r.ok());  // no movers.txt
+  EXPECT_NE(r.error().find("movers.txt"), std::string::npos) << r.error();
+  // Mover 1 still in the first frame, both moving in the second.
+  std::ofstream(dir / "movers.txt") << "# timestamp id speed_m_s\n1.000000 1 0.01\n1.000000 2 0.5\n"
+                                       "1.033333 1 0.2\n1.033333 2 0.5\n";
+  r = scoreSequence(dir.string(), f, 1, 0.05);
+  ASSERT_TRUE(r.ok()) << r.error();
+  EXPECT_DOUBLE_EQ(r->score.recall_mean, (1.0 + 0.5) / 2);
+  r = scoreSequence(dir.string(), f, 1);  // every mover counts
+  ASSERT_TRUE(r.ok()) << r.error();
+  EXPECT_DOUBLE_EQ(r->score.recall_mean, 0.5);
+  std::ofstream(dir / "movers.txt") << "1.000000 1 fast\n";
+  r = scoreSequence(dir.string(), f, 1, 0.05);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("movers.txt:1:"), std::string::npos) << r.error();
+  std::ofstream(dir / "movers.txt") << "1.000000 1 0.2\n";  // no speeds for the second frame
+  r = scoreSequence(dir.string(), f, 1, 0.05);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("1.033333"), std::string::npos) << r.error();
+  fs::remove_all(dir);
+}
+
 TEST(Score, BadFilesNameFileAndLine) {
   const fs::path dir = writeSequence("bad");
   const std::string f = (dir / "f.txt").string();

@@ -87,6 +87,13 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
 void addMover(Mesh* mesh, const MoverSpec& spec, const MoverTextures& textures, const SE3& T_w_s,
               double t, std::uint16_t id, const Vec3& camera_w = Vec3::Zero());
 
+// An upper bound on the speed of any point of the mover at time t (m/s): its
+// path speed plus its spin (yaw_rate_deg_s) times half its width. A walker's
+// limbs swing with the distance walked, so a walker on a still path is still.
+// Written per frame to movers.txt, where the scorer tells moving movers from
+// still ones (`stillpoint-synth score --min-speed`).
+double moverSpeed(const MoverSpec& spec, double t);
+
 // Stage frame of a first camera pose (see the file comment).
 SE3 stageFromCamera(const SE3& T_w_c0);
 
