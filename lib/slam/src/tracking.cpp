@@ -65,8 +65,24 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       {
         ScopedStageTimer timer(&times_.initial_pose);
         refreshLastFrame();
-        if (has_velocity_ && current_.id > last_reloc_frame_id_ + 2) ok = trackWithMotionModel();
+        const bool use_motion = has_velocity_ && current_.id > last_reloc_frame_id_ + 2;
+        if (use_motion) ok = trackWithMotionModel();
         if (!ok) ok = trackReferenceKeyFrame();
+        if (!ok && !use_motion) {
+          // Just after a relocalisation (or without a velocity yet): the
+          // camera moved little in a frame, so the last frame's points
+          // projected at the predicted pose (the last pose when there is no
+          // velocity) still find their features. The reference keyframe
+          // chosen by covisibility after a relocalisation can share many
+          // points but have seen them from elsewhere, and its descriptor
+          // matches then fall short (looped_replay_test: the frame after
+          // every relocalisation was lost).
+          if (!has_velocity_) {
+            velocity_ = SE3::Identity();
+            velocity_dt_ = 0;
+          }
+          ok = trackWithMotionModel();
+        }
       }
       // Stage 1 keeps its outliers so the geometry module sees every match.
       if (ok && clusters_pending) removeDynamicFeatures();
