@@ -25,6 +25,23 @@ bool isSkippable(const std::string& line) {
   return p == std::string::npos || line[p] == '#';
 }
 
+// Calls parse(fields, where) for every line of `path` that is not blank or a
+// comment; where = "path:line: " for its error messages.
+template <typename Parse>
+Status forEachRecord(const std::string& path, const std::string& open_error, Parse&& parse) {
+  std::ifstream in(path);
+  if (!in) return Error{open_error};
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    if (isSkippable(line)) continue;
+    std::istringstream fields(line);
+    if (Status s = parse(fields, path + ":" + std::to_string(number) + ": "); !s) return s;
+  }
+  return Status::success();
+}
+
 bool isNumber(const std::string& text) {
   char* end = nullptr;
   std::strtod(text.c_str(), &end);
@@ -119,22 +136,13 @@ SequenceScore averageScores(std::span<const FrameScore> frames, int min_mover_fe
 }
 
 Result<std::map<Timestamp, std::vector<FlaggedFeature>>> readFlaggedFeatures(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return Error{"cannot open feature file '" + path + "'"};
   std::map<Timestamp, std::vector<FlaggedFeature>> out;
-  std::string line;
-  int number = 0;
-  while (std::getline(in, line)) {
-    ++number;
-    if (isSkippable(line)) continue;
-    std::istringstream ss(line);
+  const Status read = forEachRecord(path, "cannot open feature file '" + path + "'",
+                                    [&](std::istringstream& ss, const std::string& where) -> Status {
     std::string stamp_text, extra;
     FlaggedFeature f;
     int flagged = -1;
-    const std::string where = path + ":" + std::to_string(number) + ": ";
-    if (!(ss >> stamp_text >> f.u >> f.v >> flagged)) {
-      return Error{where + "expected 'timestamp u v flagged(0/1)'"};
-    }
+    if (!(ss >> stamp_text >> f.u >> f.v >> flagged)) return Error{where + "expected 'timestamp u v flagged(0/1)'"};
     // Further numeric columns (stillpoint-replay adds cluster and chi2) are allowed.
     while (ss >> extra)
       if (!isNumber(extra)) return Error{where + "unexpected extra field '" + extra + "'"};
@@ -144,7 +152,9 @@ Result<std::map<Timestamp, std::vector<FlaggedFeature>>> readFlaggedFeatures(con
     if (!std::isfinite(f.u) || !std::isfinite(f.v)) return Error{where + "u and v must be finite"};
     f.flagged = flagged == 1;
     out[*stamp].push_back(f);
-  }
+    return Status::success();
+  });
+  if (!read) return Error{read.error()};
   return out;
 }
 
@@ -153,25 +163,21 @@ namespace {
 // movers.txt: "timestamp id speed_m_s" per frame and mover -> the ids slower
 // than min_speed per frame.
 Result<std::map<Timestamp, std::vector<std::uint16_t>>> readStillMovers(const fs::path& path, double min_speed) {
-  std::ifstream in(path);
-  if (!in) return Error{"cannot open " + path.string() + " (--min-speed needs the mover speeds: regenerate the sequence)"};
   std::map<Timestamp, std::vector<std::uint16_t>> still;
-  std::string line;
-  int number = 0;
-  while (std::getline(in, line)) {
-    ++number;
-    if (isSkippable(line)) continue;
-    std::istringstream ss(line);
-    std::string stamp_text;
-    long id = -1;
-    double speed = -1;
-    const bool parsed = static_cast<bool>(ss >> stamp_text >> id >> speed);
-    const std::optional<Timestamp> stamp = parsed ? Timestamp::parseSeconds(stamp_text) : std::nullopt;
-    if (!stamp || id < 1 || id > 65535 || !(speed >= 0))
-      return Error{path.string() + ":" + std::to_string(number) + ": expected 'timestamp id speed_m_s'"};
-    std::vector<std::uint16_t>& ids = still[*stamp];  // every listed frame gets an entry
-    if (speed < min_speed) ids.push_back(static_cast<std::uint16_t>(id));
-  }
+  const Status read = forEachRecord(
+      path.string(), "cannot open " + path.string() + " (--min-speed needs the mover speeds: regenerate the sequence)",
+      [&](std::istringstream& ss, const std::string& where) -> Status {
+        std::string stamp_text;
+        long id = -1;
+        double speed = -1;
+        const bool parsed = static_cast<bool>(ss >> stamp_text >> id >> speed);
+        const std::optional<Timestamp> stamp = parsed ? Timestamp::parseSeconds(stamp_text) : std::nullopt;
+        if (!stamp || id < 1 || id > 65535 || !(speed >= 0)) return Error{where + "expected 'timestamp id speed_m_s'"};
+        std::vector<std::uint16_t>& ids = still[*stamp];  // every listed frame gets an entry
+        if (speed < min_speed) ids.push_back(static_cast<std::uint16_t>(id));
+        return Status::success();
+      });
+  if (!read) return Error{read.error()};
   return still;
 }
 
@@ -180,20 +186,16 @@ Result<std::map<Timestamp, std::vector<std::uint16_t>>> readStillMovers(const fs
 Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const std::string& features_path,
                                           int min_mover_features, double min_speed_m_s) {
   const fs::path list = fs::path(sequence_dir) / "mask.txt";
-  std::ifstream in(list);
-  if (!in) return Error{"cannot open " + list.string() + " (not a stillpoint-synth sequence?)"};
   std::map<Timestamp, std::string> masks;
-  std::string line;
-  int number = 0;
-  while (std::getline(in, line)) {
-    ++number;
-    if (isSkippable(line)) continue;
-    std::istringstream ss(line);
+  const Status listed = forEachRecord(list.string(), "cannot open " + list.string() + " (not a stillpoint-synth sequence?)",
+                                      [&](std::istringstream& ss, const std::string& where) -> Status {
     std::string stamp_text, file;
     const std::optional<Timestamp> stamp = (ss >> stamp_text >> file) ? Timestamp::parseSeconds(stamp_text) : std::nullopt;
-    if (!stamp) return Error{list.string() + ":" + std::to_string(number) + ": expected 'timestamp filename'"};
+    if (!stamp) return Error{where + "expected 'timestamp filename'"};
     masks[*stamp] = (fs::path(sequence_dir) / file).string();
-  }
+    return Status::success();
+  });
+  if (!listed) return Error{listed.error()};
   Result<std::map<Timestamp, std::vector<FlaggedFeature>>> features = readFlaggedFeatures(features_path);
   if (!features.ok()) return Error{features.error()};
   std::map<Timestamp, std::vector<std::uint16_t>> still;
