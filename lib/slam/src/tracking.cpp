@@ -81,7 +81,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
             velocity_ = SE3::Identity();
             velocity_dt_ = 0;
           }
-          ok = trackWithMotionModel();
+          ok = trackWithMotionModel(has_velocity_);
         }
       }
       // Stage 1 keeps its outliers so the geometry module sees every match.
@@ -854,7 +854,7 @@ int Tracker::setAsideCarried() {
   return carried;
 }
 
-bool Tracker::trackWithMotionModel() {
+bool Tracker::trackWithMotionModel(bool with_prior) {
   current_.T_c_w = predictedPose(last_.T_c_w);
   current_.clearMatches();
   const auto max_ratio = static_cast<float>(options_.geometry.projection_ratio);
@@ -874,7 +874,7 @@ bool Tracker::trackWithMotionModel() {
   held_.clear();
   if (options_.geometry.exclude_known_movers) holdKnownMoversOutOfPose();
   const SE3 predicted = current_.T_c_w;
-  timedOptimizePose(&predicted);
+  timedOptimizePose(with_prior ? &predicted : nullptr);
   for (std::size_t i = 0; i < held_.size(); ++i)
     if (held_[i]) current_.points[i] = std::move(held_[i]), current_.outlier[i] = 1;
   const int kept = countMapInliers();

@@ -41,7 +41,9 @@ class Tracker {
 
  private:
   bool initialise();
-  bool trackWithMotionModel();
+  // with_prior: the prediction is a prior of the fit (a real velocity; not
+  // the last pose standing in for one).
+  bool trackWithMotionModel(bool with_prior = true);
   bool trackReferenceKeyFrame();
   bool relocalise();
   bool trackLocalMap(int min_inliers);
