@@ -64,6 +64,14 @@ bool parseLong(const std::string& text, long lo, long hi, long* out) {
   return true;
 }
 
+bool parseDouble(const std::string& text, double lo, double hi, double* out) {
+  char* end = nullptr;
+  const double v = std::strtod(text.c_str(), &end);
+  if (text.empty() || *end || !(v >= lo && v <= hi)) return false;
+  *out = v;
+  return true;
+}
+
 bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
   if (argc < 2) {
     *error = "missing command";
@@ -89,6 +97,17 @@ bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
       }
       return true;
     };
+    auto real = [&](double lo, double hi, double* out) {
+      std::string v;
+      if (!value(&v)) return false;
+      if (!parseDouble(v, lo, hi, out)) {
+        char range[64];
+        std::snprintf(range, sizeof(range), " needs a number in [%g, %g]", lo, hi);
+        *error = s + range;
+        return false;
+      }
+      return true;
+    };
     bool ok = true;
     if (s == "--camera") ok = value(&a->camera);
     else if (s == "--config") ok = value(&a->config);
@@ -103,13 +122,7 @@ bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
     else if (s == "--frames") ok = number(1, 100000, &a->frames);
     else if (s == "--png-compression") ok = number(0, 9, &a->png_compression);
     else if (s == "--min-features") ok = number(1, 1000000, &a->min_features);
-    else if (s == "--min-speed") {
-      std::string text;
-      char* end = nullptr;
-      ok = value(&text);
-      if (ok) a->min_speed = std::strtod(text.c_str(), &end);
-      ok = ok && !text.empty() && *end == '\0' && a->min_speed >= 0 && a->min_speed < 100;
-    }
+    else if (s == "--min-speed") ok = real(0, 100, &a->min_speed);
     else if (s == "--blur") a->blur = true;
     else if (s == "--face-camera") a->face_camera = true;
     else if (s == "--no-write") a->no_write = true;

@@ -42,7 +42,7 @@ TEST_F(SynthCli, RoomThenScore) {
                              "--seed", "4"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(contains(test::lastLine(r.out), "frames=3 "));
-  for (const char* f : {"rgb.txt", "depth.txt", "mask.txt", "groundtruth.txt", "movers.yaml"}) {
+  for (const char* f : {"rgb.txt", "depth.txt", "mask.txt", "groundtruth.txt", "movers.yaml", "movers.txt"}) {
     EXPECT_TRUE(fs::exists(out / f)) << f;
   }
   EXPECT_TRUE(contains(test::readFile(out / "movers.yaml"), "shape: walker"));
@@ -54,6 +54,13 @@ TEST_F(SynthCli, RoomThenScore) {
   ASSERT_EQ(s.exit_code, 0) << s.err;
   EXPECT_TRUE(contains(s.out, "precision_mean="));
   EXPECT_TRUE(contains(s.out, stamp));
+  // Scoring moving movers only reads movers.txt; a bad speed is a usage error.
+  const RunResult m = synth({"score", out.string(), (scratch_ / "features.txt").string(), "--min-speed", "0.05"});
+  ASSERT_EQ(m.exit_code, 0) << m.err;
+  EXPECT_TRUE(contains(m.out, "min speed 0.050 m/s"));
+  const RunResult bad = synth({"score", out.string(), (scratch_ / "features.txt").string(), "--min-speed", "fast"});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_TRUE(contains(bad.err, "--min-speed needs a number"));
 }
 
 TEST_F(SynthCli, BadInputExitsOneWithAMessage) {
