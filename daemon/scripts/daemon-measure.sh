@@ -7,10 +7,18 @@
 #              EXTRA='modules: {semantic: true, semantic_model_dirs: [../shared/models]}'
 #   shutdown - N starts/stops: SIGTERM $WARMUP s (default 5) after the ring appears, time until the process
 #              has exited (measured outside) and the daemon's own shutdown_ms
+#   timing   - tracking time (SlamSystem::track, ORB included) with the dynamic-object modules
+#              on against off, as the service runs: paced 30 Hz replay, the thread placement of
+#              config/stillpointd.yaml (tracking SCHED_FIFO on core 1; needs root or CAP_SYS_NICE,
+#              else the daemon warns and keeps normal scheduling). N rounds (default 5) of the
+#              module sets in SETS (default "none geometry semantic geometry,semantic"),
+#              interleaved; per-set medians of the runs' track_ms_median and the ratio to the
+#              first set. Semantic runs take their models from STILLPOINT_MODEL_DIR (default
+#              ../shared/models). THREADS='threads: {...}' replaces the placement.
 #   rss      - looped paced replay for S seconds, VmRSS every 10 s with the map's keyframes and
 #              points (from the daemon's STATUS= line, read from a NOTIFY_SOCKET of our own),
 #              least-squares slope, and what the daemon held at the stop (status file)
-# usage: daemon-measure.sh STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|rss [SECONDS]
+# usage: daemon-measure.sh STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|timing [N]|rss [SECONDS]
 set -euo pipefail
 bin=$1 seq=$2 what=$3
 work=$(mktemp -d /tmp/stillpointd-measure.XXXXXX)
@@ -55,6 +63,42 @@ case $what in
       echo "run $i: exit_ms=$(( (t1 - t0) / 1000000 )) $(grep -E '^(shutdown_ms|frames_processed)' "$work/status.txt" | tr '\n' ' ')"
     done
     ;;
+  timing)
+    rounds=${4:-5}
+    read -r -a sets <<< "${SETS:-none geometry semantic geometry,semantic}"
+    repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+    models=${STILLPOINT_MODEL_DIR:-$repo/../shared/models}
+    placement=${THREADS:-$(sed -n '/^threads:/,/^$/p' "$repo/config/stillpointd.yaml")}
+    for ((r = 1; r <= rounds; ++r)); do
+      for s in "${sets[@]}"; do
+        geometry=false semantic=false
+        [[ ,$s, == *,geometry,* ]] && geometry=true
+        [[ ,$s, == *,semantic,* ]] && semantic=true
+        EXTRA="modules: {geometry: $geometry, semantic: $semantic, semantic_model_dirs: [$models]}
+$placement"
+        cfg true false false
+        rm -f "$work/status.txt"
+        "$bin" --config "$work/d.yaml" 2> "$work/err.txt" || { echo "$s: exit status $?:"; tail -3 "$work/err.txt"; }
+        grep -q 'priority' "$work/err.txt" && { echo "$s: placement not applied:"; grep priority "$work/err.txt" | head -2; }
+        sed -n 's/^track_ms_median=//p' "$work/status.txt" >> "$work/${s//,/+}.ms"
+      done
+    done
+    base=
+    for s in "${sets[@]}"; do
+      sort -n "$work/${s//,/+}.ms" | awk -v name="$s" -v base="$base" '{a[NR] = $1}
+        END {
+          if (NR == 0) { printf "%-18s no run finished\n", name; exit }
+          m = (a[int((NR + 1) / 2)] + a[int(NR / 2) + 1]) / 2
+          printf "%-18s track_ms_median per run:", name
+          for (i = 1; i <= NR; ++i) printf " %.2f", a[i]
+          printf "  median %.2f", m
+          if (base != "") printf "  ratio %.2f", m / base
+          printf "\n"
+          print m > "/dev/stderr"
+        }' 2> "$work/m"
+      [[ -n $base ]] || base=$(cat "$work/m")
+    done
+    ;;
   rss)
     secs=${4:-600}
     cfg true true false
@@ -81,6 +125,6 @@ while True:
     awk '{n++; sx+=$1; sy+=$2; sxx+=$1*$1; sxy+=$1*$2} END {s=(n*sxy-sx*sy)/(n*sxx-sx*sx); printf "rss slope %.2f kB/min over %d samples (first %d kB, last %d kB)\n", s*60, n, first, $2} NR==1 {first=$2}' "$work/rss.txt"
     grep -E '^(frames_processed|frames_lost|map_|keyframes_in_memory|points_in_memory|trajectory_records)' "$work/status.txt"
     ;;
-  *) echo "usage: $0 STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|rss [SECONDS]" >&2; exit 2 ;;
+  *) echo "usage: $0 STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|timing [N]|rss [SECONDS]" >&2; exit 2 ;;
 esac
 rm -f /dev/shm/$ring

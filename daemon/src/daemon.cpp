@@ -120,6 +120,7 @@ struct Daemon::Impl {
   std::atomic<bool> device_gone{false};
   std::atomic<int> semantic_tid{0};  // the segmentation thread (nice 10 by default)
   LatencyHistogram latency;
+  LatencyHistogram track_time;  // SlamSystem::track() alone, ORB extraction included
   ipc::PublisherStats publisher_stats;  // final, taken at stop
 
   void sourceLoop(std::stop_token stop);
@@ -253,6 +254,7 @@ void Daemon::Impl::trackingLoop() {
     std::optional<platform::CameraFrame> frame = queue->pop(100ms);
     if (!frame) continue;
     auto out = system->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
+    if (out) track_time.add(out->track_ms);
     if (!out) {
       ++frames_bad;
       SP_WARN_EVERY(logger, limiter, "tracking: frame skipped: " << out.error());
@@ -336,11 +338,11 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
                  "\nframes_lost=%" PRIu64 "\nframes_bad=%" PRIu64 "\nframes_dropped=%" PRIu64
                  "\nframes_discarded_at_stop=%" PRIu64 "\nkeyframes=%" PRIu64 "\nreconnects=%" PRIu64
                  "\nlatency_ms_median=%.3f\nlatency_ms_p99=%.3f\nlatency_ms_max=%.3f\npublisher_sent=%" PRIu64
-                 "\npublisher_dropped=%" PRIu64 "\nuptime_s=%.3f\nshutdown_ms=%.1f\n",
+                 "\npublisher_dropped=%" PRIu64 "\nuptime_s=%.3f\nshutdown_ms=%.1f\ntrack_ms_median=%.3f\ntrack_ms_p99=%.3f\n",
                  reason.c_str(), frames_received.load(), frames_processed.load(), frames_tracked.load(),
                  frames_lost.load(), frames_bad.load(), queue->dropped(), queue->discarded(), keyframes.load(),
                  reconnects.load(), latency.quantile(0.5), latency.quantile(0.99), latency.max(), ps.sent, ps.dropped,
-                 wall_s, shutdown_ms);
+                 wall_s, shutdown_ms, track_time.quantile(0.5), track_time.quantile(0.99));
     // What the process holds (issue 7: bounded memory over long runs).
     const slam::MapStats map = system->mapStats();
     std::fprintf(f,

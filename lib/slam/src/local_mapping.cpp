@@ -177,7 +177,10 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     return;
   }
   KeyFrame* kf = map_->keyFrame(r.keyframe_id);
-  if (!kf || kf->segmented) return;  // culled and freed meanwhile
+  // Culled meanwhile (freed, or bad and about to be): nothing to apply. A bad
+  // keyframe must not be touched: updateConnections() would link it back into
+  // its neighbours, which then hold it after it is freed.
+  if (!kf || kf->bad || kf->segmented) return;
   Frame& f = kf->frame;
   const int n_regions = static_cast<int>(r.regions.size());
 

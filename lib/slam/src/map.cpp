@@ -76,6 +76,7 @@ int KeyFrame::trackedPoints(int min_observations) const {
 }
 
 void KeyFrame::updateConnections() {
+  if (bad) return;  // culled: linked to nothing (Map::setKeyFrameBad)
   KeyFrameIndexMap counts;
   for (const auto& p : frame.points) {
     if (!p || p->bad) continue;

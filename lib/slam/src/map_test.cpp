@@ -144,6 +144,24 @@ TEST_F(CulledKeyFrames, ChildrenMoveToTheParentAndReferencesToTheRemainingObserv
   EXPECT_EQ(kf2_->bestNeighbours(5), std::vector<KeyFrame*>{kf0_});
 }
 
+// A culled keyframe is linked to nothing and stays so: updating its
+// connections afterwards (a late segmentation result, applied to a keyframe
+// culled while it waited) must not link it back into its neighbours, which
+// would hold it after it is freed (a crash in sequential runs with
+// semantic.sequential_latency_frames, found in session 11).
+TEST_F(CulledKeyFrames, StayUnlinkedWhenTheirConnectionsAreUpdatedLate) {
+  map_.setKeyFrameBad(kf1_);
+  kf1_->updateConnections();
+  EXPECT_TRUE(kf1_->connections.empty());
+  for (KeyFrame* kf : {kf0_, kf2_}) {
+    EXPECT_EQ(kf->connections.count(kf1_), 0u) << "keyframe " << kf->id;
+    for (KeyFrame* n : kf->ordered_neighbours) EXPECT_NE(n, kf1_) << "keyframe " << kf->id;
+  }
+  EXPECT_EQ(map_.releaseCulledKeyFrames(), 1u);
+  kf2_->updateConnections();
+  EXPECT_EQ(kf2_->bestNeighbours(5), std::vector<KeyFrame*>{kf0_});
+}
+
 TEST(MapPoint, ReferenceIsDroppedWithItsObservation) {
   Map map;
   KeyFrame* a = map.addKeyFrame(keyFrame(0, 4, SE3::Identity()));

@@ -73,6 +73,8 @@ Status SemanticOptions::validate() const {
   if (!(mask_grow_px >= 0 && mask_grow_px <= 200)) return Error{"semantic.mask_grow_px must be in [0, 200]"};
   if (mask_grow_passes < 1 || mask_grow_passes > 20) return Error{"semantic.mask_grow_passes must be in [1, 20]"};
   if (queue_capacity < 1 || queue_capacity > 1000) return Error{"semantic.queue_capacity must be in 1..1000"};
+  if (sequential_latency_frames < 0 || sequential_latency_frames > 1000)
+    return Error{"semantic.sequential_latency_frames must be in 0..1000"};
   if (threads < 0 || threads > 64) return Error{"semantic.threads must be in 0..64"};
   if (!(min_region_fraction >= 0 && min_region_fraction < 1))
     return Error{"semantic.min_region_fraction must be in [0, 1)"};
@@ -192,6 +194,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "mask_grow_px", o.semantic.mask_grow_px);
   v("semantic", "mask_grow_passes", o.semantic.mask_grow_passes);
   v("semantic", "queue_capacity", o.semantic.queue_capacity);
+  v("semantic", "sequential_latency_frames", o.semantic.sequential_latency_frames);
   v("semantic", "threads", o.semantic.threads);
   v("semantic", "min_region_fraction", o.semantic.min_region_fraction);
   v("semantic", "min_region_confidence", o.semantic.min_region_confidence);

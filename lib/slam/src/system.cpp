@@ -4,8 +4,11 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
+#include <deque>
 #include <filesystem>
 #include <mutex>
+#include <optional>
 
 #include "frame.hpp"
 #include "local_mapping.hpp"
@@ -90,6 +93,40 @@ struct SlamSystem::Impl {
   std::atomic<int> semantic_no_colour{0};
   log::RateLimiter no_colour_warning{std::chrono::seconds(10)};
   bool finished = false;
+
+  // Sequential mode with semantic.sequential_latency_frames: the keyframe
+  // being segmented (its result applied at frame seg_due) and those waiting.
+  std::optional<SemanticJob> seg_running;
+  std::int64_t seg_due = 0;
+  std::deque<SemanticJob> seg_waiting;
+  int seg_dropped = 0;
+
+  // Applies the modelled segmentation once frame_id reaches its due frame and
+  // starts the next waiting keyframe's then.
+  void advanceSegmentation(std::int64_t frame_id) {
+    while (seg_running && frame_id >= seg_due) {
+      mapper.postSemantic(semantic->process(*seg_running));
+      mapper.applySemanticResults();
+      seg_running.reset();
+      if (!seg_waiting.empty()) {
+        seg_running = std::move(seg_waiting.front());
+        seg_waiting.pop_front();
+        seg_due += options.semantic.sequential_latency_frames;
+      }
+    }
+  }
+  void submitDelayed(SemanticJob job, std::int64_t frame_id) {
+    if (!seg_running) {
+      seg_running = std::move(job);
+      seg_due = frame_id + options.semantic.sequential_latency_frames;
+      return;
+    }
+    while (static_cast<int>(seg_waiting.size()) >= options.semantic.queue_capacity) {
+      seg_waiting.pop_front();
+      ++seg_dropped;
+    }
+    seg_waiting.push_back(std::move(job));
+  }
 };
 
 SlamSystem::SlamSystem(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -192,6 +229,7 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   buildFrame(&frame, input.gray, input.depth_m, &s.orb);
   const auto t1 = std::chrono::steady_clock::now();
 
+  if (s.seg_running) s.advanceSegmentation(frame.id);
   TrackOutput out;
   const bool idle = s.options.sequential || s.mapper.idle();
   KeyFrame* kf = s.tracker.track(std::move(frame), idle, clusters_pending, &out);
@@ -208,10 +246,15 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
     } else {
       SemanticJob job{kf->id, s.options.sequential ? input.bgr : input.bgr.clone(),
                       s.options.sequential ? input.depth_m : input.depth_m.clone(), t2};
-      if (s.options.sequential)
+      if (s.options.sequential && s.options.semantic.sequential_latency_frames > 0) {
+        job.bgr = job.bgr.clone();
+        job.depth_m = job.depth_m.clone();
+        s.submitDelayed(std::move(job), kf->frame.id);
+      } else if (s.options.sequential) {
         s.mapper.postSemantic(s.semantic->process(job));  // applied at the start of process(kf)
-      else
+      } else {
         s.semantic->submit(std::move(job));
+      }
     }
   }
   if (kf) {
@@ -228,6 +271,15 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
 }
 
 void SlamSystem::finish(bool discard_pending_segmentation) {
+  Impl& s = *impl_;
+  if (s.seg_running) {  // modelled latency: what is under way or waiting is segmented now (or dropped)
+    if (discard_pending_segmentation) {
+      s.seg_dropped += 1 + static_cast<int>(s.seg_waiting.size());
+      s.seg_running.reset();
+      s.seg_waiting.clear();
+    }
+    while (s.seg_running) s.advanceSegmentation(s.seg_due);
+  }
   if (impl_->semantic) impl_->semantic->finish(discard_pending_segmentation);  // segments what is queued
   impl_->mapper.finish();                          // then applies it
   impl_->finished = true;
@@ -276,7 +328,7 @@ MapStats SlamSystem::mapStats() const {
     const SemanticStats& st = impl_->mapper.semanticStats();
     stats.semantic_keyframes_segmented = st.segmented;
     stats.semantic_keyframes_no_colour = impl_->semantic_no_colour.load();
-    stats.semantic_keyframes_dropped = impl_->semantic->dropped();
+    stats.semantic_keyframes_dropped = impl_->semantic->dropped() + impl_->seg_dropped;
     stats.semantic_failures = st.failures;
     stats.semantic_features_removed = st.features_removed;
     stats.semantic_points_removed = st.points_removed;

@@ -170,6 +170,14 @@ struct SemanticOptions {
   // Keyframes waiting for the segmentation thread; when full the oldest
   // waiting keyframe is left unsegmented (drop-oldest: tracking never waits).
   int queue_capacity = 4;
+  // Sequential mode only (evaluation): a live run's segmentation delay,
+  // modelled deterministically. A keyframe's segmentation starts when the
+  // segmenter is free and its result is applied this many frames later;
+  // keyframes made meanwhile wait in the queue above (drop-oldest) as in
+  // threaded mode. 0: applied before the next frame (the segmenter keeps up).
+  // On 2 cores at 30 Hz a live run applies masks 230-500 ms (7-15 frames)
+  // after the keyframe (README, Dynamic-object modules).
+  int sequential_latency_frames = 0;
   int threads = 1;  // OpenCV inference threads (process-wide in OpenCV)
   // Segmenter post-filter (see lib/semantic/README.md).
   double min_region_fraction = 0.001;
