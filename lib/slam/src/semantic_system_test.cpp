@@ -526,6 +526,62 @@ TEST(SemanticModule, SequentialModeIsDeterministic) {
   EXPECT_EQ(a.stats.semantic_features_removed, b.stats.semantic_features_removed);
 }
 
+// sequential_latency_frames: a keyframe is segmented when the (modelled)
+// segmenter is free and its result lands that many frames later; keyframes
+// made meanwhile wait in the drop-oldest queue. The schedule is replayed here
+// from the keyframe decisions alone, frame by frame.
+TEST(SemanticModule, SequentialLatencyAppliesResultsLateAndQueuesLikeAThread) {
+  for (const int capacity : {1, 2}) {
+    SCOPED_TRACE("queue_capacity " + std::to_string(capacity));
+    const int latency = 8;
+    SlamOptions options = semanticOptions();
+    options.semantic.sequential_latency_frames = latency;
+    options.semantic.queue_capacity = capacity;
+    options.keyframes.tracked_ratio = 0.99;  // a keyframe nearly every frame: the queue overflows
+    auto fake = std::make_unique<RectangleSegmenter>(kRect, false);
+    const std::shared_ptr<int> calls = fake->calls;
+    const Frames& frames = planeFrames();
+    auto system = SlamSystem::create(frames.camera, options, std::move(fake));
+    ASSERT_TRUE(system.ok()) << system.error();
+    // The model: the keyframe under way (its due frame) and those waiting.
+    int running_due = -1, expected_calls = 0, expected_dropped = 0, keyframes = 0;
+    std::vector<int> waiting;  // frames that made them
+    for (int i = 0; i < static_cast<int>(frames.inputs.size()); ++i) {
+      while (running_due >= 0 && i >= running_due) {  // what track(i) applies first
+        ++expected_calls;
+        if (waiting.empty()) {
+          running_due = -1;
+        } else {
+          waiting.erase(waiting.begin());
+          running_due += latency;
+        }
+      }
+      const auto out = (*system)->track(frames.inputs[i]);
+      ASSERT_TRUE(out.ok()) << out.error();
+      if (out->new_keyframe) {
+        ++keyframes;
+        if (running_due < 0) {
+          running_due = i + latency;
+        } else {
+          if (static_cast<int>(waiting.size()) >= capacity) {
+            waiting.erase(waiting.begin());
+            ++expected_dropped;
+          }
+          waiting.push_back(i);
+        }
+      }
+      ASSERT_EQ(*calls, expected_calls) << "after frame " << i;
+    }
+    EXPECT_GE(keyframes, 4);
+    EXPECT_GT(expected_dropped, 0) << "the test should make the queue overflow (" << keyframes << " keyframes)";
+    (*system)->finish();  // segments what is under way and waiting
+    const MapStats stats = (*system)->mapStats();
+    EXPECT_EQ(*calls, keyframes - expected_dropped);
+    EXPECT_EQ(stats.semantic_keyframes_dropped, expected_dropped);
+    EXPECT_GT(stats.semantic_keyframes_segmented, 0);
+  }
+}
+
 TEST(SemanticModule, ThreadedRunAppliesEveryResultByFinish) {
   SlamOptions options = semanticOptions(false);
   options.semantic.queue_capacity = 100;  // nothing dropped: every keyframe is checked
@@ -679,6 +735,7 @@ TEST(SemanticOptions, EachOutOfRangeValueNamesItsField) {
   const std::vector<std::pair<const char*, std::function<void(SemanticOptions&)>>> cases = {
       {"semantic.mask_dilation_px", [](SemanticOptions& o) { o.mask_dilation_px = -1; }},
       {"semantic.queue_capacity", [](SemanticOptions& o) { o.queue_capacity = 0; }},
+      {"semantic.sequential_latency_frames", [](SemanticOptions& o) { o.sequential_latency_frames = -1; }},
       {"semantic.threads", [](SemanticOptions& o) { o.threads = -1; }},
       {"semantic.min_region_fraction", [](SemanticOptions& o) { o.min_region_fraction = 1; }},
       {"semantic.min_region_confidence", [](SemanticOptions& o) { o.min_region_confidence = 2; }},
