@@ -598,6 +598,11 @@ TEST_F(DaemonProcess, OpenNI2ReplayCameraPosesMatchGroundTruth) {
   // 2-core machine, most of them): check the bookkeeping, and the accuracy of what
   // was published.
   EXPECT_EQ(std::stoul(status.at("frames_received")), 193u);
+  // The tracking step is part of each frame's pose latency (arrival -> published).
+  const double track_ms = std::stod(status.at("track_ms_median"));
+  EXPECT_GT(track_ms, 0.0);
+  EXPECT_LE(track_ms, std::stod(status.at("latency_ms_median")));
+  EXPECT_LE(std::stod(status.at("track_ms_p99")), std::stod(status.at("latency_ms_p99")));
   EXPECT_EQ(std::stoul(status.at("frames_processed")) + std::stoul(status.at("frames_dropped")) +
                 std::stoul(status.at("frames_discarded_at_stop")),
             193u);
