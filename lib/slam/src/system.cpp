@@ -244,13 +244,14 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
                     "keyframe " << kf->id << " has no colour image: not segmented (" << s.semantic_no_colour.load()
                                 << " so far)");
     } else {
-      SemanticJob job{kf->id, s.options.sequential ? input.bgr : input.bgr.clone(),
-                      s.options.sequential ? input.depth_m : input.depth_m.clone(), t2};
-      if (s.options.sequential && s.options.semantic.sequential_latency_frames > 0) {
-        job.bgr = job.bgr.clone();
-        job.depth_m = job.depth_m.clone();
+      // The job keeps its own images unless it is segmented right now.
+      const bool delayed = s.options.sequential && s.options.semantic.sequential_latency_frames > 0;
+      const bool inline_now = s.options.sequential && !delayed;
+      SemanticJob job{kf->id, inline_now ? input.bgr : input.bgr.clone(),
+                      inline_now ? input.depth_m : input.depth_m.clone(), t2};
+      if (delayed) {
         s.submitDelayed(std::move(job), kf->frame.id);
-      } else if (s.options.sequential) {
+      } else if (inline_now) {
         s.mapper.postSemantic(s.semantic->process(job));  // applied at the start of process(kf)
       } else {
         s.semantic->submit(std::move(job));
