@@ -80,24 +80,10 @@ $placement"
         rm -f "$work/status.txt"
         "$bin" --config "$work/d.yaml" 2> "$work/err.txt" || { echo "$s: exit status $?:"; tail -3 "$work/err.txt"; }
         grep -q 'priority' "$work/err.txt" && { echo "$s: placement not applied:"; grep priority "$work/err.txt" | head -2; }
-        sed -n 's/^track_ms_median=//p' "$work/status.txt" >> "$work/${s//,/+}.ms"
+        [[ -f $work/status.txt ]] && sed -n 's/^track_ms_median=//p' "$work/status.txt" >> "$work/${s//,/+}.ms"
       done
     done
-    base=
-    for s in "${sets[@]}"; do
-      sort -n "$work/${s//,/+}.ms" | awk -v name="$s" -v base="$base" '{a[NR] = $1}
-        END {
-          if (NR == 0) { printf "%-18s no run finished\n", name; exit }
-          m = (a[int((NR + 1) / 2)] + a[int(NR / 2) + 1]) / 2
-          printf "%-18s track_ms_median per run:", name
-          for (i = 1; i <= NR; ++i) printf " %.2f", a[i]
-          printf "  median %.2f", m
-          if (base != "") printf "  ratio %.2f", m / base
-          printf "\n"
-          print m > "/dev/stderr"
-        }' 2> "$work/m"
-      [[ -n $base ]] || base=$(cat "$work/m")
-    done
+    "$repo/daemon/scripts/run-medians.sh" "$work" "track_ms_median" "${sets[@]}"
     ;;
   rss)
     secs=${4:-600}

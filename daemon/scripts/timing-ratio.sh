@@ -29,18 +29,4 @@ for ((r = 1; r <= rounds; ++r)); do
       sed -n 's/.*track_ms_median=\([0-9.]*\).*/\1/p' | tail -n 1 >> "$work/${s//,/+}.ms"
   done
 done
-base=
-for s in "${sets[@]}"; do
-  sort -n "$work/${s//,/+}.ms" | awk -v name="$s" -v base="${base}" '{a[NR] = $1}
-    END {
-      if (NR == 0) { printf "%-18s no run finished\n", name; exit }
-      m = (a[int((NR + 1) / 2)] + a[int(NR / 2) + 1]) / 2
-      printf "%-18s tracking median [ms] per run:", name
-      for (i = 1; i <= NR; ++i) printf " %.1f", a[i]
-      printf "  median %.2f", m
-      if (base != "") printf "  ratio %.2f", m / base
-      printf "\n"
-      print m > "/dev/stderr"
-    }' 2> "$work/m"
-  [[ -n $base ]] || base=$(cat "$work/m")
-done
+"$repo/daemon/scripts/run-medians.sh" "$work" "tracking median [ms]" "${sets[@]}"
