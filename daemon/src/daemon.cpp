@@ -254,12 +254,12 @@ void Daemon::Impl::trackingLoop() {
     std::optional<platform::CameraFrame> frame = queue->pop(100ms);
     if (!frame) continue;
     auto out = system->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
-    if (out) track_time.add(out->track_ms);
     if (!out) {
       ++frames_bad;
       SP_WARN_EVERY(logger, limiter, "tracking: frame skipped: " << out.error());
       continue;
     }
+    track_time.add(out->track_ms);
     ipc::PoseMessage pose;
     pose.sensor_stamp = frame->stamp;
     pose.frame_counter = frame->sequence;
