@@ -61,6 +61,7 @@ Status GeometryOptions::validate() const {
   if (!(frame_sigma_min_scale > 0 && frame_sigma_min_scale <= 1))
     return Error{"geometry.frame_sigma_min_scale must be in (0, 1]"};
   if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
+  if (!(anchor_release_chi2 >= 0)) return Error{"geometry.anchor_release_chi2 must be >= 0"};
   if (!(projection_ratio >= 0 && projection_ratio <= 1)) return Error{"geometry.projection_ratio must be in [0, 1]"};
   if (probation_frames < 0 || probation_frames > 100) return Error{"geometry.probation_frames must be in [0, 100]"};
   if (probation_min_trusted < 10 || probation_min_trusted > 1000)
@@ -182,6 +183,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "frame_sigma_quantile", o.geometry.frame_sigma_quantile);
   v("geometry", "frame_sigma_min_scale", o.geometry.frame_sigma_min_scale);
   v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
+  v("geometry", "anchor_release_chi2", o.geometry.anchor_release_chi2);
   v("geometry", "projection_ratio", o.geometry.projection_ratio);
   v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
   v("geometry", "probation_frames", o.geometry.probation_frames);

@@ -161,6 +161,7 @@ SlamOptions everythingChanged() {
   o.mapping.fuse_neighbours = 8;
   o.mapping.keep_culled_keyframes = true;
   o.geometry.rejudge = true;
+  o.geometry.anchor_release_chi2 = 2.5;
   o.geometry.frame_sigma_factor = 3.0;
   o.geometry.frame_sigma_from = "all";
   o.geometry.frame_sigma_quantile = 0.75;
@@ -198,6 +199,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.mapping.keep_culled_keyframes, b.mapping.keep_culled_keyframes);
   EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
   EXPECT_EQ(a.geometry.rejudge, b.geometry.rejudge);
+  EXPECT_EQ(a.geometry.anchor_release_chi2, b.geometry.anchor_release_chi2);
   EXPECT_EQ(a.geometry.frame_sigma_factor, b.geometry.frame_sigma_factor);
   EXPECT_EQ(a.geometry.frame_sigma_from, b.geometry.frame_sigma_from);
   EXPECT_EQ(a.geometry.frame_sigma_quantile, b.geometry.frame_sigma_quantile);

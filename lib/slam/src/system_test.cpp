@@ -761,6 +761,41 @@ TEST(SlamSystemGeometry, SecondJudgementKeepsTheBoardFlagged) {
   EXPECT_GE(precision, 0.9);
 }
 
+// geometry.anchor_release_chi2: inside a dynamic cluster, the features whose
+// anchor match agrees with the initial pose stay static (and only those); the
+// board is still found.
+TEST(SlamSystemGeometry, AnchorReleaseKeepsStaticAnchorsOfDynamicClusters) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  const Sequence& seq = data.seq;
+  SlamOptions options = sequentialOptions();
+  options.geometry.anchor_release_chi2 = 2.0;
+  auto system = makeSystem(seq.camera, options);
+  ASSERT_TRUE(system);
+  BoardScore score;
+  int in_dynamic = 0, released = 0;
+  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+    const auto out = system->track(seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    for (const JudgedFeature& f : out->geometry.judged) {
+      ASSERT_GE(f.cluster, 0);
+      ASSERT_LT(f.cluster, static_cast<int>(out->geometry.scores.size()));
+      const bool cluster_dynamic = out->geometry.scores[f.cluster].dynamic;
+      const bool release = f.evidence == JudgedFeature::Evidence::kAnchor && f.chi2 < 2.0f;
+      EXPECT_EQ(f.dynamic, cluster_dynamic && !release) << "frame " << i;
+      in_dynamic += cluster_dynamic;
+      released += cluster_dynamic && release;
+      if (i >= 10) score.add(data.masks[i], f);
+    }
+  }
+  system->finish();
+  std::printf("moving board, anchor release: precision %.3f recall %.3f, %d of %d features of dynamic clusters released\n",
+              score.precision(), score.recall(), released, in_dynamic);
+  EXPECT_GT(in_dynamic, 0);
+  EXPECT_GE(score.recall(), 0.9);
+  EXPECT_GE(score.precision(), 0.9);
+}
+
 // geometry.evidence_ratio and exclude_known_movers: ambiguous projection
 // matches are not judged (every reported non-anchor feature passed the ratio),
 // the board's clusters are kept out of the initial pose while it moves, and it

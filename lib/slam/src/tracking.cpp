@@ -664,11 +664,23 @@ void Tracker::removeDynamicFeatures() {
       geometry_.anchor_fallback = true;
     }
   }
+  // Features of a dynamic cluster whose anchor match agrees with the pose:
+  // static surface the cluster straddles (the anchor evidence of a mover is
+  // nearly always far above the cap, of static features below it; README).
+  std::vector<char> released(current_.size(), 0);
+  const auto release = [&] {
+    std::fill(released.begin(), released.end(), 0);
+    const double limit = options_.geometry.anchor_release_chi2;
+    if (limit <= 0) return;
+    for (std::size_t k = 0; k < matched.size(); ++k)
+      if (kinds[k] == JudgedFeature::Evidence::kAnchor && residuals[k].chi2 < limit) released[matched[k]] = 1;
+  };
   // Drops the features of dynamic clusters from the pose and refits it.
   const auto remove = [&](const geometry::ClusterVerdict& v) {
+    release();
     int removed = 0;
     for (int i = 0; i < current_.size(); ++i) {
-      if (current_.cluster[i] < 0 || !v.clusters[current_.cluster[i]].dynamic) continue;
+      if (current_.cluster[i] < 0 || !v.clusters[current_.cluster[i]].dynamic || released[i]) continue;
       current_.points[i] = nullptr;
       current_.outlier[i] = 0;
       ++removed;
@@ -703,7 +715,7 @@ void Tracker::removeDynamicFeatures() {
   const float w = static_cast<float>(options_.geometry.point_dynamic_weight);
   for (std::size_t k = 0; k < matched.size(); ++k) {
     const int i = matched[k];
-    const bool dynamic = verdict.clusters[current_.cluster[i]].dynamic;
+    const bool dynamic = verdict.clusters[current_.cluster[i]].dynamic && !released[i];
     const int distance = kinds[k] == JudgedFeature::Evidence::kAnchor
                              ? anchor_distance[i]
                              : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
@@ -728,7 +740,7 @@ void Tracker::removeDynamicFeatures() {
     if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
   }
   for (int i = 0; i < current_.size(); ++i) {
-    if (current_.cluster[i] < 0 || !verdict.clusters[current_.cluster[i]].dynamic) continue;
+    if (current_.cluster[i] < 0 || !verdict.clusters[current_.cluster[i]].dynamic || released[i]) continue;
     current_.dynamic[i] = 1;
     ++geometry_.dynamic_features;
   }

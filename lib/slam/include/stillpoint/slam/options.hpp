@@ -126,6 +126,11 @@ struct GeometryOptions {
   // issue 4's bar, recall 0.012 lower on rpy / halfsphere; ATE sweeps within
   // noise (lib/geometry/README.md). 0.7 trades recall on the rooms.
   double evidence_ratio = 0.8;
+  // A feature of a dynamic cluster whose anchor match (fixed baseline, the
+  // most reliable evidence) agrees with the initial pose below this chi2
+  // stays static: it keeps its map point in the pose and is not carried as
+  // moving. 0 = off (every feature of a dynamic cluster is dropped).
+  double anchor_release_chi2 = 0.0;
   // The same test on the motion model's matches for the pose too (0 = off;
   // 0.9 lost the poster-walk overlay, ATE 0.146 m: README).
   double projection_ratio = 0.0;
