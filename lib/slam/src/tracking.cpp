@@ -675,12 +675,16 @@ void Tracker::removeDynamicFeatures() {
     for (std::size_t k = 0; k < matched.size(); ++k)
       if (kinds[k] == JudgedFeature::Evidence::kAnchor && residuals[k].chi2 < limit) released[matched[k]] = 1;
   };
+  // A feature leaves the pose and counts as moving: in a dynamic cluster, not released.
+  const auto dropped = [&](int i, const geometry::ClusterVerdict& v) {
+    return current_.cluster[i] >= 0 && v.clusters[current_.cluster[i]].dynamic && !released[i];
+  };
   // Drops the features of dynamic clusters from the pose and refits it.
   const auto remove = [&](const geometry::ClusterVerdict& v) {
     release();
     int removed = 0;
     for (int i = 0; i < current_.size(); ++i) {
-      if (current_.cluster[i] < 0 || !v.clusters[current_.cluster[i]].dynamic || released[i]) continue;
+      if (!dropped(i, v)) continue;
       current_.points[i] = nullptr;
       current_.outlier[i] = 0;
       ++removed;
@@ -715,7 +719,7 @@ void Tracker::removeDynamicFeatures() {
   const float w = static_cast<float>(options_.geometry.point_dynamic_weight);
   for (std::size_t k = 0; k < matched.size(); ++k) {
     const int i = matched[k];
-    const bool dynamic = verdict.clusters[current_.cluster[i]].dynamic && !released[i];
+    const bool dynamic = dropped(i, verdict);
     const int distance = kinds[k] == JudgedFeature::Evidence::kAnchor
                              ? anchor_distance[i]
                              : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
@@ -740,7 +744,7 @@ void Tracker::removeDynamicFeatures() {
     if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
   }
   for (int i = 0; i < current_.size(); ++i) {
-    if (current_.cluster[i] < 0 || !verdict.clusters[current_.cluster[i]].dynamic || released[i]) continue;
+    if (!dropped(i, verdict)) continue;
     current_.dynamic[i] = 1;
     ++geometry_.dynamic_features;
   }
