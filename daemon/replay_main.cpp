@@ -195,12 +195,13 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.features_out.c_str());
       return 1;
     }
-    std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance ratio ru rv rz: features judged by\n"
+    std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance ratio ru rv rz freespace: features judged by\n"
                "# the geometry module (cluster label, squared reprojection error / sigma^2 against the initial\n"
                "# pose, evidence 0 anchor frame | 1 map point | 2 carried or reference keyframe, inherited 1 =\n"
                "# matched to a feature dynamic before, keypoint depth in m, Hamming distance of the evidence match,\n"
                "# its ratio to the second best in the projection search window, 0: none or not searched,\n"
-               "# chi2's components: u, v, depth term over sigma)\n",
+               "# chi2's components: u, v, depth term over sigma, share of its cluster's depth samples in space\n"
+               "# the anchor frame saw empty, -1: not tested)\n",
                features_out);
   }
 
@@ -269,10 +270,10 @@ int main(int argc, char** argv) {
       rejudged += g.rejudged;
       if (features_out)
         for (const slam::JudgedFeature& f : g.judged)
-          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f %d %d %.3f %d %.3f %.2f %.2f %.2f\n",
+          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f %d %d %.3f %d %.3f %.2f %.2f %.2f %.3f\n",
                        frame->stamp.toSecondsString().c_str(), f.u, f.v, f.dynamic, f.cluster, f.chi2,
                        static_cast<int>(f.evidence), f.inherited ? 1 : 0, f.depth, f.distance, f.ratio,
-                       f.residual.x(), f.residual.y(), f.residual.z());
+                       f.residual.x(), f.residual.y(), f.residual.z(), f.freespace);
     }
     switch (out->state) {
       case slam::TrackingState::kOk:

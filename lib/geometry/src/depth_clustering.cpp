@@ -52,6 +52,7 @@ Result<DepthClusters> DepthClusterer::cluster(const cv::Mat& depth_m, const Came
                  ", camera expects " + std::to_string(camera.width) + "x" + std::to_string(camera.height)};
 
   DepthClusters out;
+  out.depth = depth_m;
   out.step = stepFor(options_, camera.width, camera.height);
   const int k = clustersFor(options_, camera.width, camera.height);
   const int grid_cols = camera.width / out.step, grid_rows = camera.height / out.step;

@@ -62,6 +62,17 @@ Status GeometryOptions::validate() const {
     return Error{"geometry.frame_sigma_min_scale must be in (0, 1]"};
   if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
   if (!(anchor_release_chi2 >= 0)) return Error{"geometry.anchor_release_chi2 must be >= 0"};
+  if (!(freespace_flag >= 0 && freespace_flag <= 1)) return Error{"geometry.freespace_flag must be in [0, 1]"};
+  if (!(freespace_tolerance_m >= 0)) return Error{"geometry.freespace_tolerance_m must be >= 0"};
+  if (!(freespace_tolerance_z2 >= 0)) return Error{"geometry.freespace_tolerance_z2 must be >= 0"};
+  if (!(freespace_split_keep >= 0 && freespace_split_keep <= 1))
+    return Error{"geometry.freespace_split_keep must be in [0, 1]"};
+  if (freespace_split_min_samples < 1) return Error{"geometry.freespace_split_min_samples must be >= 1"};
+  if (!(freespace_split_radius_m >= 0)) return Error{"geometry.freespace_split_radius_m must be >= 0"};
+  if (!(freespace_split_protect_chi2 >= 0)) return Error{"geometry.freespace_split_protect_chi2 must be >= 0"};
+  if (!(freespace_grow_plane_m > 0)) return Error{"geometry.freespace_grow_plane_m must be > 0"};
+  if (!(freespace_grow_angle_deg > 0 && freespace_grow_angle_deg < 90))
+    return Error{"geometry.freespace_grow_angle_deg must be in (0, 90)"};
   if (!(projection_ratio >= 0 && projection_ratio <= 1)) return Error{"geometry.projection_ratio must be in [0, 1]"};
   if (probation_frames < 0 || probation_frames > 100) return Error{"geometry.probation_frames must be in [0, 100]"};
   if (probation_min_trusted < 10 || probation_min_trusted > 1000)
@@ -162,6 +173,15 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "kmeans_iterations", o.geometry.clustering.max_iterations);
   v("geometry", "kmeans_converged_fraction", o.geometry.clustering.converged_fraction);
   v("geometry", "warm_start", o.geometry.clustering.warm_start);
+  v("geometry", "freespace_tolerance_m", o.geometry.freespace_tolerance_m);
+  v("geometry", "freespace_tolerance_z2", o.geometry.freespace_tolerance_z2);
+  v("geometry", "freespace_flag", o.geometry.freespace_flag);
+  v("geometry", "freespace_split_keep", o.geometry.freespace_split_keep);
+  v("geometry", "freespace_grow_plane_m", o.geometry.freespace_grow_plane_m);
+  v("geometry", "freespace_grow_angle_deg", o.geometry.freespace_grow_angle_deg);
+  v("geometry", "freespace_split_radius_m", o.geometry.freespace_split_radius_m);
+  v("geometry", "freespace_split_min_samples", o.geometry.freespace_split_min_samples);
+  v("geometry", "freespace_split_protect_chi2", o.geometry.freespace_split_protect_chi2);
   v("geometry", "rho_cap", o.geometry.verdict.rho_cap);
   v("geometry", "median", o.geometry.verdict.median);
   v("geometry", "min_features", o.geometry.verdict.min_features);

@@ -121,6 +121,26 @@ TEST(SlamOptionsValidate, FrameSigmaFieldsNameThemselves) {
   }
 }
 
+TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
+  const std::vector<BadValue> cases = {
+      {"geometry.freespace_flag", [](SlamOptions& o) { o.geometry.freespace_flag = 1.5; }},
+      {"geometry.freespace_tolerance_m", [](SlamOptions& o) { o.geometry.freespace_tolerance_m = -0.1; }},
+      {"geometry.freespace_split_keep", [](SlamOptions& o) { o.geometry.freespace_split_keep = -1; }},
+      {"geometry.freespace_split_min_samples", [](SlamOptions& o) { o.geometry.freespace_split_min_samples = 0; }},
+      {"geometry.freespace_split_radius_m", [](SlamOptions& o) { o.geometry.freespace_split_radius_m = -1; }},
+      {"geometry.freespace_grow_angle_deg", [](SlamOptions& o) { o.geometry.freespace_grow_angle_deg = 95; }},
+  };
+  for (const BadValue& c : cases) {
+    SCOPED_TRACE(c.field);
+    SlamOptions o;
+    c.spoil(o);
+    const Status own = o.geometry.validate();
+    ASSERT_FALSE(own.ok());
+    EXPECT_TRUE(contains(own.error(), c.field));
+    ASSERT_FALSE(o.validate().ok());
+  }
+}
+
 TEST(SlamOptionsValidate, NonFiniteValuesAreRejected) {
   SlamOptions o;
   o.keyframes.tracked_ratio = std::nan("");
@@ -162,6 +182,15 @@ SlamOptions everythingChanged() {
   o.mapping.keep_culled_keyframes = true;
   o.geometry.rejudge = true;
   o.geometry.anchor_release_chi2 = 2.5;
+  o.geometry.freespace_flag = 0.35;
+  o.geometry.freespace_tolerance_m = 0.05;
+  o.geometry.freespace_tolerance_z2 = 0.01;
+  o.geometry.freespace_split_keep = 0.7;
+  o.geometry.freespace_split_min_samples = 6;
+  o.geometry.freespace_split_radius_m = 0.15;
+  o.geometry.freespace_split_protect_chi2 = 20;
+  o.geometry.freespace_grow_plane_m = 0.03;
+  o.geometry.freespace_grow_angle_deg = 40;
   o.geometry.frame_sigma_factor = 3.0;
   o.geometry.frame_sigma_from = "all";
   o.geometry.frame_sigma_quantile = 0.75;
@@ -200,6 +229,15 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
   EXPECT_EQ(a.geometry.rejudge, b.geometry.rejudge);
   EXPECT_EQ(a.geometry.anchor_release_chi2, b.geometry.anchor_release_chi2);
+  EXPECT_EQ(a.geometry.freespace_flag, b.geometry.freespace_flag);
+  EXPECT_EQ(a.geometry.freespace_tolerance_m, b.geometry.freespace_tolerance_m);
+  EXPECT_EQ(a.geometry.freespace_tolerance_z2, b.geometry.freespace_tolerance_z2);
+  EXPECT_EQ(a.geometry.freespace_split_keep, b.geometry.freespace_split_keep);
+  EXPECT_EQ(a.geometry.freespace_split_min_samples, b.geometry.freespace_split_min_samples);
+  EXPECT_EQ(a.geometry.freespace_split_radius_m, b.geometry.freespace_split_radius_m);
+  EXPECT_EQ(a.geometry.freespace_split_protect_chi2, b.geometry.freespace_split_protect_chi2);
+  EXPECT_EQ(a.geometry.freespace_grow_plane_m, b.geometry.freespace_grow_plane_m);
+  EXPECT_EQ(a.geometry.freespace_grow_angle_deg, b.geometry.freespace_grow_angle_deg);
   EXPECT_EQ(a.geometry.frame_sigma_factor, b.geometry.frame_sigma_factor);
   EXPECT_EQ(a.geometry.frame_sigma_from, b.geometry.frame_sigma_from);
   EXPECT_EQ(a.geometry.frame_sigma_quantile, b.geometry.frame_sigma_quantile);

@@ -223,9 +223,10 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   frame.camera = &s.camera;
   frame.levels = &s.levels;
   // Clustering runs in its own thread while features are extracted; the
-  // worker gets its own copy (the caller may reuse its buffer after track()).
+  // worker gets its own copy (the caller may reuse its buffer after track(),
+  // and the tracker keeps it for geometry.anchor_frames frames).
   const bool clusters_pending = s.clustering && !input.depth_m.empty();
-  if (clusters_pending) s.clustering->submit(frame.id, s.options.sequential ? input.depth_m : input.depth_m.clone());
+  if (clusters_pending) s.clustering->submit(frame.id, input.depth_m.clone());
   buildFrame(&frame, input.gray, input.depth_m, &s.orb);
   const auto t1 = std::chrono::steady_clock::now();
 

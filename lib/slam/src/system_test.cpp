@@ -796,6 +796,63 @@ TEST(SlamSystemGeometry, AnchorReleaseKeepsStaticAnchorsOfDynamicClusters) {
   EXPECT_GE(score.precision(), 0.9);
 }
 
+// Free space, the dense evidence: once the board has moved over the anchor
+// baseline (5 frames, 7.5 cm), the depth samples along its leading edge lie
+// where the anchor frame saw the room behind it. Clusters on the board must
+// show that; clusters without any board sample must not (clean depth, a
+// tracked pose).
+TEST(SlamSystemGeometry, FreeSpaceSeesTheMovingBoard) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  SlamOptions options = sequentialOptions();
+  ASSERT_EQ(options.geometry.freespace_flag, 0.2);  // the default: such clusters are dynamic
+  auto system = makeSystem(data.seq.camera, options);
+  ASSERT_TRUE(system);
+  int board_frames = 0, board_seen = 0, static_tested = 0;
+  float static_max = 0, board_best_sum = 0;
+  for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
+    const auto out = system->track(data.seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    const GeometryOutput& g = out->geometry;
+    if (!g.ran) continue;
+    ASSERT_TRUE(g.labels);
+    ASSERT_EQ(g.freespace.size(), static_cast<std::size_t>(g.clusters));
+    const geometry::DepthClusters& c = *g.labels;
+    std::vector<int> on_board(c.clusters, 0), total(c.clusters, 0);
+    for (int r = 0; r < c.labels.rows; ++r)
+      for (int col = 0; col < c.labels.cols; ++col) {
+        const int j = c.labels.at<std::int16_t>(r, col);
+        if (j < 0) continue;
+        ++total[j];
+        on_board[j] += data.masks[i].at<std::uint8_t>(r * c.step + c.step / 2, col * c.step + c.step / 2) != 0;
+      }
+    float board_best = -1;
+    for (int j = 0; j < c.clusters; ++j) {
+      if (g.freespace[j] >= 0.2f) {
+        EXPECT_TRUE(g.scores[j].dynamic) << "frame " << i << " cluster " << j;
+      }
+      if (g.freespace[j] < 0) continue;
+      if (on_board[j] == 0) {
+        static_max = std::max(static_max, g.freespace[j]);
+        ++static_tested;
+      } else if (2 * on_board[j] > total[j]) {
+        board_best = std::max(board_best, g.freespace[j]);
+      }
+    }
+    if (i < 15 || board_best < 0) continue;
+    ++board_frames;
+    board_seen += board_best >= 0.1f;
+    board_best_sum += board_best;
+  }
+  system->finish();
+  std::printf("free space: board clusters best share mean %.3f, >= 0.1 in %d of %d frames; static clusters max %.3f (%d tested)\n",
+              board_best_sum / std::max(1, board_frames), board_seen, board_frames, static_max, static_tested);
+  ASSERT_GT(board_frames, 20);
+  EXPECT_GE(board_seen, board_frames * 9 / 10);
+  EXPECT_GT(static_tested, 500);
+  EXPECT_LT(static_max, 0.02f);
+}
+
 // geometry.evidence_ratio and exclude_known_movers: ambiguous projection
 // matches are not judged (every reported non-anchor feature passed the ratio),
 // the board's clusters are kept out of the initial pose while it moves, and it

@@ -133,10 +133,12 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   out->new_keyframe = new_keyframe != nullptr;
   out->geometry = std::move(geometry_);
   out->semantic_features = semantic_marked_;
-  if (ok)
+  if (ok) {
     rememberAnchor();
-  else
+  } else {
     anchors_.clear();
+    anchor_depth_.clear();
+  }
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
@@ -592,6 +594,9 @@ void Tracker::removeDynamicFeatures() {
     if (current_.cluster[i] >= 0 && has_anchor[i]) ++anchored_in_cluster[current_.cluster[i]];
   }
 
+  const FreeSpace free = freeSpaceViolations(*clusters);
+  geometry_.freespace = free.share;
+
   // A cluster with enough anchor matches is judged by them alone (fixed
   // baseline); the others by whatever evidence their features have.
   const int min_features = options_.geometry.verdict.min_features;
@@ -664,16 +669,83 @@ void Tracker::removeDynamicFeatures() {
       geometry_.anchor_fallback = true;
     }
   }
+  // Dense evidence: a cluster a good share of whose depth samples lie in space
+  // the anchor frame saw empty has moved, whatever its features say.
+  // As with the anchor evidence, when that would make most of the view
+  // (geometry.max_dynamic_fraction of the samples) dynamic, the pose is what
+  // is wrong, not the world: then it flags nothing.
+  const auto addFreeSpace = [&](geometry::ClusterVerdict& v) {
+    const double share = options_.geometry.freespace_flag;
+    if (share <= 0) return;
+    std::vector<std::size_t> added;
+    int samples = 0, dynamic_samples = 0;
+    for (std::size_t c = 0; c < v.clusters.size(); ++c) {
+      samples += clusters->sizes[c];
+      if (!v.clusters[c].dynamic && geometry_.freespace[c] >= share) added.push_back(c);
+      if (v.clusters[c].dynamic || geometry_.freespace[c] >= share) dynamic_samples += clusters->sizes[c];
+    }
+    if (dynamic_samples > options_.geometry.max_dynamic_fraction * samples) {
+      geometry_.freespace_vetoed = !added.empty();
+      return;
+    }
+    for (std::size_t c : added) v.clusters[c].dynamic = true;
+    v.dynamic_clusters += static_cast<int>(added.size());
+  };
+  addFreeSpace(verdict);
   // Features of a dynamic cluster whose anchor match agrees with the pose:
   // static surface the cluster straddles (the anchor evidence of a mover is
   // nearly always far above the cap, of static features below it; README).
   std::vector<char> released(current_.size(), 0);
-  const auto release = [&] {
+  // The moved surface grown from the free-space violations: in a dynamic
+  // cluster that holds violations but whose features mostly lie off that
+  // surface (a walker's legs and the floor they stand on), the features off
+  // it are static.
+  const double split_keep = options_.geometry.freespace_split_keep;
+  const cv::Mat moved = split_keep > 0 ? growMovedSurface(*clusters, free) : cv::Mat();
+  std::vector<int> violations(clusters->clusters, 0);
+  if (!moved.empty())
+    for (int r = 0; r < moved.rows; ++r)
+      for (int c = 0; c < moved.cols; ++c)
+        if (free.violated.at<std::uint8_t>(r, c)) ++violations[clusters->labels.at<std::int16_t>(r, c)];
+  const auto onMoved = [&](int i) {
+    const int step = clusters->step;
+    const int c0 = static_cast<int>(current_.keys[i].pt.x) / step, r0 = static_cast<int>(current_.keys[i].pt.y) / step;
+    const double radius2 = options_.geometry.freespace_split_radius_m * options_.geometry.freespace_split_radius_m;
+    const float z = current_.depth[i];
+    const Vec3 p = z > 0 ? camera_.unproject(Vec2(current_.un[i].x, current_.un[i].y), z) : Vec3::Zero();
+    for (int r = std::max(0, r0 - 3); r <= std::min(moved.rows - 1, r0 + 3); ++r)
+      for (int c = std::max(0, c0 - 3); c <= std::min(moved.cols - 1, c0 + 3); ++c) {
+        if (!moved.at<std::uint8_t>(r, c)) continue;
+        if (std::abs(r - r0) + std::abs(c - c0) <= 1) return true;  // its own cell or a 4-neighbour
+        const cv::Vec3f& q = free.points.at<cv::Vec3f>(r, c);
+        if (z > 0 && (Vec3(q[0], q[1], q[2]) - p).squaredNorm() < radius2) return true;
+      }
+    return false;
+  };
+  const auto release = [&](const geometry::ClusterVerdict& v) {
     std::fill(released.begin(), released.end(), 0);
     const double limit = options_.geometry.anchor_release_chi2;
-    if (limit <= 0) return;
+    if (limit > 0)
+      for (std::size_t k = 0; k < matched.size(); ++k)
+        if (kinds[k] == JudgedFeature::Evidence::kAnchor && residuals[k].chi2 < limit) released[matched[k]] = 1;
+    if (moved.empty()) return;
+    std::vector<int> on(clusters->clusters, 0), off(clusters->clusters, 0);
+    std::vector<char> off_moved(current_.size(), 0);
+    for (int i = 0; i < current_.size(); ++i) {
+      const int c = current_.cluster[i];
+      if (c < 0 || !v.clusters[c].dynamic || violations[c] < options_.geometry.freespace_split_min_samples) continue;
+      off_moved[i] = !onMoved(i);
+      ++(off_moved[i] ? off : on)[c];
+    }
+    // A feature whose own evidence disagrees with the pose stays moving
+    // (a mover's surface the growth did not reach).
+    std::vector<char> disagrees(current_.size(), 0);
     for (std::size_t k = 0; k < matched.size(); ++k)
-      if (kinds[k] == JudgedFeature::Evidence::kAnchor && residuals[k].chi2 < limit) released[matched[k]] = 1;
+      disagrees[matched[k]] = residuals[k].chi2 > options_.geometry.freespace_split_protect_chi2;
+    for (int i = 0; i < current_.size(); ++i) {
+      const int c = current_.cluster[i];
+      if (off_moved[i] && !disagrees[i] && on[c] < split_keep * (on[c] + off[c])) released[i] = 1;
+    }
   };
   // A feature leaves the pose and counts as moving: in a dynamic cluster, not released.
   const auto dropped = [&](int i, const geometry::ClusterVerdict& v) {
@@ -681,7 +753,7 @@ void Tracker::removeDynamicFeatures() {
   };
   // Drops the features of dynamic clusters from the pose and refits it.
   const auto remove = [&](const geometry::ClusterVerdict& v) {
-    release();
+    release(v);
     int removed = 0;
     for (int i = 0; i < current_.size(); ++i) {
       if (!dropped(i, v)) continue;
@@ -698,6 +770,7 @@ void Tracker::removeDynamicFeatures() {
     const std::vector<char> outlier = current_.outlier;
     remove(verdict);
     geometry::ClusterVerdict second = judge(anchored);
+    addFreeSpace(second);
     bool same = second.dynamic_clusters == verdict.dynamic_clusters;
     for (std::size_t c = 0; same && c < second.clusters.size(); ++c)
       same = second.clusters[c].dynamic == verdict.clusters[c].dynamic;
@@ -727,7 +800,7 @@ void Tracker::removeDynamicFeatures() {
                                 static_cast<float>(residuals[k].chi2), kinds[k], residuals[k].inherited,
                                 current_.depth[i], distance,
                                 kinds[k] == JudgedFeature::Evidence::kAnchor ? 0.0f : match_ratio_[i],
-                                residual_vectors[i].cast<float>()});
+                                residual_vectors[i].cast<float>(), geometry_.freespace[current_.cluster[i]]});
     const auto& p = evidence[i];
     if (!p || p->bad || p->isTemporary()) continue;
     const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
@@ -748,6 +821,111 @@ void Tracker::removeDynamicFeatures() {
     current_.dynamic[i] = 1;
     ++geometry_.dynamic_features;
   }
+}
+
+Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& clusters) const {
+  FreeSpace out;
+  out.share.assign(clusters.clusters, -1.0f);
+  if (clusters.depth.empty() || clusters.labels.empty()) return out;
+  out.violated = cv::Mat::zeros(clusters.labels.size(), CV_8U);
+  out.points = cv::Mat::zeros(clusters.labels.size(), CV_32FC3);
+  if (anchors_.empty() || anchor_depth_.front().empty()) return out;
+  const cv::Mat& seen = anchor_depth_.front();
+  const SE3 T_a_c = anchors_.front().T_c_w * current_.T_c_w.inverse();
+  const Mat3 R = T_a_c.linear();
+  const Vec3 t = T_a_c.translation();
+  const bool distorted = camera_.hasDistortion();
+  const double tol0 = options_.geometry.freespace_tolerance_m, tol2 = options_.geometry.freespace_tolerance_z2;
+  std::vector<int> tested(clusters.clusters, 0), violated(clusters.clusters, 0);
+  const int half = clusters.step / 2;
+  for (int r = 0; r < clusters.labels.rows; ++r) {
+    const auto* label = clusters.labels.ptr<std::int16_t>(r);
+    const int y = r * clusters.step + half;
+    for (int c = 0; c < clusters.labels.cols; ++c) {
+      if (label[c] < 0) continue;
+      const int x = c * clusters.step + half;
+      const float z = clusters.depth.at<float>(y, x);
+      Vec2 uv(x, y);
+      if (distorted) uv = camera_.undistortPixel(uv);
+      const Vec3 p_c = camera_.unproject(uv, z);
+      out.points.at<cv::Vec3f>(r, c) = cv::Vec3f(p_c.x(), p_c.y(), p_c.z());
+      const Vec3 p = R * p_c + t;  // in the anchor camera
+      if (p.z() <= camera_.min_depth) continue;
+      Vec2 q = camera_.project(p);
+      if (distorted) q = camera_.distortPixel(q);
+      const int qx = static_cast<int>(std::lround(q.x())), qy = static_cast<int>(std::lround(q.y()));
+      if (qx < 1 || qy < 1 || qx >= seen.cols - 1 || qy >= seen.rows - 1) continue;
+      // The nearest surface the anchor saw around that pixel: a point on a
+      // depth edge may fall on either side of it.
+      float nearest = std::numeric_limits<float>::max();
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const float d = seen.at<float>(qy + dy, qx + dx);
+          if (d > camera_.min_depth && d < camera_.max_depth) nearest = std::min(nearest, d);
+        }
+      if (nearest == std::numeric_limits<float>::max()) continue;
+      ++tested[label[c]];
+      if (p.z() < nearest - (tol0 + tol2 * p.z() * p.z())) {
+        ++violated[label[c]];
+        out.violated.at<std::uint8_t>(r, c) = 1;
+      }
+    }
+  }
+  for (int j = 0; j < clusters.clusters; ++j)
+    if (tested[j] >= 8) out.share[j] = static_cast<float>(violated[j]) / static_cast<float>(tested[j]);
+  return out;
+}
+
+cv::Mat Tracker::growMovedSurface(const geometry::DepthClusters& clusters, const FreeSpace& free) const {
+  if (free.violated.empty()) return cv::Mat();
+  const int rows = free.points.rows, cols = free.points.cols;
+  // Unit normals of the samples from their grid neighbours (zero: unknown).
+  cv::Mat normals = cv::Mat::zeros(rows, cols, CV_32FC3);
+  const auto point = [&](int r, int c) {
+    const cv::Vec3f& v = free.points.at<cv::Vec3f>(r, c);
+    return Vec3(v[0], v[1], v[2]);
+  };
+  for (int r = 1; r + 1 < rows; ++r)
+    for (int c = 1; c + 1 < cols; ++c) {
+      const Vec3 p = point(r, c), l = point(r, c - 1), rt = point(r, c + 1), u = point(r - 1, c), d = point(r + 1, c);
+      if (p.z() <= 0 || l.z() <= 0 || rt.z() <= 0 || u.z() <= 0 || d.z() <= 0) continue;
+      const double jump = 0.1 * p.z();
+      if (std::abs(rt.z() - l.z()) > 2 * jump || std::abs(d.z() - u.z()) > 2 * jump) continue;
+      Vec3 n = (rt - l).cross(d - u);
+      if (n.norm() <= 0) continue;
+      n.normalize();
+      normals.at<cv::Vec3f>(r, c) = cv::Vec3f(n.x(), n.y(), n.z());
+    }
+  const double plane_tol = options_.geometry.freespace_grow_plane_m;
+  const double min_cos = std::cos(options_.geometry.freespace_grow_angle_deg * M_PI / 180.0);
+  cv::Mat reached = free.violated.clone();
+  std::vector<std::pair<int, int>> queue;
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c)
+      if (reached.at<std::uint8_t>(r, c)) queue.emplace_back(r, c);
+  for (std::size_t k = 0; k < queue.size(); ++k) {
+    const auto [r, c] = queue[k];
+    const Vec3 p = point(r, c);
+    const cv::Vec3f& na = normals.at<cv::Vec3f>(r, c);
+    constexpr int kDr[4] = {1, -1, 0, 0}, kDc[4] = {0, 0, 1, -1};
+    for (int d = 0; d < 4; ++d) {
+      const int r2 = r + kDr[d], c2 = c + kDc[d];
+      if (r2 < 0 || c2 < 0 || r2 >= rows || c2 >= cols || reached.at<std::uint8_t>(r2, c2)) continue;
+      if (clusters.labels.at<std::int16_t>(r2, c2) < 0) continue;
+      const Vec3 q = point(r2, c2);
+      if (q.z() <= 0) continue;
+      const cv::Vec3f& nb = normals.at<cv::Vec3f>(r2, c2);
+      // Same surface: q lies on p's tangent plane and the normals agree.
+      // Without normals (a depth edge next to either) the surface is not
+      // followed: that is where a walker's foot meets the floor.
+      if (na == cv::Vec3f() || nb == cv::Vec3f()) continue;
+      const double off = std::abs(na[0] * (q.x() - p.x()) + na[1] * (q.y() - p.y()) + na[2] * (q.z() - p.z()));
+      if (off > plane_tol * (1 + p.z() * p.z()) || std::abs(na.dot(nb)) < min_cos) continue;
+      reached.at<std::uint8_t>(r2, c2) = 1;
+      queue.emplace_back(r2, c2);
+    }
+  }
+  return reached;
 }
 
 Tracker::EvidenceError Tracker::evidenceError(int i, const Vec3& p_w) const {
@@ -838,7 +1016,8 @@ void Tracker::rememberAnchor() {
   a.dynamic = current_.dynamic;
   a.T_c_w = current_.T_c_w;
   anchors_.push_back(std::move(a));
-  while (anchors_.size() > keep) anchors_.pop_front();
+  anchor_depth_.push_back(clusters_ ? clusters_->depth : cv::Mat());
+  while (anchors_.size() > keep) anchors_.pop_front(), anchor_depth_.pop_front();
 }
 
 SE3 Tracker::predictedPose(const SE3& last) const {

@@ -122,7 +122,21 @@ class Tracker {
   // depth, final pose; no matches), oldest first: the geometry module's
   // evidence baseline. Cleared when tracking is lost.
   std::deque<Frame> anchors_;
+  std::deque<cv::Mat> anchor_depth_;  // their depth images (empty: none)
   void rememberAnchor();
+  // The current frame's depth samples against the oldest anchor: which lie in
+  // space the anchor saw empty, and per cluster the share that do
+  // (GeometryOutput::freespace).
+  struct FreeSpace {
+    std::vector<float> share;
+    cv::Mat violated;  // CV_8U on the sample grid
+    cv::Mat points;    // CV_32FC3 on the sample grid, camera frame (z = 0: no depth)
+  };
+  FreeSpace freeSpaceViolations(const geometry::DepthClusters& clusters) const;
+  // The samples connected to a violating one over a continuous surface (no
+  // depth jump, no crease): the whole moving object, not only the part that
+  // entered empty space. CV_8U on the sample grid.
+  cv::Mat growMovedSurface(const geometry::DepthClusters& clusters, const FreeSpace& free) const;
   // Squared error of feature i of the current frame against world point p_w
   // under the current pose, in units of its measurement sigma (3 dof with depth).
   struct EvidenceError {

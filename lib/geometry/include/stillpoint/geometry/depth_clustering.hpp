@@ -35,6 +35,9 @@ struct DepthClusters {
   cv::Mat labels;            // CV_16S, (rows/step) x (cols/step); kNoLabel where depth is missing
   std::vector<Vec3> centres; // camera frame, metres
   std::vector<int> sizes;    // samples per cluster
+  // The depth image that was clustered (shared, not copied: the caller hands
+  // over an image it no longer writes).
+  cv::Mat depth;
   int iterations = 0;
   bool warm_started = false;
 

@@ -131,6 +131,36 @@ struct GeometryOptions {
   // stays static: it keeps its map point in the pose and is not carried as
   // moving. 0 = off (every feature of a dynamic cluster is dropped).
   double anchor_release_chi2 = 0.0;
+  // Free space: a sample of the depth image that lies in front of the surface
+  // the anchor frame saw along the same ray (by more than
+  // freespace_tolerance_m + freespace_tolerance_z2 z^2) is in space the
+  // anchor saw empty: something moved there. Per cluster, the share of its
+  // tested samples that do is reported (GeometryOutput::freespace).
+  double freespace_tolerance_m = 0.03;
+  double freespace_tolerance_z2 = 0.02;
+  // A cluster with at least this share of its samples in the anchor's free
+  // space is dynamic, whatever its features say (0 = off). The rooms' walker
+  // shows 0.24-0.63 of its clusters' samples there, static clusters 0 on
+  // clean depth and < 0.015 (90 %) on the real excerpt; 6-run sweeps, recall
+  // rpy 0.918 -> 0.935, halfsphere 0.874 -> 0.926, xyz 0.934 -> 0.971,
+  // precision and ATE within noise (lib/geometry/README.md, session 13).
+  double freespace_flag = 0.2;
+  // Split a dynamic cluster by the moved surface: when fewer than this share
+  // of its features lie on the surface grown from its free-space violations,
+  // the features off it are static (0 = off). The surface grows between grid
+  // neighbours on one plane (offset below plane_m (1 + z^2)) whose normals
+  // differ by less than angle_deg; a feature lies on it when its sample cell
+  // or a 4-neighbour does, or a grown sample within radius_m in 3D.
+  double freespace_split_keep = 0.0;
+  double freespace_grow_plane_m = 0.02;
+  double freespace_grow_angle_deg = 30.0;
+  double freespace_split_radius_m = 0.1;
+  // ...in clusters with at least this many violating samples (isolated ones
+  // are depth noise on real sensors).
+  int freespace_split_min_samples = 4;
+  // A feature off the moved surface whose own evidence scores above this
+  // chi2 stays moving (a part of the mover the growth did not reach).
+  double freespace_split_protect_chi2 = 7.815;
   // The same test on the motion model's matches for the pose too (0 = off;
   // 0.9 lost the poster-walk overlay, ATE 0.146 m: README).
   double projection_ratio = 0.0;

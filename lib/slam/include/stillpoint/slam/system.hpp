@@ -65,6 +65,7 @@ struct JudgedFeature {
   float ratio = 0;
   // chi2's components: u, v and the depth term, each over its sigma.
   Eigen::Vector3f residual = Eigen::Vector3f::Zero();
+  float freespace = -1;  // its cluster's GeometryOutput::freespace
 };
 
 // What the geometry module saw in one frame (for visualisation and scoring).
@@ -76,9 +77,13 @@ struct GeometryOutput {
   int dynamic_features = 0;      // features excluded from pose and mapping
   bool anchor_fallback = false;  // judged by stage-1 matches: the anchor evidence disagreed with most of the view
   bool rejudged = false;         // the second judgement (under the refitted pose) changed the verdict
+  bool freespace_vetoed = false; // free space would have flagged most of the view: the pose is off, nothing added
   double threshold = 0;          // score above which a cluster was dynamic
   double clustering_ms = 0;      // K-Means time (in the module's thread)
   std::vector<geometry::ClusterScore> scores;
+  // Per cluster: share of its depth samples in space the anchor frame saw
+  // empty (-1: fewer than 8 samples could be tested).
+  std::vector<float> freespace;
   std::shared_ptr<const geometry::DepthClusters> labels;
   std::vector<JudgedFeature> judged;
 };
