@@ -853,6 +853,41 @@ TEST(SlamSystemGeometry, FreeSpaceSeesTheMovingBoard) {
   EXPECT_LT(static_max, 0.02f);
 }
 
+// geometry.freespace_split_keep (off by default): a dynamic cluster is split
+// by the surface grown from its free-space violations. The board is one
+// surface, so it stays found; a feature is only ever released from a dynamic
+// cluster, and never when its own evidence disagrees with the pose.
+TEST(SlamSystemGeometry, FreeSpaceSplitKeepsTheBoardAndItsDisagreeingFeatures) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  SlamOptions options = sequentialOptions();
+  options.geometry.freespace_split_keep = 0.8;
+  auto system = makeSystem(data.seq.camera, options);
+  ASSERT_TRUE(system);
+  BoardScore score;
+  int in_dynamic = 0, released = 0;
+  for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
+    const auto out = system->track(data.seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    for (const JudgedFeature& f : out->geometry.judged) {
+      const bool cluster_dynamic = out->geometry.scores[f.cluster].dynamic;
+      EXPECT_FALSE(f.dynamic && !cluster_dynamic) << "frame " << i;
+      if (cluster_dynamic && !f.dynamic) {
+        ++released;
+        EXPECT_LE(f.chi2, options.geometry.freespace_split_protect_chi2) << "frame " << i;
+      }
+      in_dynamic += cluster_dynamic;
+      if (i >= 10) score.add(data.masks[i], f);
+    }
+  }
+  system->finish();
+  std::printf("moving board, free-space split: precision %.3f recall %.3f, %d of %d features of dynamic clusters released\n",
+              score.precision(), score.recall(), released, in_dynamic);
+  EXPECT_GT(in_dynamic, 0);
+  EXPECT_GE(score.recall(), 0.9);
+  EXPECT_GE(score.precision(), 0.9);
+}
+
 // geometry.evidence_ratio and exclude_known_movers: ambiguous projection
 // matches are not judged (every reported non-anchor feature passed the ratio),
 // the board's clusters are kept out of the initial pose while it moves, and it
