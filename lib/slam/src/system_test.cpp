@@ -733,6 +733,7 @@ TEST(SlamSystemGeometry, SecondJudgementKeepsTheBoardFlagged) {
   const Sequence& seq = data.seq;
   SlamOptions options = sequentialOptions();
   options.geometry.rejudge = true;
+  options.geometry.freespace_split_keep = 0;  // every feature follows its cluster (the split has its own test)
   auto system = makeSystem(seq.camera, options);
   ASSERT_TRUE(system);
   BoardScore score;
@@ -769,6 +770,7 @@ TEST(SlamSystemGeometry, AnchorReleaseKeepsStaticAnchorsOfDynamicClusters) {
   const Sequence& seq = data.seq;
   SlamOptions options = sequentialOptions();
   options.geometry.anchor_release_chi2 = 2.0;
+  options.geometry.freespace_split_keep = 0;  // only the anchor release (the split has its own test)
   auto system = makeSystem(seq.camera, options);
   ASSERT_TRUE(system);
   BoardScore score;

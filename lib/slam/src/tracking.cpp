@@ -737,14 +737,15 @@ void Tracker::removeDynamicFeatures() {
       off_moved[i] = !onMoved(i);
       ++(off_moved[i] ? off : on)[c];
     }
-    // A feature whose own evidence disagrees with the pose stays moving
-    // (a mover's surface the growth did not reach).
-    std::vector<char> disagrees(current_.size(), 0);
+    // Only a feature whose own evidence agrees with the pose goes back into
+    // it: one that disagrees is a part of the mover the growth did not reach,
+    // and one without evidence keeps its cluster's verdict.
+    std::vector<char> agrees(current_.size(), 0);
     for (std::size_t k = 0; k < matched.size(); ++k)
-      disagrees[matched[k]] = residuals[k].chi2 > options_.geometry.freespace_split_protect_chi2;
+      agrees[matched[k]] = residuals[k].chi2 <= options_.geometry.freespace_split_protect_chi2;
     for (int i = 0; i < current_.size(); ++i) {
       const int c = current_.cluster[i];
-      if (off_moved[i] && !disagrees[i] && on[c] < split_keep * (on[c] + off[c])) released[i] = 1;
+      if (off_moved[i] && agrees[i] && on[c] < split_keep * (on[c] + off[c])) released[i] = 1;
     }
   };
   // A feature leaves the pose and counts as moving: in a dynamic cluster, not released.
