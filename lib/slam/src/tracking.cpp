@@ -702,11 +702,6 @@ void Tracker::removeDynamicFeatures() {
   // it are static.
   const double split_keep = options_.geometry.freespace_split_keep;
   const cv::Mat moved = split_keep > 0 ? growMovedSurface(*clusters, free) : cv::Mat();
-  std::vector<int> violations(clusters->clusters, 0);
-  if (!moved.empty())
-    for (int r = 0; r < moved.rows; ++r)
-      for (int c = 0; c < moved.cols; ++c)
-        if (free.violated.at<std::uint8_t>(r, c)) ++violations[clusters->labels.at<std::int16_t>(r, c)];
   const auto onMoved = [&](int i) {
     const int step = clusters->step;
     const int c0 = static_cast<int>(current_.keys[i].pt.x) / step, r0 = static_cast<int>(current_.keys[i].pt.y) / step;
@@ -733,7 +728,7 @@ void Tracker::removeDynamicFeatures() {
     std::vector<char> off_moved(current_.size(), 0);
     for (int i = 0; i < current_.size(); ++i) {
       const int c = current_.cluster[i];
-      if (c < 0 || !v.clusters[c].dynamic || violations[c] < options_.geometry.freespace_split_min_samples) continue;
+      if (c < 0 || !v.clusters[c].dynamic || free.violations[c] < options_.geometry.freespace_split_min_samples) continue;
       off_moved[i] = !onMoved(i);
       ++(off_moved[i] ? off : on)[c];
     }
@@ -827,6 +822,7 @@ void Tracker::removeDynamicFeatures() {
 Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& clusters) const {
   FreeSpace out;
   out.share.assign(clusters.clusters, -1.0f);
+  out.violations.assign(clusters.clusters, 0);
   if (clusters.depth.empty() || clusters.labels.empty()) return out;
   out.violated = cv::Mat::zeros(clusters.labels.size(), CV_8U);
   out.points = cv::Mat::zeros(clusters.labels.size(), CV_32FC3);
@@ -837,7 +833,8 @@ Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& c
   const Vec3 t = T_a_c.translation();
   const bool distorted = camera_.hasDistortion();
   const double tol0 = options_.geometry.freespace_tolerance_m, tol2 = options_.geometry.freespace_tolerance_z2;
-  std::vector<int> tested(clusters.clusters, 0), violated(clusters.clusters, 0);
+  std::vector<int> tested(clusters.clusters, 0);
+  std::vector<int>& violated = out.violations;
   const int half = clusters.step / 2;
   for (int r = 0; r < clusters.labels.rows; ++r) {
     const auto* label = clusters.labels.ptr<std::int16_t>(r);

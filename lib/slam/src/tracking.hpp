@@ -128,7 +128,8 @@ class Tracker {
   // space the anchor saw empty, and per cluster the share that do
   // (GeometryOutput::freespace).
   struct FreeSpace {
-    std::vector<float> share;
+    std::vector<float> share;      // per cluster; -1: fewer than 8 samples tested
+    std::vector<int> violations;   // per cluster: samples in free space
     cv::Mat violated;  // CV_8U on the sample grid
     cv::Mat points;    // CV_32FC3 on the sample grid, camera frame (z = 0: no depth)
   };
