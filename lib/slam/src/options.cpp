@@ -62,6 +62,8 @@ Status GeometryOptions::validate() const {
     return Error{"geometry.frame_sigma_min_scale must be in (0, 1]"};
   if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
   if (!(anchor_release_chi2 >= 0)) return Error{"geometry.anchor_release_chi2 must be >= 0"};
+  if (!(evidence_depth_max_m >= 0)) return Error{"geometry.evidence_depth_max_m must be >= 0"};
+  if (freespace_frames < 1 || freespace_frames > 60) return Error{"geometry.freespace_frames must be in [1, 60]"};
   if (!(freespace_flag >= 0 && freespace_flag <= 1)) return Error{"geometry.freespace_flag must be in [0, 1]"};
   if (!(freespace_tolerance_m >= 0)) return Error{"geometry.freespace_tolerance_m must be >= 0"};
   if (!(freespace_tolerance_z2 >= 0)) return Error{"geometry.freespace_tolerance_z2 must be >= 0"};
@@ -175,6 +177,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "warm_start", o.geometry.clustering.warm_start);
   v("geometry", "freespace_tolerance_m", o.geometry.freespace_tolerance_m);
   v("geometry", "freespace_tolerance_z2", o.geometry.freespace_tolerance_z2);
+  v("geometry", "freespace_frames", o.geometry.freespace_frames);
   v("geometry", "freespace_flag", o.geometry.freespace_flag);
   v("geometry", "freespace_split_keep", o.geometry.freespace_split_keep);
   v("geometry", "freespace_grow_plane_m", o.geometry.freespace_grow_plane_m);
@@ -204,6 +207,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "frame_sigma_min_scale", o.geometry.frame_sigma_min_scale);
   v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
   v("geometry", "anchor_release_chi2", o.geometry.anchor_release_chi2);
+  v("geometry", "evidence_depth_max_m", o.geometry.evidence_depth_max_m);
   v("geometry", "projection_ratio", o.geometry.projection_ratio);
   v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
   v("geometry", "probation_frames", o.geometry.probation_frames);

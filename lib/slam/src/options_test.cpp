@@ -135,6 +135,8 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.freespace_split_min_samples", [](SlamOptions& o) { o.geometry.freespace_split_min_samples = 0; }},
       {"geometry.freespace_split_radius_m", [](SlamOptions& o) { o.geometry.freespace_split_radius_m = -1; }},
       {"geometry.freespace_grow_angle_deg", [](SlamOptions& o) { o.geometry.freespace_grow_angle_deg = 95; }},
+      {"geometry.freespace_frames", [](SlamOptions& o) { o.geometry.freespace_frames = 0; }},
+      {"geometry.evidence_depth_max_m", [](SlamOptions& o) { o.geometry.evidence_depth_max_m = -1; }},
   };
   expectGeometryErrorsNameTheirFields(cases);
 }
@@ -180,6 +182,8 @@ SlamOptions everythingChanged() {
   o.mapping.keep_culled_keyframes = true;
   o.geometry.rejudge = true;
   o.geometry.anchor_release_chi2 = 2.5;
+  o.geometry.evidence_depth_max_m = 4.0;
+  o.geometry.freespace_frames = 9;
   o.geometry.freespace_flag = 0.35;
   o.geometry.freespace_tolerance_m = 0.05;
   o.geometry.freespace_tolerance_z2 = 0.01;
@@ -227,6 +231,8 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
   EXPECT_EQ(a.geometry.rejudge, b.geometry.rejudge);
   EXPECT_EQ(a.geometry.anchor_release_chi2, b.geometry.anchor_release_chi2);
+  EXPECT_EQ(a.geometry.evidence_depth_max_m, b.geometry.evidence_depth_max_m);
+  EXPECT_EQ(a.geometry.freespace_frames, b.geometry.freespace_frames);
   EXPECT_EQ(a.geometry.freespace_flag, b.geometry.freespace_flag);
   EXPECT_EQ(a.geometry.freespace_tolerance_m, b.geometry.freespace_tolerance_m);
   EXPECT_EQ(a.geometry.freespace_tolerance_z2, b.geometry.freespace_tolerance_z2);

@@ -137,7 +137,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     rememberAnchor();
   } else {
     anchors_.clear();
-    anchor_depth_.clear();
+    seen_depth_.clear();
   }
   last_ = std::move(current_);
   has_last_ = true;
@@ -826,9 +826,9 @@ Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& c
   if (clusters.depth.empty() || clusters.labels.empty()) return out;
   out.violated = cv::Mat::zeros(clusters.labels.size(), CV_8U);
   out.points = cv::Mat::zeros(clusters.labels.size(), CV_32FC3);
-  if (anchors_.empty() || anchor_depth_.front().empty()) return out;
-  const cv::Mat& seen = anchor_depth_.front();
-  const SE3 T_a_c = anchors_.front().T_c_w * current_.T_c_w.inverse();
+  if (seen_depth_.empty() || seen_depth_.front().depth.empty()) return out;
+  const cv::Mat& seen = seen_depth_.front().depth;
+  const SE3 T_a_c = seen_depth_.front().T_c_w * current_.T_c_w.inverse();
   const Mat3 R = T_a_c.linear();
   const Vec3 t = T_a_c.translation();
   const bool distorted = camera_.hasDistortion();
@@ -948,6 +948,11 @@ Tracker::EvidenceError Tracker::evidenceError(int i, const Vec3& p_w) const {
   e.dof = 2;
   e.level_chi2 = e.pixel2 * e.inv_level_sigma2;
   const double z = current_.depth[i];
+  // Beyond geometry.evidence_depth_max_m the sensor's depth is not evidence:
+  // far depth on real sensors is off by decimetres to a metre between frames
+  // (options.hpp, README).
+  const double far = options_.geometry.evidence_depth_max_m;
+  if (far > 0 && (z >= far || p.z() >= far)) return e;
   if (z > 0 && options_.geometry.depth_sigma_at_1m > 0) {
     const double sigma = options_.geometry.depth_sigma_at_1m * z * z;
     e.depth_chi2 = (p.z() - z) * (p.z() - z) / (sigma * sigma);
@@ -1000,8 +1005,12 @@ void Tracker::holdKnownMoversOutOfPose() {
 }
 
 void Tracker::rememberAnchor() {
+  if (!clustering_) return;
+  const auto seen = static_cast<std::size_t>(options_.geometry.freespace_frames);
+  seen_depth_.push_back({clusters_ ? clusters_->depth : cv::Mat(), current_.T_c_w});
+  while (seen_depth_.size() > seen) seen_depth_.pop_front();
   const auto keep = static_cast<std::size_t>(options_.geometry.anchor_frames);
-  if (!clustering_ || keep == 0) return;
+  if (keep == 0) return;
   Frame a;
   a.id = current_.id;
   a.stamp = current_.stamp;
@@ -1014,8 +1023,7 @@ void Tracker::rememberAnchor() {
   a.dynamic = current_.dynamic;
   a.T_c_w = current_.T_c_w;
   anchors_.push_back(std::move(a));
-  anchor_depth_.push_back(clusters_ ? clusters_->depth : cv::Mat());
-  while (anchors_.size() > keep) anchors_.pop_front(), anchor_depth_.pop_front();
+  while (anchors_.size() > keep) anchors_.pop_front();
 }
 
 SE3 Tracker::predictedPose(const SE3& last) const {

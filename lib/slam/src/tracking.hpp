@@ -122,7 +122,14 @@ class Tracker {
   // depth, final pose; no matches), oldest first: the geometry module's
   // evidence baseline. Cleared when tracking is lost.
   std::deque<Frame> anchors_;
-  std::deque<cv::Mat> anchor_depth_;  // their depth images (empty: none)
+  // The depth images of the last geometry.freespace_frames tracked frames
+  // and their final poses, oldest first (empty image: none): the free-space
+  // baseline, which may reach further back than the anchors.
+  struct SeenDepth {
+    cv::Mat depth;
+    SE3 T_c_w;
+  };
+  std::deque<SeenDepth> seen_depth_;
   void rememberAnchor();
   // The current frame's depth samples against the oldest anchor: which lie in
   // space the anchor saw empty, and per cluster the share that do

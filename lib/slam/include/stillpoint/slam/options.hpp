@@ -131,6 +131,14 @@ struct GeometryOptions {
   // stays static: it keeps its map point in the pose and is not carried as
   // moving. 0 = off (every feature of a dynamic cluster is dropped).
   double anchor_release_chi2 = 0.0;
+  // Evidence of features at or beyond this depth (m) is image-only (0: no
+  // limit). The real excerpt's far background (5 m) disagrees with itself
+  // by about 1 m of depth over the anchor baseline (the depth term at 1.7
+  // sigma), which flagged static clusters; 3.2 m is the tracker's "close"
+  // depth (40 baselines). 6-run sweeps, P/R: poster-walk 0.813/0.870 ->
+  // 0.833/0.868, mix 0.879/0.904 -> 0.887/0.911, xyz 0.926 -> 0.939
+  // precision, rpy 0.660/0.929 -> 0.673/0.920 (lib/geometry/README.md).
+  double evidence_depth_max_m = 3.2;
   // Free space: a sample of the depth image that lies in front of the surface
   // the anchor frame saw along the same ray (by more than
   // freespace_tolerance_m + freespace_tolerance_z2 z^2) is in space the
@@ -138,6 +146,8 @@ struct GeometryOptions {
   // tested samples that do is reported (GeometryOutput::freespace).
   double freespace_tolerance_m = 0.03;
   double freespace_tolerance_z2 = 0.02;
+  // Frames back to the depth image free space is judged against (1..60).
+  int freespace_frames = 5;
   // A cluster with at least this share of its samples in the anchor's free
   // space is dynamic, whatever its features say (0 = off). The rooms' walker
   // shows 0.24-0.63 of its clusters' samples there, static clusters 0 on
