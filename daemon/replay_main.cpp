@@ -40,7 +40,7 @@ constexpr const char* kUsage =
     "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
     "(default: as the config enables them; listed modules are on, the others off).\n"
     "--features-out writes every feature the geometry module judged, one line\n"
-    "'timestamp u v dynamic(0|1) cluster chi2 evidence inherited depth distance ratio ru rv rz', for stillpoint-synth score.\n"
+    "'timestamp u v dynamic(0|1) cluster chi2 evidence inherited depth distance ratio ru rv rz freespace', for stillpoint-synth score.\n"
     "--keyframes-out writes the features of every segmented keyframe after the run, one line\n"
     "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
     "--keyframe-trajectory writes the final poses of the keyframes (culled ones included) in TUM\n"
