@@ -63,7 +63,7 @@ Status GeometryOptions::validate() const {
   if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
   if (!(anchor_release_chi2 >= 0)) return Error{"geometry.anchor_release_chi2 must be >= 0"};
   if (!(evidence_depth_max_m >= 0)) return Error{"geometry.evidence_depth_max_m must be >= 0"};
-  if (freespace_frames < 1 || freespace_frames > 60) return Error{"geometry.freespace_frames must be in [1, 60]"};
+  if (freespace_frames < 1 || freespace_frames > 30) return Error{"geometry.freespace_frames must be in [1, 30]"};
   if (!(freespace_flag >= 0 && freespace_flag <= 1)) return Error{"geometry.freespace_flag must be in [0, 1]"};
   if (!(freespace_tolerance_m >= 0)) return Error{"geometry.freespace_tolerance_m must be >= 0"};
   if (!(freespace_tolerance_z2 >= 0)) return Error{"geometry.freespace_tolerance_z2 must be >= 0"};

@@ -131,8 +131,9 @@ class Tracker {
   };
   std::deque<SeenDepth> seen_depth_;
   void rememberAnchor();
-  // The current frame's depth samples against the oldest anchor: which lie in
-  // space the anchor saw empty, and per cluster the share that do
+  // The current frame's depth samples against the oldest seen depth image
+  // (seen_depth_): which lie in space that frame saw empty, and per cluster
+  // the share that do
   // (GeometryOutput::freespace).
   struct FreeSpace {
     std::vector<float> share;      // per cluster; -1: fewer than 8 samples tested

@@ -146,7 +146,8 @@ struct GeometryOptions {
   // tested samples that do is reported (GeometryOutput::freespace).
   double freespace_tolerance_m = 0.03;
   double freespace_tolerance_z2 = 0.02;
-  // Frames back to the depth image free space is judged against (1..60).
+  // Frames back to the depth image free space is judged against (1..30;
+  // one VGA depth image, 1.2 MB, is kept per frame).
   int freespace_frames = 5;
   // A cluster with at least this share of its samples in the anchor's free
   // space is dynamic, whatever its features say (0 = off). The rooms' walker
