@@ -63,6 +63,7 @@ Status GeometryOptions::validate() const {
   if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
   if (!(anchor_release_chi2 >= 0)) return Error{"geometry.anchor_release_chi2 must be >= 0"};
   if (!(evidence_depth_max_m >= 0)) return Error{"geometry.evidence_depth_max_m must be >= 0"};
+  if (static_match_margin > 256) return Error{"geometry.static_match_margin must be <= 256 (< 0: off)"};
   if (freespace_frames < 1 || freespace_frames > 30) return Error{"geometry.freespace_frames must be in [1, 30]"};
   if (!(freespace_flag >= 0 && freespace_flag <= 1)) return Error{"geometry.freespace_flag must be in [0, 1]"};
   if (!(freespace_tolerance_m >= 0)) return Error{"geometry.freespace_tolerance_m must be >= 0"};
@@ -208,6 +209,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
   v("geometry", "anchor_release_chi2", o.geometry.anchor_release_chi2);
   v("geometry", "evidence_depth_max_m", o.geometry.evidence_depth_max_m);
+  v("geometry", "static_match_margin", o.geometry.static_match_margin);
   v("geometry", "projection_ratio", o.geometry.projection_ratio);
   v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
   v("geometry", "probation_frames", o.geometry.probation_frames);

@@ -137,6 +137,7 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.freespace_grow_angle_deg", [](SlamOptions& o) { o.geometry.freespace_grow_angle_deg = 95; }},
       {"geometry.freespace_frames", [](SlamOptions& o) { o.geometry.freespace_frames = 0; }},
       {"geometry.evidence_depth_max_m", [](SlamOptions& o) { o.geometry.evidence_depth_max_m = -1; }},
+      {"geometry.static_match_margin", [](SlamOptions& o) { o.geometry.static_match_margin = 300; }},
   };
   expectGeometryErrorsNameTheirFields(cases);
 }
@@ -183,6 +184,7 @@ SlamOptions everythingChanged() {
   o.geometry.rejudge = true;
   o.geometry.anchor_release_chi2 = 2.5;
   o.geometry.evidence_depth_max_m = 4.0;
+  o.geometry.static_match_margin = -1;
   o.geometry.freespace_frames = 9;
   o.geometry.freespace_flag = 0.35;
   o.geometry.freespace_tolerance_m = 0.05;
@@ -232,6 +234,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.geometry.rejudge, b.geometry.rejudge);
   EXPECT_EQ(a.geometry.anchor_release_chi2, b.geometry.anchor_release_chi2);
   EXPECT_EQ(a.geometry.evidence_depth_max_m, b.geometry.evidence_depth_max_m);
+  EXPECT_EQ(a.geometry.static_match_margin, b.geometry.static_match_margin);
   EXPECT_EQ(a.geometry.freespace_frames, b.geometry.freespace_frames);
   EXPECT_EQ(a.geometry.freespace_flag, b.geometry.freespace_flag);
   EXPECT_EQ(a.geometry.freespace_tolerance_m, b.geometry.freespace_tolerance_m);

@@ -572,6 +572,7 @@ void Tracker::removeDynamicFeatures() {
   std::vector<Vec3> anchor_point(current_.size());
   std::vector<char> has_anchor(current_.size(), 0);
   std::vector<int> anchor_distance(current_.size(), 0);
+  std::vector<const std::uint8_t*> anchor_descriptor(current_.size(), nullptr);
   // Matched to a feature that lay in a dynamic cluster (anchor or last frame).
   std::vector<char> inherited(current_.size(), 0);
   for (std::size_t i = 0; i < carried_.size(); ++i) inherited[i] = carried_[i] != nullptr && !ambiguous[i];
@@ -584,9 +585,29 @@ void Tracker::removeDynamicFeatures() {
       anchor_point[j] = anchor.unprojectToWorld(i);
       has_anchor[j] = 1;
       anchor_distance[j] = features::hammingDistance(anchor.descriptor(i), current_.descriptor(j));
+      anchor_descriptor[j] = anchor.descriptor(i);
       inherited[j] |= anchor.dynamic[i];
     }
   }
+  // Motion evidence needs the static hypothesis to be worse. Where the
+  // evidence point projects under the pose, a keypoint whose descriptor is
+  // within geometry.static_match_margin bits of the matched one's explains the
+  // feature as static just as well: the match took another copy of a
+  // repeating pattern (floor planks, a stripe), and it is no evidence.
+  const int static_margin = options_.geometry.static_match_margin;
+  const auto staticExplains = [&](int i, const Vec3& p_w, const std::uint8_t* descriptor, int distance) {
+    if (static_margin < 0 || !descriptor) return false;
+    const Vec3 p = current_.T_c_w * p_w;
+    if (p.z() <= camera_.min_depth) return false;
+    const double u = camera_.fx * p.x() / p.z() + camera_.cx, v = camera_.fy * p.y() / p.z() + camera_.cy;
+    const int level = current_.keys[i].octave;
+    const float radius = 3.0f * static_cast<float>(levels_.scales[level]);
+    for (int j : current_.grid.query(current_.keys, current_.un, static_cast<float>(u), static_cast<float>(v), radius,
+                                     std::max(0, level - 1), std::min(levels_.levels - 1, level + 1)))
+      if (j != i && features::hammingDistance(descriptor, current_.descriptor(j)) <= distance + static_margin)
+        return true;
+    return false;
+  };
   std::vector<int> anchored_in_cluster(clusters->clusters, 0);
   for (int i = 0; i < current_.size(); ++i) {
     const cv::Point2f& px = current_.keys[i].pt;
@@ -617,6 +638,12 @@ void Tracker::removeDynamicFeatures() {
       const bool by_anchor = anchored && has_anchor[i];
       if (!by_anchor && ((anchored && anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
       const EvidenceError e = evidenceError(i, by_anchor ? anchor_point[i] : p->position);
+      // Only disagreeing evidence needs the test (chi2 above the cap).
+      if (e.level_chi2 > options_.geometry.verdict.rho_cap) {
+        const std::uint8_t* d = by_anchor ? anchor_descriptor[i] : p->descriptor.data();
+        const int distance = by_anchor ? anchor_distance[i] : features::hammingDistance(d, current_.descriptor(i));
+        if (staticExplains(i, by_anchor ? anchor_point[i] : p->position, d, distance)) continue;
+      }
       errors.push_back(e);
       residual_vectors[i] = e.residual;
       residuals.push_back({c, e.level_chi2, inherited[i] != 0});

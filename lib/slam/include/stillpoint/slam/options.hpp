@@ -139,6 +139,14 @@ struct GeometryOptions {
   // 0.833/0.868, mix 0.879/0.904 -> 0.887/0.911, xyz 0.926 -> 0.939
   // precision, rpy 0.660/0.929 -> 0.673/0.920 (lib/geometry/README.md).
   double evidence_depth_max_m = 3.2;
+  // Disagreeing evidence is dropped when the frame holds, within 3 px (x
+  // level scale) of where the evidence point projects under the pose, a
+  // keypoint whose descriptor is at most this many bits further from it than
+  // the matched keypoint's (a repeating pattern's other copy; < 0: off).
+  // 6-run sweeps, P/R: poster-walk 0.833/0.868 -> 0.859/0.865, mix
+  // 0.887/0.911 -> 0.897/0.905, halfsphere 0.770/0.903 -> 0.779/0.897
+  // (lib/geometry/README.md, session 14).
+  int static_match_margin = 10;
   // Free space: a sample of the depth image that lies in front of the surface
   // the anchor frame saw along the same ray (by more than
   // freespace_tolerance_m + freespace_tolerance_z2 z^2) is in space the
