@@ -40,7 +40,8 @@ constexpr const char* kUsage =
     "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
     "(default: as the config enables them; listed modules are on, the others off).\n"
     "--features-out writes every feature the geometry module judged, one line\n"
-    "'timestamp u v dynamic(0|1) cluster chi2 evidence inherited depth distance ratio ru rv rz freespace', for stillpoint-synth score.\n"
+    "'timestamp u v dynamic(0|1) cluster chi2 evidence inherited depth distance ratio ru rv rz freespace explained',\n"
+    "for stillpoint-synth score.\n"
     "--keyframes-out writes the features of every segmented keyframe after the run, one line\n"
     "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
     "--keyframe-trajectory writes the final poses of the keyframes (culled ones included) in TUM\n"
@@ -195,13 +196,14 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.features_out.c_str());
       return 1;
     }
-    std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance ratio ru rv rz freespace: features judged by\n"
-               "# the geometry module (cluster label, squared reprojection error / sigma^2 against the initial\n"
+    std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance ratio ru rv rz freespace explained: features\n"
+               "# with evidence the geometry module judged (cluster label, squared reprojection error / sigma^2 against the initial\n"
                "# pose, evidence 0 anchor frame | 1 map point | 2 carried or reference keyframe, inherited 1 =\n"
                "# matched to a feature dynamic before, keypoint depth in m, Hamming distance of the evidence match,\n"
                "# its ratio to the second best in the projection search window, 0: none or not searched,\n"
                "# chi2's components: u, v, depth term over sigma, share of its cluster's depth samples in space\n"
-               "# the anchor frame saw empty, -1: not tested)\n",
+               "# the anchor frame saw empty, -1: not tested, explained 1 = evidence disagreed but the static\n"
+               "# hypothesis explains it as well: left out of the verdict, still reported)\n",
                features_out);
   }
 
@@ -270,10 +272,10 @@ int main(int argc, char** argv) {
       rejudged += g.rejudged;
       if (features_out)
         for (const slam::JudgedFeature& f : g.judged)
-          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f %d %d %.3f %d %.3f %.2f %.2f %.2f %.3f\n",
+          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f %d %d %.3f %d %.3f %.2f %.2f %.2f %.3f %d\n",
                        frame->stamp.toSecondsString().c_str(), f.u, f.v, f.dynamic, f.cluster, f.chi2,
                        static_cast<int>(f.evidence), f.inherited ? 1 : 0, f.depth, f.distance, f.ratio,
-                       f.residual.x(), f.residual.y(), f.residual.z(), f.freespace);
+                       f.residual.x(), f.residual.y(), f.residual.z(), f.freespace, f.explained ? 1 : 0);
     }
     switch (out->state) {
       case slam::TrackingState::kOk:

@@ -890,6 +890,37 @@ TEST(SlamSystemGeometry, FreeSpaceSplitKeepsTheBoardAndItsDisagreeingFeatures) {
   EXPECT_GE(score.precision(), 0.9);
 }
 
+// Evidence that geometry.static_match_margin sets aside (another copy of the
+// pattern explains the feature as static) stays out of the verdict, but the
+// feature is still reported with its outcome, so that a score counts it:
+// every matched feature of the frame is scored, not only those the verdict used.
+TEST(SlamSystemGeometry, SetAsideEvidenceIsStillReported) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  SlamOptions options = sequentialOptions();
+  options.geometry.static_match_margin = 40;  // wide, so that the board's texture sets some aside
+  auto system = makeSystem(data.seq.camera, options);
+  ASSERT_TRUE(system);
+  int set_aside = 0, set_aside_dynamic = 0;
+  for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
+    const auto out = system->track(data.seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    for (const JudgedFeature& f : out->geometry.judged) {
+      if (!f.explained) continue;
+      ++set_aside;
+      set_aside_dynamic += f.dynamic;
+      EXPECT_GT(f.chi2, options.geometry.verdict.rho_cap) << "frame " << i;  // only disagreeing evidence
+      ASSERT_GE(f.cluster, 0);
+      // Its outcome is its cluster's: nothing releases it.
+      EXPECT_EQ(f.dynamic, out->geometry.scores[f.cluster].dynamic) << "frame " << i;
+    }
+  }
+  system->finish();
+  std::printf("moving board, static_match_margin 40: %d features set aside, %d of them dynamic\n", set_aside,
+              set_aside_dynamic);
+  EXPECT_GT(set_aside, 0);
+}
+
 // geometry.evidence_ratio and exclude_known_movers: ambiguous projection
 // matches are not judged (every reported non-anchor feature passed the ratio),
 // the board's clusters are kept out of the initial pose while it moves, and it

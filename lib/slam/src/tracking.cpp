@@ -626,7 +626,14 @@ void Tracker::removeDynamicFeatures() {
   std::vector<JudgedFeature::Evidence> kinds;
   std::vector<EvidenceError> errors;
   std::vector<Vec3> residual_vectors(current_.size(), Vec3::Zero());
+  struct Explained {
+    int index;
+    double chi2;
+    JudgedFeature::Evidence kind;
+  };
+  std::vector<Explained> explained;
   const auto judge = [&](bool anchored) {
+    explained.clear();
     residuals.clear();
     matched.clear();
     kinds.clear();
@@ -642,7 +649,14 @@ void Tracker::removeDynamicFeatures() {
       if (e.level_chi2 > options_.geometry.verdict.rho_cap) {
         const std::uint8_t* d = by_anchor ? anchor_descriptor[i] : p->descriptor.data();
         const int distance = by_anchor ? anchor_distance[i] : features::hammingDistance(d, current_.descriptor(i));
-        if (staticExplains(i, by_anchor ? anchor_point[i] : p->position, d, distance)) continue;
+        // Set aside from the verdict, but still a matched feature whose
+        // outcome is reported (and scored).
+        if (staticExplains(i, by_anchor ? anchor_point[i] : p->position, d, distance)) {
+          explained.push_back({i, e.level_chi2, by_anchor ? JudgedFeature::Evidence::kAnchor
+                                                : from_map[i] ? JudgedFeature::Evidence::kMapPoint
+                                                              : JudgedFeature::Evidence::kCarried});
+          continue;
+        }
       }
       errors.push_back(e);
       residual_vectors[i] = e.residual;
@@ -829,6 +843,18 @@ void Tracker::removeDynamicFeatures() {
     const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
     p->dynamic_score.store(score, std::memory_order_relaxed);
     if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
+  }
+  for (const Explained& x : explained) {
+    const int i = x.index;
+    const int distance = x.kind == JudgedFeature::Evidence::kAnchor
+                             ? anchor_distance[i]
+                             : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
+    JudgedFeature f{current_.keys[i].pt.x, current_.keys[i].pt.y, dropped(i, verdict), current_.cluster[i],
+                    static_cast<float>(x.chi2), x.kind, inherited[i] != 0, current_.depth[i], distance,
+                    x.kind == JudgedFeature::Evidence::kAnchor ? 0.0f : match_ratio_[i], Eigen::Vector3f::Zero(),
+                    geometry_.freespace[current_.cluster[i]]};
+    f.explained = true;
+    geometry_.judged.push_back(f);
   }
   for (std::size_t k = 0; k < ambiguous_points.size(); ++k) {
     const int c = current_.cluster[ambiguous_features[k]];

@@ -66,6 +66,10 @@ struct JudgedFeature {
   // chi2's components: u, v and the depth term, each over its sigma.
   Eigen::Vector3f residual = Eigen::Vector3f::Zero();
   float freespace = -1;  // its cluster's GeometryOutput::freespace
+  // Its evidence disagreed, but the static hypothesis explains it as well
+  // (geometry.static_match_margin, geometry.photo_evidence_ncc): left out of
+  // the verdict, reported with its outcome all the same.
+  bool explained = false;
 };
 
 // What the geometry module saw in one frame (for visualisation and scoring).
