@@ -196,14 +196,15 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.features_out.c_str());
       return 1;
     }
-    std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance ratio ru rv rz freespace explained: features\n"
-               "# with evidence the geometry module judged (cluster label, squared reprojection error / sigma^2 against the initial\n"
-               "# pose, evidence 0 anchor frame | 1 map point | 2 carried or reference keyframe, inherited 1 =\n"
-               "# matched to a feature dynamic before, keypoint depth in m, Hamming distance of the evidence match,\n"
-               "# its ratio to the second best in the projection search window, 0: none or not searched,\n"
-               "# chi2's components: u, v, depth term over sigma, share of its cluster's depth samples in space\n"
-               "# the anchor frame saw empty, -1: not tested, explained 1 = evidence disagreed but the static\n"
-               "# hypothesis explains it as well: left out of the verdict, still reported)\n",
+    std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance ratio ru rv rz freespace\n"
+               "# explained: features with evidence the geometry module judged (cluster label, squared\n"
+               "# reprojection error / sigma^2 against the initial pose, evidence 0 anchor frame | 1 map point |\n"
+               "# 2 carried or reference keyframe, inherited 1 = matched to a feature dynamic before, keypoint\n"
+               "# depth in m, Hamming distance of the evidence match, its ratio to the second best in the\n"
+               "# projection search window, 0: none or not searched, chi2's components: u, v, depth term over\n"
+               "# sigma, share of its cluster's depth samples in space the anchor frame saw empty, -1: not\n"
+               "# tested, explained 1 = evidence disagreed but the static hypothesis explains it as well: left\n"
+               "# out of the verdict, still reported)\n",
                features_out);
   }
 
