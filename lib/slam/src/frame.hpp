@@ -62,6 +62,9 @@ struct Frame {
   std::vector<std::int16_t> cluster;  // depth cluster, -1 when unknown
 
   SE3 T_c_w = SE3::Identity();
+  // The grey image, only while the geometry module's photometric test needs
+  // it (geometry.photo_release_ncc > 0); keyframes do not keep it.
+  cv::Mat gray;
 
   int size() const { return static_cast<int>(keys.size()); }
   const std::uint8_t* descriptor(int i) const { return descriptors.ptr<std::uint8_t>(i); }

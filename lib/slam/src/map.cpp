@@ -50,7 +50,9 @@ SE3 PoseAnchor::T_c_w() const {
 }
 
 KeyFrame::KeyFrame(std::int64_t id, const Frame& f)
-    : id(id), frame(f), anchor_(std::make_shared<PoseAnchor>(this)) {}
+    : id(id), frame(f), anchor_(std::make_shared<PoseAnchor>(this)) {
+  frame.gray.release();
+}
 
 void KeyFrame::addObservation(const std::shared_ptr<MapPoint>& point, int index) {
   frame.points[index] = point;

@@ -64,6 +64,10 @@ Status GeometryOptions::validate() const {
   if (!(anchor_release_chi2 >= 0)) return Error{"geometry.anchor_release_chi2 must be >= 0"};
   if (!(evidence_depth_max_m >= 0)) return Error{"geometry.evidence_depth_max_m must be >= 0"};
   if (static_match_margin > 256) return Error{"geometry.static_match_margin must be <= 256 (< 0: off)"};
+  if (!(photo_release_ncc >= 0 && photo_release_ncc <= 1)) return Error{"geometry.photo_release_ncc must be in [0, 1] (0: off)"};
+  if (!(photo_depth_share >= 0 && photo_depth_share <= 1)) return Error{"geometry.photo_depth_share must be in [0, 1]"};
+  if (photo_patch_radius < 1 || photo_patch_radius > 15) return Error{"geometry.photo_patch_radius must be in [1, 15]"};
+  if (photo_frames < 1 || photo_frames > 2) return Error{"geometry.photo_frames must be 1 or 2"};
   if (freespace_frames < 1 || freespace_frames > 30) return Error{"geometry.freespace_frames must be in [1, 30]"};
   if (!(freespace_flag >= 0 && freespace_flag <= 1)) return Error{"geometry.freespace_flag must be in [0, 1]"};
   if (!(freespace_tolerance_m >= 0)) return Error{"geometry.freespace_tolerance_m must be >= 0"};
@@ -210,6 +214,11 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "anchor_release_chi2", o.geometry.anchor_release_chi2);
   v("geometry", "evidence_depth_max_m", o.geometry.evidence_depth_max_m);
   v("geometry", "static_match_margin", o.geometry.static_match_margin);
+  v("geometry", "photo_release_ncc", o.geometry.photo_release_ncc);
+  v("geometry", "photo_depth_share", o.geometry.photo_depth_share);
+  v("geometry", "photo_patch_radius", o.geometry.photo_patch_radius);
+  v("geometry", "photo_frames", o.geometry.photo_frames);
+  v("geometry", "photo_release_memory", o.geometry.photo_release_memory);
   v("geometry", "projection_ratio", o.geometry.projection_ratio);
   v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
   v("geometry", "probation_frames", o.geometry.probation_frames);

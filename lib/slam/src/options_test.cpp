@@ -138,6 +138,10 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.freespace_frames", [](SlamOptions& o) { o.geometry.freespace_frames = 0; }},
       {"geometry.evidence_depth_max_m", [](SlamOptions& o) { o.geometry.evidence_depth_max_m = -1; }},
       {"geometry.static_match_margin", [](SlamOptions& o) { o.geometry.static_match_margin = 300; }},
+      {"geometry.photo_release_ncc", [](SlamOptions& o) { o.geometry.photo_release_ncc = 1.5; }},
+      {"geometry.photo_depth_share", [](SlamOptions& o) { o.geometry.photo_depth_share = -0.1; }},
+      {"geometry.photo_patch_radius", [](SlamOptions& o) { o.geometry.photo_patch_radius = 0; }},
+      {"geometry.photo_frames", [](SlamOptions& o) { o.geometry.photo_frames = 3; }},
   };
   expectGeometryErrorsNameTheirFields(cases);
 }
@@ -185,6 +189,11 @@ SlamOptions everythingChanged() {
   o.geometry.anchor_release_chi2 = 2.5;
   o.geometry.evidence_depth_max_m = 4.0;
   o.geometry.static_match_margin = -1;
+  o.geometry.photo_release_ncc = 0.55;
+  o.geometry.photo_depth_share = 0.75;
+  o.geometry.photo_patch_radius = 6;
+  o.geometry.photo_frames = 1;
+  o.geometry.photo_release_memory = false;
   o.geometry.freespace_frames = 9;
   o.geometry.freespace_flag = 0.35;
   o.geometry.freespace_tolerance_m = 0.05;
@@ -235,6 +244,11 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.geometry.anchor_release_chi2, b.geometry.anchor_release_chi2);
   EXPECT_EQ(a.geometry.evidence_depth_max_m, b.geometry.evidence_depth_max_m);
   EXPECT_EQ(a.geometry.static_match_margin, b.geometry.static_match_margin);
+  EXPECT_EQ(a.geometry.photo_release_ncc, b.geometry.photo_release_ncc);
+  EXPECT_EQ(a.geometry.photo_depth_share, b.geometry.photo_depth_share);
+  EXPECT_EQ(a.geometry.photo_patch_radius, b.geometry.photo_patch_radius);
+  EXPECT_EQ(a.geometry.photo_frames, b.geometry.photo_frames);
+  EXPECT_EQ(a.geometry.photo_release_memory, b.geometry.photo_release_memory);
   EXPECT_EQ(a.geometry.freespace_frames, b.geometry.freespace_frames);
   EXPECT_EQ(a.geometry.freespace_flag, b.geometry.freespace_flag);
   EXPECT_EQ(a.geometry.freespace_tolerance_m, b.geometry.freespace_tolerance_m);

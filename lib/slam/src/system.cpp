@@ -228,6 +228,8 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   const bool clusters_pending = s.clustering && !input.depth_m.empty();
   if (clusters_pending) s.clustering->submit(frame.id, input.depth_m.clone());
   buildFrame(&frame, input.gray, input.depth_m, &s.orb);
+  // The tracker keeps it for geometry.freespace_frames frames.
+  if (clusters_pending && s.options.geometry.photo_release_ncc > 0) frame.gray = input.gray.clone();
   const auto t1 = std::chrono::steady_clock::now();
 
   if (s.seg_running) s.advanceSegmentation(frame.id);

@@ -51,6 +51,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   geometry_ = GeometryOutput{};
   semantic_marked_ = 0;
   carried_.clear();
+  photo_released_.assign(current_.size(), 0);
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
   if (state_ == TrackingState::kInitialising) {
@@ -140,6 +141,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     seen_depth_.clear();
   }
   last_ = std::move(current_);
+  last_photo_released_ = std::move(photo_released_);
   has_last_ = true;
   return new_keyframe;
 }
@@ -462,7 +464,10 @@ void Tracker::refreshLastFrame() {
   std::vector<std::pair<float, int>> by_depth;
   for (int i = 0; i < last_.size(); ++i) {
     if (last_.depth[i] <= 0) continue;
-    if (!last_.dynamic[i]) {
+    // A feature the photometric test freed from a dynamic cluster is carried
+    // too (geometry.photo_release_memory): its cluster keeps its memory.
+    const bool freed = i < static_cast<int>(last_photo_released_.size()) && last_photo_released_[i];
+    if (!last_.dynamic[i] && !freed) {
       by_depth.emplace_back(last_.depth[i], i);
       continue;
     }
@@ -607,6 +612,26 @@ void Tracker::removeDynamicFeatures() {
       if (j != i && features::hammingDistance(descriptor, current_.descriptor(j)) <= distance + static_margin)
         return true;
     return false;
+  };
+  // The photometric test of the static hypothesis, at most once per feature.
+  // Against the oldest seen frame and, when photo_frames is 2, one halfway:
+  // a mover whose texture matches by chance at the static hypothesis in one
+  // frame seldom does in both.
+  std::vector<std::size_t> photo_frames{0};
+  if (options_.geometry.photo_frames > 1 && seen_depth_.size() >= 3) photo_frames.push_back(seen_depth_.size() / 2);
+  std::vector<double> photo_ncc(current_.size(), -2);  // -2: untested; the lowest over the frames
+  const auto photoStatic = [&](int i, double min_ncc) {
+    if (min_ncc <= 0 || current_.depth[i] <= 0) return false;
+    if (photo_ncc[i] < -1.5) {
+      photo_ncc[i] = 1;
+      for (std::size_t f : photo_frames) {
+        PhotoAgreement a;
+        const bool ok = photoAgreement(i, clusters->depth, f, &a) && a.depth_share >= options_.geometry.photo_depth_share;
+        photo_ncc[i] = ok ? std::min(photo_ncc[i], a.ncc) : -1;
+        if (!ok) break;
+      }
+    }
+    return photo_ncc[i] > min_ncc;
   };
   std::vector<int> anchored_in_cluster(clusters->clusters, 0);
   for (int i = 0; i < current_.size(); ++i) {
@@ -764,6 +789,19 @@ void Tracker::removeDynamicFeatures() {
     if (limit > 0)
       for (std::size_t k = 0; k < matched.size(); ++k)
         if (kinds[k] == JudgedFeature::Evidence::kAnchor && residuals[k].chi2 < limit) released[matched[k]] = 1;
+    if (options_.geometry.photo_release_ncc > 0) {
+      // A feature with an anchor match keeps its cluster's verdict: that
+      // evidence is the most reliable there is, and where it agrees with a
+      // stage-1 pose that followed a mover, so do the mover's pixels
+      // (MotionPriorHoldsStageOneOffTheBoard: a 20 mm step otherwise).
+      for (int i = 0; i < current_.size(); ++i) {
+        const int c = current_.cluster[i];
+        const bool freed = c >= 0 && v.clusters[c].dynamic && !released[i] && !has_anchor[i] &&
+                           photoStatic(i, options_.geometry.photo_release_ncc);
+        released[i] |= freed;
+        photo_released_[i] = freed && options_.geometry.photo_release_memory;
+      }
+    }
     if (moved.empty()) return;
     std::vector<int> on(clusters->clusters, 0), off(clusters->clusters, 0);
     std::vector<char> off_moved(current_.size(), 0);
@@ -927,6 +965,53 @@ Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& c
   return out;
 }
 
+bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, PhotoAgreement* out) const {
+  if (frame >= seen_depth_.size()) return false;
+  const SeenDepth& seen = seen_depth_[frame];
+  if (seen.gray.empty() || seen.depth.empty() || current_.gray.empty()) return false;
+  const int r = options_.geometry.photo_patch_radius;
+  const int x0 = static_cast<int>(std::lround(current_.keys[i].pt.x));
+  const int y0 = static_cast<int>(std::lround(current_.keys[i].pt.y));
+  const cv::Mat& gray = current_.gray;
+  if (x0 - r < 0 || y0 - r < 0 || x0 + r >= gray.cols || y0 + r >= gray.rows) return false;
+  const SE3 T_s_c = seen.T_c_w * current_.T_c_w.inverse();
+  const Mat3 R = T_s_c.linear();
+  const Vec3 t = T_s_c.translation();
+  const bool distorted = camera_.hasDistortion();
+  const double tol0 = options_.geometry.freespace_tolerance_m, tol2 = options_.geometry.freespace_tolerance_z2;
+  const int n = (2 * r + 1) * (2 * r + 1);
+  double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+  int agree = 0;
+  for (int y = y0 - r; y <= y0 + r; ++y)
+    for (int x = x0 - r; x <= x0 + r; ++x) {
+      // A pixel without depth takes the keypoint's: the patch is small.
+      float z = depth.empty() ? 0.0f : depth.at<float>(y, x);
+      if (!(z > camera_.min_depth && z < camera_.max_depth)) z = current_.depth[i];
+      Vec2 uv(x, y);
+      if (distorted) uv = camera_.undistortPixel(uv);
+      const Vec3 p = R * camera_.unproject(uv, z) + t;
+      if (p.z() <= camera_.min_depth) return false;
+      Vec2 q = camera_.project(p);
+      if (distorted) q = camera_.distortPixel(q);
+      const double qx = q.x(), qy = q.y();
+      const int ix = static_cast<int>(std::floor(qx)), iy = static_cast<int>(std::floor(qy));
+      if (ix < 0 || iy < 0 || ix + 1 >= seen.gray.cols || iy + 1 >= seen.gray.rows) return false;
+      const double fx = qx - ix, fy = qy - iy;  // bilinear
+      const std::uint8_t* row0 = seen.gray.ptr<std::uint8_t>(iy);
+      const std::uint8_t* row1 = seen.gray.ptr<std::uint8_t>(iy + 1);
+      const double b =
+          (1 - fy) * ((1 - fx) * row0[ix] + fx * row0[ix + 1]) + fy * ((1 - fx) * row1[ix] + fx * row1[ix + 1]);
+      const double a = gray.at<std::uint8_t>(y, x);
+      sa += a, sb += b, saa += a * a, sbb += b * b, sab += a * b;
+      const float zs = seen.depth.at<float>(static_cast<int>(std::lround(qy)), static_cast<int>(std::lround(qx)));
+      if (zs > camera_.min_depth && std::abs(zs - p.z()) < tol0 + tol2 * p.z() * p.z()) ++agree;
+    }
+  const double va = saa - sa * sa / n, vb = sbb - sb * sb / n;
+  out->ncc = va > 1e-6 && vb > 1e-6 ? (sab - sa * sb / n) / std::sqrt(va * vb) : -1;
+  out->depth_share = static_cast<double>(agree) / n;
+  return true;
+}
+
 cv::Mat Tracker::growMovedSurface(const geometry::DepthClusters& clusters, const FreeSpace& free) const {
   if (free.violated.empty()) return cv::Mat();
   const int rows = free.points.rows, cols = free.points.cols;
@@ -1060,7 +1145,7 @@ void Tracker::holdKnownMoversOutOfPose() {
 void Tracker::rememberAnchor() {
   if (!clustering_) return;
   const auto seen = static_cast<std::size_t>(options_.geometry.freespace_frames);
-  seen_depth_.push_back({clusters_ ? clusters_->depth : cv::Mat(), current_.T_c_w});
+  seen_depth_.push_back({clusters_ ? clusters_->depth : cv::Mat(), current_.gray, current_.T_c_w});
   while (seen_depth_.size() > seen) seen_depth_.pop_front();
   const auto keep = static_cast<std::size_t>(options_.geometry.anchor_frames);
   if (keep == 0) return;
@@ -1074,6 +1159,8 @@ void Tracker::rememberAnchor() {
   a.depth = current_.depth;
   a.descriptors = current_.descriptors;  // shared, never written after extraction
   a.dynamic = current_.dynamic;
+  for (std::size_t i = 0; i < photo_released_.size(); ++i)
+    if (photo_released_[i]) a.dynamic[i] = 1;  // memory only: anchors are evidence, never in a pose
   a.T_c_w = current_.T_c_w;
   anchors_.push_back(std::move(a));
   while (anchors_.size() > keep) anchors_.pop_front();

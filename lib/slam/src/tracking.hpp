@@ -122,11 +122,16 @@ class Tracker {
   // depth, final pose; no matches), oldest first: the geometry module's
   // evidence baseline. Cleared when tracking is lost.
   std::deque<Frame> anchors_;
+  // Features of the current / last frame that the photometric test freed from
+  // a dynamic cluster (with geometry.photo_release_memory): static for the
+  // pose and the map, but they pass on their cluster's memory.
+  std::vector<char> photo_released_, last_photo_released_;
   // The depth images of the last geometry.freespace_frames tracked frames
   // and their final poses, oldest first (empty image: none): the free-space
   // baseline, which may reach further back than the anchors.
   struct SeenDepth {
     cv::Mat depth;
+    cv::Mat gray;  // empty unless the photometric test is on
     SE3 T_c_w;
   };
   std::deque<SeenDepth> seen_depth_;
@@ -157,6 +162,15 @@ class Tracker {
     Vec3 residual = Vec3::Zero();  // its components (u, v, depth term) over the level sigma, predicted minus measured
   };
   EvidenceError evidenceError(int i, const Vec3& p_w) const;
+  // The static hypothesis tested on pixels: feature i's patch warped pixel by
+  // pixel with its depth (`depth`: the current frame's depth image) into the
+  // seen frame `frame` (0: the oldest) under the current pose. False when the patch leaves
+  // either image or that frame kept no grey image.
+  struct PhotoAgreement {
+    double ncc = -1;         // zero-mean NCC of the patch and the seen image there (-1: a flat patch)
+    double depth_share = 0;  // share of the patch's pixels whose depth agrees there
+  };
+  bool photoAgreement(int i, const cv::Mat& depth, std::size_t frame, PhotoAgreement* out) const;
 };
 
 }  // namespace stillpoint::slam

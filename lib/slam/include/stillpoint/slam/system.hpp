@@ -67,7 +67,7 @@ struct JudgedFeature {
   Eigen::Vector3f residual = Eigen::Vector3f::Zero();
   float freespace = -1;  // its cluster's GeometryOutput::freespace
   // Its evidence disagreed, but the static hypothesis explains it as well
-  // (geometry.static_match_margin, geometry.photo_evidence_ncc): left out of
+  // (geometry.static_match_margin): left out of
   // the verdict, reported with its outcome all the same.
   bool explained = false;
 };
