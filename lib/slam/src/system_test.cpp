@@ -619,6 +619,10 @@ struct BoardScore {
 struct BoardRun {
   BoardScore score;
   PoseErrors errors;  // online poses against the truth
+  // Reported features of dynamic clusters over all frames, on and off the
+  // board, and of those the ones released (reported static).
+  int dynamic_on_board = 0, dynamic_off_board = 0;
+  int released_on_board = 0, released_off_board = 0;
 };
 
 void runBoard(const MovingBoardSequence& data, const SlamOptions& options, BoardRun* run,
@@ -631,8 +635,14 @@ void runBoard(const MovingBoardSequence& data, const SlamOptions& options, Board
     ASSERT_TRUE(out.ok()) << out.error();
     ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
     online.push_back(out->T_w_c);
-    if (i < first_scored) continue;
-    for (const JudgedFeature& f : out->geometry.judged) run->score.add(data.masks[i], f);
+    for (const JudgedFeature& f : out->geometry.judged) {
+      if (out->geometry.scores[f.cluster].dynamic) {
+        const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
+        ++(on_board ? run->dynamic_on_board : run->dynamic_off_board);
+        if (!f.dynamic) ++(on_board ? run->released_on_board : run->released_off_board);
+      }
+      if (i >= first_scored) run->score.add(data.masks[i], f);
+    }
   }
   system->finish();
   run->errors = compare(online, data.seq.T_w_c);
@@ -930,39 +940,14 @@ TEST(SlamSystemGeometry, SetAsideEvidenceIsStillReported) {
 // leave the board flagged and the pose on the room. (Under a verdict that
 // flags most of the room and without anchor matches, the pose followed the
 // board and the test then confirmed it: lib/geometry/README.md, session 15.)
-struct PhotoRun {
-  BoardScore score;
-  int released_on_board = 0, released_off_board = 0;
-  int dynamic_on_board = 0, dynamic_off_board = 0;  // features of dynamic clusters
-};
-
-void runPhotoBoard(const MovingBoardSequence& data, const SlamOptions& options, PhotoRun* run) {
-  auto system = makeSystem(data.seq.camera, options);
-  ASSERT_TRUE(system);
-  for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
-    const auto out = system->track(data.seq.frames[i]);
-    ASSERT_TRUE(out.ok()) << out.error();
-    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-    for (const JudgedFeature& f : out->geometry.judged) {
-      if (out->geometry.scores[f.cluster].dynamic) {
-        const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
-        ++(on_board ? run->dynamic_on_board : run->dynamic_off_board);
-        if (!f.dynamic) ++(on_board ? run->released_on_board : run->released_off_board);
-      }
-      if (i >= 10) run->score.add(data.masks[i], f);
-    }
-  }
-  system->finish();
-}
-
 TEST(SlamSystemGeometry, PhotometricReleaseKeepsTheBoardFlagged) {
   const MovingBoardSequence data = movingBoardSequence(45);
   SlamOptions options = sequentialOptions();
   options.geometry.photo_release_ncc = 0.6;
   options.geometry.photo_frames = 2;
   options.geometry.photo_release_memory = true;
-  PhotoRun run;
-  ASSERT_NO_FATAL_FAILURE(runPhotoBoard(data, options, &run));
+  BoardRun run;
+  ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run));
   std::printf("moving board, photometric release: precision %.3f recall %.3f, released %d of %d static and %d of %d "
               "board features of dynamic clusters\n",
               run.score.precision(), run.score.recall(), run.released_off_board, run.dynamic_off_board,

@@ -620,8 +620,8 @@ void Tracker::removeDynamicFeatures() {
   std::vector<std::size_t> photo_frames{0};
   if (options_.geometry.photo_frames > 1 && seen_depth_.size() >= 3) photo_frames.push_back(seen_depth_.size() / 2);
   std::vector<double> photo_ncc(current_.size(), -2);  // -2: untested; the lowest over the frames
-  const auto photoStatic = [&](int i, double min_ncc) {
-    if (min_ncc <= 0 || current_.depth[i] <= 0) return false;
+  const auto photoStatic = [&](int i) {
+    if (current_.depth[i] <= 0) return false;
     if (photo_ncc[i] < -1.5) {
       photo_ncc[i] = 1;
       for (std::size_t f : photo_frames) {
@@ -631,7 +631,7 @@ void Tracker::removeDynamicFeatures() {
         if (!ok) break;
       }
     }
-    return photo_ncc[i] > min_ncc;
+    return photo_ncc[i] > options_.geometry.photo_release_ncc;
   };
   std::vector<int> anchored_in_cluster(clusters->clusters, 0);
   for (int i = 0; i < current_.size(); ++i) {
@@ -651,6 +651,11 @@ void Tracker::removeDynamicFeatures() {
   std::vector<JudgedFeature::Evidence> kinds;
   std::vector<EvidenceError> errors;
   std::vector<Vec3> residual_vectors(current_.size(), Vec3::Zero());
+  const auto evidenceKind = [&](int i, bool by_anchor) {
+    return by_anchor     ? JudgedFeature::Evidence::kAnchor
+           : from_map[i] ? JudgedFeature::Evidence::kMapPoint
+                         : JudgedFeature::Evidence::kCarried;
+  };
   struct Explained {
     int index;
     double chi2;
@@ -670,6 +675,7 @@ void Tracker::removeDynamicFeatures() {
       const bool by_anchor = anchored && has_anchor[i];
       if (!by_anchor && ((anchored && anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
       const EvidenceError e = evidenceError(i, by_anchor ? anchor_point[i] : p->position);
+      residual_vectors[i] = e.residual;
       // Only disagreeing evidence needs the test (chi2 above the cap).
       if (e.level_chi2 > options_.geometry.verdict.rho_cap) {
         const std::uint8_t* d = by_anchor ? anchor_descriptor[i] : p->descriptor.data();
@@ -677,19 +683,14 @@ void Tracker::removeDynamicFeatures() {
         // Set aside from the verdict, but still a matched feature whose
         // outcome is reported (and scored).
         if (staticExplains(i, by_anchor ? anchor_point[i] : p->position, d, distance)) {
-          explained.push_back({i, e.level_chi2, by_anchor ? JudgedFeature::Evidence::kAnchor
-                                                : from_map[i] ? JudgedFeature::Evidence::kMapPoint
-                                                              : JudgedFeature::Evidence::kCarried});
+          explained.push_back({i, e.level_chi2, evidenceKind(i, by_anchor)});
           continue;
         }
       }
       errors.push_back(e);
-      residual_vectors[i] = e.residual;
       residuals.push_back({c, e.level_chi2, inherited[i] != 0});
       matched.push_back(i);
-      kinds.push_back(by_anchor     ? JudgedFeature::Evidence::kAnchor
-                      : from_map[i] ? JudgedFeature::Evidence::kMapPoint
-                                    : JudgedFeature::Evidence::kCarried);
+      kinds.push_back(evidenceKind(i, by_anchor));
     }
     geometry::ClusterVerdict v = geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
     const GeometryOptions& g = options_.geometry;
@@ -797,7 +798,7 @@ void Tracker::removeDynamicFeatures() {
       for (int i = 0; i < current_.size(); ++i) {
         const int c = current_.cluster[i];
         const bool freed = c >= 0 && v.clusters[c].dynamic && !released[i] && !has_anchor[i] &&
-                           photoStatic(i, options_.geometry.photo_release_ncc);
+                           photoStatic(i);
         released[i] |= freed;
         photo_released_[i] = freed && options_.geometry.photo_release_memory;
       }
@@ -864,36 +865,31 @@ void Tracker::removeDynamicFeatures() {
   geometry_.threshold = verdict.threshold;
   geometry_.dynamic_clusters = verdict.dynamic_clusters;
 
+  // Every feature whose evidence was measured is reported, with its outcome;
+  // those set aside from the verdict (`explained`) too.
+  const auto report = [&](int i, double chi2, JudgedFeature::Evidence kind, bool set_aside) {
+    const bool by_anchor = kind == JudgedFeature::Evidence::kAnchor;
+    const int distance = by_anchor ? anchor_distance[i]
+                                   : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
+    JudgedFeature f{current_.keys[i].pt.x, current_.keys[i].pt.y, dropped(i, verdict), current_.cluster[i],
+                    static_cast<float>(chi2), kind, inherited[i] != 0, current_.depth[i], distance,
+                    by_anchor ? 0.0f : match_ratio_[i], residual_vectors[i].cast<float>(),
+                    geometry_.freespace[current_.cluster[i]]};
+    f.explained = set_aside;
+    geometry_.judged.push_back(f);
+  };
   const float w = static_cast<float>(options_.geometry.point_dynamic_weight);
   for (std::size_t k = 0; k < matched.size(); ++k) {
     const int i = matched[k];
     const bool dynamic = dropped(i, verdict);
-    const int distance = kinds[k] == JudgedFeature::Evidence::kAnchor
-                             ? anchor_distance[i]
-                             : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
-    geometry_.judged.push_back({current_.keys[i].pt.x, current_.keys[i].pt.y, dynamic, current_.cluster[i],
-                                static_cast<float>(residuals[k].chi2), kinds[k], residuals[k].inherited,
-                                current_.depth[i], distance,
-                                kinds[k] == JudgedFeature::Evidence::kAnchor ? 0.0f : match_ratio_[i],
-                                residual_vectors[i].cast<float>(), geometry_.freespace[current_.cluster[i]]});
+    report(i, residuals[k].chi2, kinds[k], false);
     const auto& p = evidence[i];
     if (!p || p->bad || p->isTemporary()) continue;
     const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
     p->dynamic_score.store(score, std::memory_order_relaxed);
     if (dynamic && dynamic_suspects_.size() < 20000) dynamic_suspects_.push_back(p);
   }
-  for (const Explained& x : explained) {
-    const int i = x.index;
-    const int distance = x.kind == JudgedFeature::Evidence::kAnchor
-                             ? anchor_distance[i]
-                             : features::hammingDistance(evidence[i]->descriptor.data(), current_.descriptor(i));
-    JudgedFeature f{current_.keys[i].pt.x, current_.keys[i].pt.y, dropped(i, verdict), current_.cluster[i],
-                    static_cast<float>(x.chi2), x.kind, inherited[i] != 0, current_.depth[i], distance,
-                    x.kind == JudgedFeature::Evidence::kAnchor ? 0.0f : match_ratio_[i], Eigen::Vector3f::Zero(),
-                    geometry_.freespace[current_.cluster[i]]};
-    f.explained = true;
-    geometry_.judged.push_back(f);
-  }
+  for (const Explained& x : explained) report(x.index, x.chi2, x.kind, true);
   for (std::size_t k = 0; k < ambiguous_points.size(); ++k) {
     const int c = current_.cluster[ambiguous_features[k]];
     const auto& p = ambiguous_points[k];
