@@ -141,7 +141,8 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.photo_release_ncc", [](SlamOptions& o) { o.geometry.photo_release_ncc = 1.5; }},
       {"geometry.photo_depth_share", [](SlamOptions& o) { o.geometry.photo_depth_share = -0.1; }},
       {"geometry.photo_patch_radius", [](SlamOptions& o) { o.geometry.photo_patch_radius = 0; }},
-      {"geometry.photo_frames", [](SlamOptions& o) { o.geometry.photo_frames = 3; }},
+      {"geometry.photo_frames", [](SlamOptions& o) { o.geometry.photo_frames = 4; }},
+      {"geometry.photo_frames_back", [](SlamOptions& o) { o.geometry.photo_frames_back = 0; }},
   };
   expectGeometryErrorsNameTheirFields(cases);
 }
@@ -194,6 +195,9 @@ SlamOptions everythingChanged() {
   o.geometry.photo_patch_radius = 6;
   o.geometry.photo_frames = 1;
   o.geometry.photo_release_memory = false;
+  o.geometry.photo_release_anchored = false;
+  o.geometry.photo_frames_back = 9;
+  o.geometry.photo_fallback = false;
   o.geometry.freespace_frames = 9;
   o.geometry.freespace_flag = 0.35;
   o.geometry.freespace_tolerance_m = 0.05;
@@ -249,6 +253,9 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.geometry.photo_patch_radius, b.geometry.photo_patch_radius);
   EXPECT_EQ(a.geometry.photo_frames, b.geometry.photo_frames);
   EXPECT_EQ(a.geometry.photo_release_memory, b.geometry.photo_release_memory);
+  EXPECT_EQ(a.geometry.photo_release_anchored, b.geometry.photo_release_anchored);
+  EXPECT_EQ(a.geometry.photo_frames_back, b.geometry.photo_frames_back);
+  EXPECT_EQ(a.geometry.photo_fallback, b.geometry.photo_fallback);
   EXPECT_EQ(a.geometry.freespace_frames, b.geometry.freespace_frames);
   EXPECT_EQ(a.geometry.freespace_flag, b.geometry.freespace_flag);
   EXPECT_EQ(a.geometry.freespace_tolerance_m, b.geometry.freespace_tolerance_m);

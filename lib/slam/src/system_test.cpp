@@ -935,17 +935,14 @@ TEST(SlamSystemGeometry, SetAsideEvidenceIsStillReported) {
   EXPECT_GT(set_aside, 0);
 }
 
-// geometry.photo_release_ncc (off by default): the static hypothesis tested
-// on pixels frees features of dynamic clusters. On the board scene it must
-// leave the board flagged and the pose on the room. (Under a verdict that
-// flags most of the room and without anchor matches, the pose followed the
-// board and the test then confirmed it: lib/geometry/README.md, session 15.)
+// geometry.photo_release_ncc (on by default): the static hypothesis tested on
+// pixels frees features of dynamic clusters. On the board scene, whose
+// texture of colour blocks is all alike edges, it must leave the board
+// flagged and the pose on the room.
 TEST(SlamSystemGeometry, PhotometricReleaseKeepsTheBoardFlagged) {
   const MovingBoardSequence data = movingBoardSequence(45);
   SlamOptions options = sequentialOptions();
-  options.geometry.photo_release_ncc = 0.6;
-  options.geometry.photo_frames = 2;
-  options.geometry.photo_release_memory = true;
+  ASSERT_GT(options.geometry.photo_release_ncc, 0);
   BoardRun run;
   ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run));
   std::printf("moving board, photometric release: precision %.3f recall %.3f, released %d of %d static and %d of %d "
@@ -955,6 +952,103 @@ TEST(SlamSystemGeometry, PhotometricReleaseKeepsTheBoardFlagged) {
   EXPECT_GE(run.score.recall(), 0.9);
   EXPECT_GE(run.score.precision(), 0.9);
   EXPECT_LT(run.released_on_board, 0.05 * run.dynamic_on_board);
+}
+
+// The photometric test is judged under the pose fitted without the dynamic
+// clusters. Judged under the initial pose it confirmed a mover stage 1 had
+// followed: with 3 levels (stage 1 half follows the board's first steps,
+// MotionPriorHoldsStageOneOffTheBoard) and anchored features free to go, it
+// freed board features and the pose stepped 20 mm.
+TEST(SlamSystemGeometry, PhotometricReleaseDoesNotConfirmAPoseThatFollowedTheBoard) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  SlamOptions options = sequentialOptions();
+  options.orb.num_levels = 3;
+  options.geometry.frame_sigma_factor = 0.0;
+  options.tracking.motion_prior_sigma_m = 0.002;
+  options.tracking.motion_prior_sigma_deg = 1.0;
+  options.geometry.photo_release_ncc = 0.6;
+  options.geometry.photo_release_anchored = true;
+  options.geometry.photo_frames_back = 5;  // the frames it was seen failing with
+  options.geometry.photo_frames = 2;
+  options.geometry.photo_fallback = false;
+  BoardRun run;
+  ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run));
+  std::printf("moving board, 3 levels, photometric release of anchored features too: precision %.3f recall %.3f, "
+              "released %d of %d static and %d of %d board features of dynamic clusters, online max %.2f mm\n",
+              run.score.precision(), run.score.recall(), run.released_off_board, run.dynamic_off_board,
+              run.released_on_board, run.dynamic_on_board, run.errors.max_translation * 1e3);
+  EXPECT_GE(run.score.recall(), 0.9);
+  EXPECT_GE(run.score.precision(), 0.9);
+  EXPECT_LT(run.released_on_board, 0.05 * run.dynamic_on_board);
+  EXPECT_LT(run.errors.max_translation, 0.01);
+}
+
+// A board sliding just in front of the back wall shares its clusters with the
+// wall: the wall's features there are dropped with them. The photometric test
+// frees most of those (their pixels match at the static hypothesis) and
+// almost none of the board's; the few it frees (about 2 %: where the board's
+// texture matched by chance in both frames) may cost that much recall.
+TEST(SlamSystemGeometry, PhotometricReleaseFreesTheWallBehindABoard) {
+  RoomScene scene(5);
+  scene.addMovingBoard(Vec3(-0.9, -0.6, 2.9), 0.8, 0.8, 77);
+  MovingBoardSequence data;
+  data.seq.camera = RoomScene::camera();
+  for (int k = 0; k < 45; ++k) {
+    const double s = static_cast<double>(k) / 30.0;
+    const SE3 T_w_c = pose(Vec3(0.02 * std::sin(2 * s), 0.05 * std::sin(1.5 * s), 0), Vec3(0.15 * s, 0.02 * s, 0.05 * s));
+    cv::Mat mask;
+    data.seq.T_w_c.push_back(T_w_c);
+    data.seq.frames.push_back(
+        scene.render(data.seq.camera, T_w_c, frameStamp(k), Vec3(k < 10 ? 0.0 : 0.015 * (k - 10), 0, 0), &mask));
+    data.masks.push_back(mask);
+  }
+  BoardRun run[2];
+  for (int photo = 0; photo < 2; ++photo) {
+    SlamOptions options = sequentialOptions();
+    options.geometry.photo_release_ncc = photo ? 0.6 : 0.0;
+    options.geometry.photo_release_anchored = true;
+    ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run[photo]));
+    std::printf("board at the wall, photometric release %s: precision %.3f recall %.3f, released %d of %d static and "
+                "%d of %d board features of dynamic clusters, online rms %.2f mm\n",
+                photo ? "on" : "off", run[photo].score.precision(), run[photo].score.recall(),
+                run[photo].released_off_board, run[photo].dynamic_off_board, run[photo].released_on_board,
+                run[photo].dynamic_on_board, run[photo].errors.rms_translation * 1e3);
+  }
+  EXPECT_GE(run[1].score.recall(), run[0].score.recall() - 0.03);
+  EXPECT_GT(run[1].score.precision(), run[0].score.precision());
+  EXPECT_LT(run[1].errors.rms_translation, run[0].errors.rms_translation);
+  EXPECT_GT(run[1].released_off_board, run[0].released_off_board + run[1].dynamic_off_board / 3);
+  EXPECT_LT(run[1].released_on_board, 0.05 * run[1].dynamic_on_board);
+}
+
+// The same loop from the other side: a verdict that flags most of the room
+// (floor 0.5, factor 1) and no anchor matches. Judged under the initial pose,
+// the test freed the board, the pose followed it and recall fell to 0.03.
+// Under the pose fitted without the dynamic clusters, and only while that
+// pose rests on most of the view (geometry.max_dynamic_fraction), it frees
+// the room, far more of it than of the board, and the pose is better for it
+// (measured: max error 339 -> 211 mm, recall 0.74 -> 0.81; without the
+// fraction check the pose once followed the board again, 862 mm).
+TEST(SlamSystemGeometry, PhotometricReleaseHoldsUnderAVerdictThatFlagsTheRoom) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  BoardRun run[2];
+  for (int photo = 0; photo < 2; ++photo) {
+    SlamOptions options = sequentialOptions();
+    options.geometry.verdict.absolute_floor = 0.5;
+    options.geometry.verdict.relative_factor = 1.0;
+    options.geometry.anchor_frames = 0;
+    options.geometry.photo_release_ncc = photo ? 0.6 : 0.0;
+    ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run[photo]));
+    std::printf("moving board, eager verdict, no anchors, photometric release %s: precision %.3f recall %.3f, "
+                "released %d of %d static and %d of %d board features of dynamic clusters, online max %.2f mm\n",
+                photo ? "on" : "off", run[photo].score.precision(), run[photo].score.recall(),
+                run[photo].released_off_board, run[photo].dynamic_off_board, run[photo].released_on_board,
+                run[photo].dynamic_on_board, run[photo].errors.max_translation * 1e3);
+  }
+  EXPECT_GT(run[1].score.recall(), run[0].score.recall());
+  EXPECT_GT(run[1].score.precision(), run[0].score.precision());
+  EXPECT_LT(run[1].released_on_board, 0.1 * run[1].released_off_board);
+  EXPECT_LT(run[1].errors.max_translation, run[0].errors.max_translation);
 }
 
 // geometry.evidence_ratio and exclude_known_movers: ambiguous projection

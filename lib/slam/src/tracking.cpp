@@ -614,22 +614,39 @@ void Tracker::removeDynamicFeatures() {
     return false;
   };
   // The photometric test of the static hypothesis, at most once per feature.
-  // Against the oldest seen frame and, when photo_frames is 2, one halfway:
-  // a mover whose texture matches by chance at the static hypothesis in one
-  // frame seldom does in both.
-  std::vector<std::size_t> photo_frames{0};
-  if (options_.geometry.photo_frames > 1 && seen_depth_.size() >= 3) photo_frames.push_back(seen_depth_.size() / 2);
+  // Against the frame photo_frames_back back and, when photo_frames is 2, one
+  // halfway: a mover whose texture matches by chance at the static hypothesis
+  // in one frame seldom does in all. A patch that cannot be tested that far
+  // back (it leaves the image there, or the history is shorter) is tested at
+  // half the distance instead (geometry.photo_fallback).
+  const std::size_t seen = seen_depth_.size();
+  // Too short a history: out of range, the patch cannot be tested there.
+  const auto frameBack = [&](int k) { return seen >= static_cast<std::size_t>(k) ? seen - k : seen; };
   std::vector<double> photo_ncc(current_.size(), -2);  // -2: untested; the lowest over the frames
   const auto photoStatic = [&](int i) {
     if (current_.depth[i] <= 0) return false;
-    if (photo_ncc[i] < -1.5) {
-      photo_ncc[i] = 1;
-      for (std::size_t f : photo_frames) {
+    if (photo_ncc[i] > -1.5) return photo_ncc[i] > options_.geometry.photo_release_ncc;
+    photo_ncc[i] = -1;
+    // One fallback at most: at shorter baselines a slow mover matches.
+    const int farthest = options_.geometry.photo_frames_back;
+    for (int far = farthest; far >= std::max(2, farthest / 2); far /= 2) {
+      std::vector<int> backs{far};
+      for (int k = far; static_cast<int>(backs.size()) < options_.geometry.photo_frames && k > 2;)
+        backs.push_back(k = (k + 1) / 2);
+      double ncc = 1;
+      bool testable = true;
+      for (int k : backs) {
         PhotoAgreement a;
-        const bool ok = photoAgreement(i, clusters->depth, f, &a) && a.depth_share >= options_.geometry.photo_depth_share;
-        photo_ncc[i] = ok ? std::min(photo_ncc[i], a.ncc) : -1;
-        if (!ok) break;
+        testable = photoAgreement(i, clusters->depth, frameBack(k), &a);
+        if (!testable) break;
+        ncc = a.depth_share >= options_.geometry.photo_depth_share ? std::min(ncc, a.ncc) : -1;
+        if (ncc < -0.5) break;
       }
+      if (testable) {
+        photo_ncc[i] = ncc;
+        break;
+      }
+      if (!options_.geometry.photo_fallback) break;
     }
     return photo_ncc[i] > options_.geometry.photo_release_ncc;
   };
@@ -790,19 +807,6 @@ void Tracker::removeDynamicFeatures() {
     if (limit > 0)
       for (std::size_t k = 0; k < matched.size(); ++k)
         if (kinds[k] == JudgedFeature::Evidence::kAnchor && residuals[k].chi2 < limit) released[matched[k]] = 1;
-    if (options_.geometry.photo_release_ncc > 0) {
-      // A feature with an anchor match keeps its cluster's verdict: that
-      // evidence is the most reliable there is, and where it agrees with a
-      // stage-1 pose that followed a mover, so do the mover's pixels
-      // (MotionPriorHoldsStageOneOffTheBoard: a 20 mm step otherwise).
-      for (int i = 0; i < current_.size(); ++i) {
-        const int c = current_.cluster[i];
-        const bool freed = c >= 0 && v.clusters[c].dynamic && !released[i] && !has_anchor[i] &&
-                           photoStatic(i);
-        released[i] |= freed;
-        photo_released_[i] = freed && options_.geometry.photo_release_memory;
-      }
-    }
     if (moved.empty()) return;
     std::vector<int> on(clusters->clusters, 0), off(clusters->clusters, 0);
     std::vector<char> off_moved(current_.size(), 0);
@@ -828,6 +832,9 @@ void Tracker::removeDynamicFeatures() {
     return current_.cluster[i] >= 0 && v.clusters[current_.cluster[i]].dynamic && !released[i];
   };
   // Drops the features of dynamic clusters from the pose and refits it.
+  const std::vector<std::shared_ptr<MapPoint>> points = current_.points;
+  const std::vector<char> outlier = current_.outlier;
+  bool refitted = false;  // the pose is fitted without the dropped features
   const auto remove = [&](const geometry::ClusterVerdict& v) {
     release(v);
     int removed = 0;
@@ -837,13 +844,12 @@ void Tracker::removeDynamicFeatures() {
       current_.outlier[i] = 0;
       ++removed;
     }
-    if (removed > 0 && countMapInliers() >= 10) timedOptimizePose();
+    refitted = removed > 0 && countMapInliers() >= 10;
+    if (refitted) timedOptimizePose();
   };
   if (verdict.dynamic_clusters > 0 && options_.geometry.rejudge) {
     // The stage-1 pose still holds the movers' pull: judge again under the
     // pose refitted without them, from the same matches.
-    const std::vector<std::shared_ptr<MapPoint>> points = current_.points;
-    const std::vector<char> outlier = current_.outlier;
     remove(verdict);
     geometry::ClusterVerdict second = judge(anchored);
     addFreeSpace(second);
@@ -859,6 +865,31 @@ void Tracker::removeDynamicFeatures() {
     geometry_.rejudged = !same;
   } else {
     remove(verdict);
+  }
+  // The photometric test of the static hypothesis, under the pose fitted
+  // without the dynamic clusters: judged under the initial pose, it confirms
+  // a mover that stage 1 followed (MotionPriorHoldsStageOneOffTheBoard: a
+  // 20 mm step); fitted without the mover, the pose no longer explains it.
+  // A freed feature goes back into the pose with its stage-1 match.
+  // The pose it is judged under must rest on most of the view: when the
+  // dropped features are more than geometry.max_dynamic_fraction of the
+  // clustered ones, it may rest on a mover, and the test would confirm it.
+  int clustered = 0, dropped_count = 0;
+  for (int i = 0; i < current_.size(); ++i)
+    if (current_.cluster[i] >= 0) ++clustered, dropped_count += dropped(i, verdict);
+  if (options_.geometry.photo_release_ncc > 0 && refitted &&
+      dropped_count <= options_.geometry.max_dynamic_fraction * clustered) {
+    int freed = 0;
+    for (int i = 0; i < current_.size(); ++i) {
+      if (!dropped(i, verdict) || (has_anchor[i] && !options_.geometry.photo_release_anchored) || !photoStatic(i))
+        continue;
+      released[i] = 1;
+      photo_released_[i] = options_.geometry.photo_release_memory;
+      current_.points[i] = points[i];
+      current_.outlier[i] = 0;
+      freed += points[i] != nullptr;
+    }
+    if (freed > 0 && countMapInliers() >= 10) timedOptimizePose();
   }
   geometry_.ran = true;
   geometry_.scores = verdict.clusters;
@@ -913,9 +944,12 @@ Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& c
   if (clusters.depth.empty() || clusters.labels.empty()) return out;
   out.violated = cv::Mat::zeros(clusters.labels.size(), CV_8U);
   out.points = cv::Mat::zeros(clusters.labels.size(), CV_32FC3);
-  if (seen_depth_.empty() || seen_depth_.front().depth.empty()) return out;
-  const cv::Mat& seen = seen_depth_.front().depth;
-  const SE3 T_a_c = seen_depth_.front().T_c_w * current_.T_c_w.inverse();
+  const auto back = static_cast<std::size_t>(options_.geometry.freespace_frames);
+  if (seen_depth_.empty()) return out;
+  const SeenDepth& anchor = seen_depth_[seen_depth_.size() >= back ? seen_depth_.size() - back : 0];
+  if (anchor.depth.empty()) return out;
+  const cv::Mat& seen = anchor.depth;
+  const SE3 T_a_c = anchor.T_c_w * current_.T_c_w.inverse();
   const Mat3 R = T_a_c.linear();
   const Vec3 t = T_a_c.translation();
   const bool distorted = camera_.hasDistortion();
@@ -976,6 +1010,15 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
   const bool distorted = camera_.hasDistortion();
   const double tol0 = options_.geometry.freespace_tolerance_m, tol2 = options_.geometry.freespace_tolerance_z2;
   const int n = (2 * r + 1) * (2 * r + 1);
+  const auto sample = [&](double qx, double qy, double* b) {
+    const int ix = static_cast<int>(std::floor(qx)), iy = static_cast<int>(std::floor(qy));
+    if (ix < 0 || iy < 0 || ix + 1 >= seen.gray.cols || iy + 1 >= seen.gray.rows) return false;
+    const double fx = qx - ix, fy = qy - iy;  // bilinear
+    const std::uint8_t* row0 = seen.gray.ptr<std::uint8_t>(iy);
+    const std::uint8_t* row1 = seen.gray.ptr<std::uint8_t>(iy + 1);
+    *b = (1 - fy) * ((1 - fx) * row0[ix] + fx * row0[ix + 1]) + fy * ((1 - fx) * row1[ix] + fx * row1[ix + 1]);
+    return true;
+  };
   double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
   int agree = 0;
   for (int y = y0 - r; y <= y0 + r; ++y)
@@ -989,17 +1032,11 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
       if (p.z() <= camera_.min_depth) return false;
       Vec2 q = camera_.project(p);
       if (distorted) q = camera_.distortPixel(q);
-      const double qx = q.x(), qy = q.y();
-      const int ix = static_cast<int>(std::floor(qx)), iy = static_cast<int>(std::floor(qy));
-      if (ix < 0 || iy < 0 || ix + 1 >= seen.gray.cols || iy + 1 >= seen.gray.rows) return false;
-      const double fx = qx - ix, fy = qy - iy;  // bilinear
-      const std::uint8_t* row0 = seen.gray.ptr<std::uint8_t>(iy);
-      const std::uint8_t* row1 = seen.gray.ptr<std::uint8_t>(iy + 1);
-      const double b =
-          (1 - fy) * ((1 - fx) * row0[ix] + fx * row0[ix + 1]) + fy * ((1 - fx) * row1[ix] + fx * row1[ix + 1]);
+      double b = 0;
+      if (!sample(q.x(), q.y(), &b)) return false;
       const double a = gray.at<std::uint8_t>(y, x);
       sa += a, sb += b, saa += a * a, sbb += b * b, sab += a * b;
-      const float zs = seen.depth.at<float>(static_cast<int>(std::lround(qy)), static_cast<int>(std::lround(qx)));
+      const float zs = seen.depth.at<float>(static_cast<int>(std::lround(q.y())), static_cast<int>(std::lround(q.x())));
       if (zs > camera_.min_depth && std::abs(zs - p.z()) < tol0 + tol2 * p.z() * p.z()) ++agree;
     }
   const double va = saa - sa * sa / n, vb = sbb - sb * sb / n;
@@ -1140,7 +1177,8 @@ void Tracker::holdKnownMoversOutOfPose() {
 
 void Tracker::rememberAnchor() {
   if (!clustering_) return;
-  const auto seen = static_cast<std::size_t>(options_.geometry.freespace_frames);
+  const GeometryOptions& g = options_.geometry;
+  const auto seen = static_cast<std::size_t>(std::max(g.freespace_frames, g.photo_release_ncc > 0 ? g.photo_frames_back : 0));
   seen_depth_.push_back({clusters_ ? clusters_->depth : cv::Mat(), current_.gray, current_.T_c_w});
   while (seen_depth_.size() > seen) seen_depth_.pop_front();
   const auto keep = static_cast<std::size_t>(options_.geometry.anchor_frames);
