@@ -983,7 +983,7 @@ TEST(SlamSystemGeometry, PhotometricReleaseDoesNotConfirmAPoseThatFollowedTheBoa
   EXPECT_LT(run.errors.max_translation, 0.01);
 }
 
-// A board sliding just in front of the back wall shares its clusters with the
+// A board sliding 10 cm in front of the back wall shares its clusters with the
 // wall: the wall's features there are dropped with them. The photometric test
 // frees most of those (their pixels match at the static hypothesis) and
 // almost none of the board's; the few it frees (about 2 %: where the board's
