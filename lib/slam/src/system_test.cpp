@@ -648,6 +648,16 @@ void runBoard(const MovingBoardSequence& data, const SlamOptions& options, Board
   run->errors = compare(online, data.seq.T_w_c);
 }
 
+// One line per run for the logs: its score, the releases from dynamic
+// clusters on and off the board, and the online pose error.
+void printRun(const std::string& label, const BoardRun& run) {
+  std::printf("%s: precision %.3f recall %.3f, released %d of %d static and %d of %d board features of dynamic "
+              "clusters, online rms %.2f mm, max %.2f mm\n",
+              label.c_str(), run.score.precision(), run.score.recall(), run.released_off_board, run.dynamic_off_board,
+              run.released_on_board, run.dynamic_on_board, run.errors.rms_translation * 1e3,
+              run.errors.max_translation * 1e3);
+}
+
 TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
   const MovingBoardSequence data = movingBoardSequence(45);
   const Sequence& seq = data.seq;
@@ -945,10 +955,7 @@ TEST(SlamSystemGeometry, PhotometricReleaseKeepsTheBoardFlagged) {
   ASSERT_GT(options.geometry.photo_release_ncc, 0);
   BoardRun run;
   ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run));
-  std::printf("moving board, photometric release: precision %.3f recall %.3f, released %d of %d static and %d of %d "
-              "board features of dynamic clusters\n",
-              run.score.precision(), run.score.recall(), run.released_off_board, run.dynamic_off_board,
-              run.released_on_board, run.dynamic_on_board);
+  printRun("moving board, photometric release", run);
   EXPECT_GE(run.score.recall(), 0.9);
   EXPECT_GE(run.score.precision(), 0.9);
   EXPECT_LT(run.released_on_board, 0.05 * run.dynamic_on_board);
@@ -973,10 +980,7 @@ TEST(SlamSystemGeometry, PhotometricReleaseDoesNotConfirmAPoseThatFollowedTheBoa
   options.geometry.photo_fallback = false;
   BoardRun run;
   ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run));
-  std::printf("moving board, 3 levels, photometric release of anchored features too: precision %.3f recall %.3f, "
-              "released %d of %d static and %d of %d board features of dynamic clusters, online max %.2f mm\n",
-              run.score.precision(), run.score.recall(), run.released_off_board, run.dynamic_off_board,
-              run.released_on_board, run.dynamic_on_board, run.errors.max_translation * 1e3);
+  printRun("moving board, 3 levels, photometric release of anchored features too", run);
   EXPECT_GE(run.score.recall(), 0.9);
   EXPECT_GE(run.score.precision(), 0.9);
   EXPECT_LT(run.released_on_board, 0.05 * run.dynamic_on_board);
@@ -1008,11 +1012,7 @@ TEST(SlamSystemGeometry, PhotometricReleaseFreesTheWallBehindABoard) {
     options.geometry.photo_release_ncc = photo ? 0.6 : 0.0;
     options.geometry.photo_release_anchored = true;
     ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run[photo]));
-    std::printf("board at the wall, photometric release %s: precision %.3f recall %.3f, released %d of %d static and "
-                "%d of %d board features of dynamic clusters, online rms %.2f mm\n",
-                photo ? "on" : "off", run[photo].score.precision(), run[photo].score.recall(),
-                run[photo].released_off_board, run[photo].dynamic_off_board, run[photo].released_on_board,
-                run[photo].dynamic_on_board, run[photo].errors.rms_translation * 1e3);
+    printRun(std::string("board at the wall, photometric release ") + (photo ? "on" : "off"), run[photo]);
   }
   EXPECT_GE(run[1].score.recall(), run[0].score.recall() - 0.03);
   EXPECT_GT(run[1].score.precision(), run[0].score.precision());
@@ -1039,11 +1039,8 @@ TEST(SlamSystemGeometry, PhotometricReleaseHoldsUnderAVerdictThatFlagsTheRoom) {
     options.geometry.anchor_frames = 0;
     options.geometry.photo_release_ncc = photo ? 0.6 : 0.0;
     ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run[photo]));
-    std::printf("moving board, eager verdict, no anchors, photometric release %s: precision %.3f recall %.3f, "
-                "released %d of %d static and %d of %d board features of dynamic clusters, online max %.2f mm\n",
-                photo ? "on" : "off", run[photo].score.precision(), run[photo].score.recall(),
-                run[photo].released_off_board, run[photo].dynamic_off_board, run[photo].released_on_board,
-                run[photo].dynamic_on_board, run[photo].errors.max_translation * 1e3);
+    printRun(std::string("moving board, eager verdict, no anchors, photometric release ") + (photo ? "on" : "off"),
+             run[photo]);
   }
   EXPECT_GT(run[1].score.recall(), run[0].score.recall());
   EXPECT_GT(run[1].score.precision(), run[0].score.precision());

@@ -613,42 +613,39 @@ void Tracker::removeDynamicFeatures() {
         return true;
     return false;
   };
-  // The photometric test of the static hypothesis, at most once per feature.
-  // Against the frame photo_frames_back back and, when photo_frames is 2, one
-  // halfway: a mover whose texture matches by chance at the static hypothesis
-  // in one frame seldom does in all. A patch that cannot be tested that far
-  // back (it leaves the image there, or the history is shorter) is tested at
-  // half the distance instead (geometry.photo_fallback).
+  // The photometric test of the static hypothesis: against the frame
+  // photo_frames_back back and, with photo_frames 2 or 3, half as far each
+  // time (10, 5, 3), all of which must pass: a mover whose texture matches by
+  // chance at the static hypothesis in one frame seldom does in all. A patch
+  // that cannot be tested that far back (it leaves the image there, or the
+  // history is shorter) is tested at half the distance instead, once
+  // (geometry.photo_fallback): at shorter baselines a slow mover matches.
   const std::size_t seen = seen_depth_.size();
-  // Too short a history: out of range, the patch cannot be tested there.
-  const auto frameBack = [&](int k) { return seen >= static_cast<std::size_t>(k) ? seen - k : seen; };
-  std::vector<double> photo_ncc(current_.size(), -2);  // -2: untested; the lowest over the frames
+  std::vector<std::vector<std::size_t>> photo_tries;  // frame indices per try, nearest baseline last
+  for (int far = options_.geometry.photo_frames_back, tries = options_.geometry.photo_fallback ? 2 : 1;
+       tries > 0 && far >= 2; far /= 2, --tries) {
+    std::vector<std::size_t>& frames = photo_tries.emplace_back();
+    // Too short a history: out of range, the patch cannot be tested there.
+    for (int k = far; static_cast<int>(frames.size()) < options_.geometry.photo_frames; k = (k + 1) / 2) {
+      frames.push_back(seen >= static_cast<std::size_t>(k) ? seen - k : seen);
+      if (k <= 2) break;
+    }
+  }
   const auto photoStatic = [&](int i) {
     if (current_.depth[i] <= 0) return false;
-    if (photo_ncc[i] > -1.5) return photo_ncc[i] > options_.geometry.photo_release_ncc;
-    photo_ncc[i] = -1;
-    // One fallback at most: at shorter baselines a slow mover matches.
-    const int farthest = options_.geometry.photo_frames_back;
-    for (int far = farthest; far >= std::max(2, farthest / 2); far /= 2) {
-      std::vector<int> backs{far};
-      for (int k = far; static_cast<int>(backs.size()) < options_.geometry.photo_frames && k > 2;)
-        backs.push_back(k = (k + 1) / 2);
+    for (const std::vector<std::size_t>& frames : photo_tries) {
       double ncc = 1;
       bool testable = true;
-      for (int k : backs) {
+      for (std::size_t f : frames) {
         PhotoAgreement a;
-        testable = photoAgreement(i, clusters->depth, frameBack(k), &a);
+        testable = photoAgreement(i, clusters->depth, f, &a);
         if (!testable) break;
         ncc = a.depth_share >= options_.geometry.photo_depth_share ? std::min(ncc, a.ncc) : -1;
-        if (ncc < -0.5) break;
+        if (ncc < -0.5) break;  // depth disagrees there
       }
-      if (testable) {
-        photo_ncc[i] = ncc;
-        break;
-      }
-      if (!options_.geometry.photo_fallback) break;
+      if (testable) return ncc > options_.geometry.photo_release_ncc;
     }
-    return photo_ncc[i] > options_.geometry.photo_release_ncc;
+    return false;
   };
   std::vector<int> anchored_in_cluster(clusters->clusters, 0);
   for (int i = 0; i < current_.size(); ++i) {
@@ -875,10 +872,10 @@ void Tracker::removeDynamicFeatures() {
   // dropped features are more than geometry.max_dynamic_fraction of the
   // clustered ones, it may rest on a mover, and the test would confirm it.
   int clustered = 0, dropped_count = 0;
-  for (int i = 0; i < current_.size(); ++i)
-    if (current_.cluster[i] >= 0) ++clustered, dropped_count += dropped(i, verdict);
-  if (options_.geometry.photo_release_ncc > 0 && refitted &&
-      dropped_count <= options_.geometry.max_dynamic_fraction * clustered) {
+  if (options_.geometry.photo_release_ncc > 0 && refitted)
+    for (int i = 0; i < current_.size(); ++i)
+      if (current_.cluster[i] >= 0) ++clustered, dropped_count += dropped(i, verdict);
+  if (clustered > 0 && dropped_count <= options_.geometry.max_dynamic_fraction * clustered) {
     int freed = 0;
     for (int i = 0; i < current_.size(); ++i) {
       if (!dropped(i, verdict) || (has_anchor[i] && !options_.geometry.photo_release_anchored) || !photoStatic(i))
