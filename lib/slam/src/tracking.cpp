@@ -641,7 +641,9 @@ void Tracker::removeDynamicFeatures() {
         testable = photoAgreement(i, clusters->depth, f, &a);
         if (!testable) break;
         ncc = a.depth_share >= options_.geometry.photo_depth_share ? std::min(ncc, a.ncc) : -1;
-        if (ncc < -0.5) break;  // depth disagrees there
+        // Failed in one frame (or depth disagrees there): the others cannot
+        // change the verdict. Most dropped features are movers and stop here.
+        if (ncc <= options_.geometry.photo_release_ncc) break;
       }
       if (testable) return ncc > options_.geometry.photo_release_ncc;
     }
@@ -867,7 +869,14 @@ void Tracker::removeDynamicFeatures() {
   // without the dynamic clusters: judged under the initial pose, it confirms
   // a mover that stage 1 followed (MotionPriorHoldsStageOneOffTheBoard: a
   // 20 mm step); fitted without the mover, the pose no longer explains it.
-  // A freed feature goes back into the pose with its stage-1 match.
+  // A freed feature goes back into the pose with its stage-1 match. The pose
+  // is refitted by stage 2 (local map), which follows at once; it is refitted
+  // here first only when the freed features add a quarter or more to the
+  // matches it rests on: then the pose fitted without them may sit on a
+  // mover, and stage 2 would search the local map from there
+  // (PhotometricReleaseHoldsUnderAVerdictThatFlagsTheRoom: 452 mm without
+  // this refit). A few freed features change the pose too little to pay for
+  // a pose optimisation (README, session 17).
   // The pose it is judged under must rest on most of the view: when the
   // dropped features are more than geometry.max_dynamic_fraction of the
   // clustered ones, it may rest on a mover, and the test would confirm it.
@@ -876,6 +885,7 @@ void Tracker::removeDynamicFeatures() {
     for (int i = 0; i < current_.size(); ++i)
       if (current_.cluster[i] >= 0) ++clustered, dropped_count += dropped(i, verdict);
   if (clustered > 0 && dropped_count <= options_.geometry.max_dynamic_fraction * clustered) {
+    const int support = countMapInliers();
     int freed = 0;
     for (int i = 0; i < current_.size(); ++i) {
       if (!dropped(i, verdict) || (has_anchor[i] && !options_.geometry.photo_release_anchored) || !photoStatic(i))
@@ -886,7 +896,7 @@ void Tracker::removeDynamicFeatures() {
       current_.outlier[i] = 0;
       freed += points[i] != nullptr;
     }
-    if (freed > 0 && countMapInliers() >= 10) timedOptimizePose();
+    if (freed > 0 && 4 * freed >= support && countMapInliers() >= 10) timedOptimizePose();
   }
   geometry_.ran = true;
   geometry_.scores = verdict.clusters;
