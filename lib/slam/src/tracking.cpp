@@ -3,6 +3,7 @@
 #include <opencv2/calib3d.hpp>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <mutex>
@@ -1017,21 +1018,28 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
   const bool distorted = camera_.hasDistortion();
   const double tol0 = options_.geometry.freespace_tolerance_m, tol2 = options_.geometry.freespace_tolerance_z2;
   const int n = (2 * r + 1) * (2 * r + 1);
-  const auto sample = [&](double qx, double qy, double* b) {
-    const int ix = static_cast<int>(std::floor(qx)), iy = static_cast<int>(std::floor(qy));
-    if (ix < 0 || iy < 0 || ix + 1 >= seen.gray.cols || iy + 1 >= seen.gray.rows) return false;
-    const double fx = qx - ix, fy = qy - iy;  // bilinear
+  const auto sample = [&](double qx, double qy) {  // bilinear, in the image (first pass)
+    const int ix = static_cast<int>(qx), iy = static_cast<int>(qy);
+    const double fx = qx - ix, fy = qy - iy;
     const std::uint8_t* row0 = seen.gray.ptr<std::uint8_t>(iy);
     const std::uint8_t* row1 = seen.gray.ptr<std::uint8_t>(iy + 1);
-    *b = (1 - fy) * ((1 - fx) * row0[ix] + fx * row0[ix + 1]) + fy * ((1 - fx) * row1[ix] + fx * row1[ix + 1]);
-    return true;
+    return (1 - fy) * ((1 - fx) * row0[ix] + fx * row0[ix + 1]) + fy * ((1 - fx) * row1[ix] + fx * row1[ix + 1]);
   };
-  double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
-  int agree = 0;
-  for (int y = y0 - r; y <= y0 + r; ++y)
-    for (int x = x0 - r; x <= x0 + r; ++x) {
+  // Two passes. The first warps the patch and checks its depth: most dropped
+  // features are movers whose depth disagrees there, and once more pixels
+  // disagree than geometry.photo_depth_share allows, the patch has failed
+  // whatever its intensities; only whether it stays in the image is still
+  // needed (a patch that leaves it is untestable, and tested nearer). The
+  // second pass samples the intensities of a patch whose depth agrees.
+  constexpr int kMaxPatch = 31 * 31;  // geometry.photo_patch_radius <= 15 (options)
+  std::array<double, kMaxPatch> qx, qy;
+  const int may_disagree = n - static_cast<int>(std::ceil(options_.geometry.photo_depth_share * n - 1e-9));
+  int agree = 0, k = 0;
+  for (int y = y0 - r; y <= y0 + r; ++y) {
+    const float* depth_row = depth.empty() ? nullptr : depth.ptr<float>(y);
+    for (int x = x0 - r; x <= x0 + r; ++x, ++k) {
       // A pixel without depth takes the keypoint's: the patch is small.
-      float z = depth.empty() ? 0.0f : depth.at<float>(y, x);
+      float z = depth_row ? depth_row[x] : 0.0f;
       if (!(z > camera_.min_depth && z < camera_.max_depth)) z = current_.depth[i];
       Vec2 uv(x, y);
       if (distorted) uv = camera_.undistortPixel(uv);
@@ -1039,16 +1047,27 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
       if (p.z() <= camera_.min_depth) return false;
       Vec2 q = camera_.project(p);
       if (distorted) q = camera_.distortPixel(q);
-      double b = 0;
-      if (!sample(q.x(), q.y(), &b)) return false;
-      const double a = gray.at<std::uint8_t>(y, x);
-      sa += a, sb += b, saa += a * a, sbb += b * b, sab += a * b;
-      const float zs = seen.depth.at<float>(static_cast<int>(std::lround(q.y())), static_cast<int>(std::lround(q.x())));
-      if (zs > camera_.min_depth && std::abs(zs - p.z()) < tol0 + tol2 * p.z() * p.z()) ++agree;
+      // In the image with a bilinear neighbourhood (the second pass samples it).
+      if (!(q.x() >= 0 && q.y() >= 0 && q.x() < seen.gray.cols - 1 && q.y() < seen.gray.rows - 1)) return false;
+      qx[k] = q.x(), qy[k] = q.y();
+      const float zs = seen.depth.at<float>(static_cast<int>(q.y() + 0.5), static_cast<int>(q.x() + 0.5));
+      agree += zs > camera_.min_depth && std::abs(zs - p.z()) < tol0 + tol2 * p.z() * p.z();
     }
-  const double va = saa - sa * sa / n, vb = sbb - sb * sb / n;
-  out->ncc = va > 1e-6 && vb > 1e-6 ? (sab - sa * sb / n) / std::sqrt(va * vb) : -1;
+  }
   out->depth_share = static_cast<double>(agree) / n;
+  out->ncc = -1;
+  if (n - agree > may_disagree) return true;
+  double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+  k = 0;
+  for (int y = y0 - r; y <= y0 + r; ++y) {
+    const std::uint8_t* gray_row = gray.ptr<std::uint8_t>(y);
+    for (int x = x0 - r; x <= x0 + r; ++x, ++k) {
+      const double a = gray_row[x], b = sample(qx[k], qy[k]);
+      sa += a, sb += b, saa += a * a, sbb += b * b, sab += a * b;
+    }
+  }
+  const double va = saa - sa * sa / n, vb = sbb - sb * sb / n;
+  if (va > 1e-6 && vb > 1e-6) out->ncc = (sab - sa * sb / n) / std::sqrt(va * vb);
   return true;
 }
 
