@@ -175,12 +175,24 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
   std::vector<int> best_for_frame(current.size(), 256);
   std::vector<int> owner(current.size(), -1);
   std::vector<int> nearest(current.size(), 256);  // each frame keypoint's nearest distance to any candidate
+  // The frame's candidates for each level (within 2 levels of it), in index
+  // order, so the scan below meets them in the same order as a full scan
+  // would (ties keep the first) without visiting the others.
+  int top_level = 0;
+  for (const cv::KeyPoint& k : current.keys) top_level = std::max(top_level, k.octave);
+  for (const cv::KeyPoint& k : kf.keys) top_level = std::max(top_level, k.octave);
+  std::vector<std::vector<int>> candidates(top_level + 1);
+  for (int j = 0; j < current.size(); ++j) {
+    if (need_point && current.dynamic[j]) continue;
+    const int o = current.keys[j].octave;
+    for (int level = std::max(0, o - 2); level <= std::min(top_level, o + 2); ++level) candidates[level].push_back(j);
+  }
   for (int i = 0; i < kf.size(); ++i) {
     if (need_point ? !kf.points[i] || kf.points[i]->bad : !(kf.depth[i] > 0)) continue;
+    if (kf.keys[i].octave < 0) continue;  // never from our extractor
     const std::uint8_t* d_kf = kf.descriptor(i);
     int best = 256, second = 256, best_idx = -1;
-    for (int j = 0; j < current.size(); ++j) {
-      if ((need_point && current.dynamic[j]) || std::abs(current.keys[j].octave - kf.keys[i].octave) > 2) continue;
+    for (int j : candidates[kf.keys[i].octave]) {
       const int d = hammingDistance(d_kf, current.descriptor(j));
       nearest[j] = std::min(nearest[j], d);
       if (d < best) {
