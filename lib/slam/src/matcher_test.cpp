@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <memory>
+#include <utility>
 #include <vector>
 
 namespace stillpoint::slam {
@@ -99,6 +100,33 @@ TEST(SearchByProjection, MaxRatioRejectsAmbiguousMatches) {
   current.clearMatches();
   EXPECT_EQ(searchByProjection(&current, last, 7.0f), 3);
   EXPECT_EQ(current.points[2], last.points[1]);
+}
+
+// Window-free matching by descriptor meets only the frame's keypoints within
+// two pyramid levels of the other's, and among equally good ones keeps the
+// first by index (it scans per-level candidate lists kept in index order).
+TEST(MatchByDescriptor, MeetsKeypointsWithinTwoLevelsFirstByIndex) {
+  Frame other = frameWith({{320, 240}}, {0});
+  other.depth[0] = 2.0f;
+  // All three carry the same descriptor: keypoint 0 three levels up,
+  // keypoints 1 and 2 two levels up and on the same level.
+  Frame current = frameWith({{100, 100}, {300, 200}, {500, 300}}, {0, 0, 0});
+  current.keys[0].octave = 3;
+  current.keys[1].octave = 2;
+  current.keys[2].octave = 0;
+  auto matches = matchByDescriptor(current, other, 0.8f, false, false);
+  ASSERT_EQ(matches.size(), 1u);
+  EXPECT_EQ(matches[0], std::make_pair(1, 0));
+  // With keypoint 1 out of reach too (three levels), keypoint 2 is the one.
+  current.keys[1].octave = 3;
+  matches = matchByDescriptor(current, other, 0.8f, false, false);
+  ASSERT_EQ(matches.size(), 1u);
+  EXPECT_EQ(matches[0], std::make_pair(2, 0));
+  // And from the other's side: at level 5 it reaches levels 3-7 only.
+  other.keys[0].octave = 5;
+  matches = matchByDescriptor(current, other, 0.8f, false, false);
+  ASSERT_EQ(matches.size(), 1u);
+  EXPECT_EQ(matches[0], std::make_pair(0, 0));
 }
 
 }  // namespace
