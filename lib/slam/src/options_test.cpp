@@ -142,6 +142,8 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.photo_depth_share", [](SlamOptions& o) { o.geometry.photo_depth_share = -0.1; }},
       {"geometry.photo_patch_radius", [](SlamOptions& o) { o.geometry.photo_patch_radius = 0; }},
       {"geometry.photo_frames", [](SlamOptions& o) { o.geometry.photo_frames = 4; }},
+      {"geometry.photo_one_ncc", [](SlamOptions& o) { o.geometry.photo_one_ncc = -0.1; }},
+      {"geometry.photo_one_others", [](SlamOptions& o) { o.geometry.photo_one_others = 1.2; }},
       {"geometry.photo_frames_back", [](SlamOptions& o) { o.geometry.photo_frames_back = 0; }},
   };
   expectGeometryErrorsNameTheirFields(cases);

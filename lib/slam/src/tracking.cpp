@@ -616,8 +616,9 @@ void Tracker::removeDynamicFeatures() {
   };
   // The photometric test of the static hypothesis: against the frame
   // photo_frames_back back and, with photo_frames 2 or 3, half as far each
-  // time (10, 5, 3), all of which must pass: a mover whose texture matches by
-  // chance at the static hypothesis in one frame seldom does in all. A patch
+  // time (10, 5, 3), all of which must pass (or all but one, which must still
+  // come near: PhotoVote): a mover whose texture matches by chance at the
+  // static hypothesis in one frame seldom does in all. A patch
   // that cannot be tested that far back (it leaves the image there, or the
   // history is shorter) is tested at half the distance instead, once
   // (geometry.photo_fallback): at shorter baselines a slow mover matches.
@@ -635,18 +636,18 @@ void Tracker::removeDynamicFeatures() {
   const auto photoStatic = [&](int i) {
     if (current_.depth[i] <= 0) return false;
     for (const std::vector<std::size_t>& frames : photo_tries) {
-      double ncc = 1;
+      PhotoVote vote(options_.geometry);
       bool testable = true;
       for (std::size_t f : frames) {
         PhotoAgreement a;
         testable = photoAgreement(i, clusters->depth, f, &a);
         if (!testable) break;
-        ncc = a.depth_share >= options_.geometry.photo_depth_share ? std::min(ncc, a.ncc) : -1;
-        // Failed in one frame (or depth disagrees there): the others cannot
-        // change the verdict. Most dropped features are movers and stop here.
-        if (ncc <= options_.geometry.photo_release_ncc) break;
+        vote.add(a.depth_share >= options_.geometry.photo_depth_share ? a.ncc : -1);
+        // Failed (or depth disagrees): the other frames cannot change the
+        // verdict. Most dropped features are movers and stop here.
+        if (vote.failed()) break;
       }
-      if (testable) return ncc > options_.geometry.photo_release_ncc;
+      if (testable) return vote.passed();
     }
     return false;
   };
@@ -943,6 +944,16 @@ void Tracker::removeDynamicFeatures() {
     current_.dynamic[i] = 1;
     ++geometry_.dynamic_features;
   }
+}
+
+void PhotoVote::add(double ncc) {
+  if (ncc < worst_) {
+    second_ = worst_;
+    worst_ = ncc;
+  } else if (ncc < second_) {
+    second_ = ncc;
+  }
+  ++frames_;
 }
 
 Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& clusters) const {

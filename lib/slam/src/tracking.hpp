@@ -173,4 +173,28 @@ class Tracker {
   bool photoAgreement(int i, const cv::Mat& depth, std::size_t frame, PhotoAgreement* out) const;
 };
 
+// The photometric test's verdict over the frames a patch is tested against,
+// added one at a time (NCC there, -1 where its depth disagrees): it passes
+// when every frame is above geometry.photo_release_ncc, or when three or more
+// were tested, the worst is above photo_one_ncc (> 0) and every other above
+// photo_one_others. A frame added never turns a failure into a pass, so the
+// test may stop at the first failure.
+class PhotoVote {
+ public:
+  explicit PhotoVote(const GeometryOptions& options) : options_(options) {}
+  void add(double ncc);
+  bool failed() const { return !(worst_ > options_.photo_release_ncc) && !oneMayMiss(); }
+  bool passed() const {
+    return frames_ > 0 && (worst_ > options_.photo_release_ncc || (frames_ >= 3 && oneMayMiss()));
+  }
+
+ private:
+  bool oneMayMiss() const {
+    return options_.photo_one_ncc > 0 && worst_ > options_.photo_one_ncc && second_ > options_.photo_one_others;
+  }
+  const GeometryOptions& options_;
+  double worst_ = 1, second_ = 1;
+  int frames_ = 0;
+};
+
 }  // namespace stillpoint::slam
