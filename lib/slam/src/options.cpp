@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <cmath>
 #include <functional>
 #include <map>
 #include <sstream>
@@ -70,6 +71,9 @@ Status GeometryOptions::validate() const {
   if (photo_frames < 1 || photo_frames > 3) return Error{"geometry.photo_frames must be 1, 2 or 3"};
   if (!(photo_one_ncc >= 0 && photo_one_ncc <= 1)) return Error{"geometry.photo_one_ncc must be in [0, 1] (0: off)"};
   if (!(photo_one_others >= 0 && photo_one_others <= 1)) return Error{"geometry.photo_one_others must be in [0, 1]"};
+  if (!(photo_detect_share >= 0 && photo_detect_share < 1)) return Error{"geometry.photo_detect_share must be in [0, 1) (0: off)"};
+  if (photo_detect_min < 1) return Error{"geometry.photo_detect_min must be >= 1"};
+  if (!(photo_detect_gate >= 0 && std::isfinite(photo_detect_gate))) return Error{"geometry.photo_detect_gate must be >= 0"};
   if (photo_frames_back < 1 || photo_frames_back > 30) return Error{"geometry.photo_frames_back must be in [1, 30]"};
   if (freespace_frames < 1 || freespace_frames > 30) return Error{"geometry.freespace_frames must be in [1, 30]"};
   if (!(freespace_flag >= 0 && freespace_flag <= 1)) return Error{"geometry.freespace_flag must be in [0, 1]"};
@@ -223,6 +227,9 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "photo_frames", o.geometry.photo_frames);
   v("geometry", "photo_one_ncc", o.geometry.photo_one_ncc);
   v("geometry", "photo_one_others", o.geometry.photo_one_others);
+  v("geometry", "photo_detect_share", o.geometry.photo_detect_share);
+  v("geometry", "photo_detect_min", o.geometry.photo_detect_min);
+  v("geometry", "photo_detect_gate", o.geometry.photo_detect_gate);
   v("geometry", "photo_release_memory", o.geometry.photo_release_memory);
   v("geometry", "photo_release_anchored", o.geometry.photo_release_anchored);
   v("geometry", "photo_frames_back", o.geometry.photo_frames_back);

@@ -144,6 +144,9 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.photo_frames", [](SlamOptions& o) { o.geometry.photo_frames = 4; }},
       {"geometry.photo_one_ncc", [](SlamOptions& o) { o.geometry.photo_one_ncc = -0.1; }},
       {"geometry.photo_one_others", [](SlamOptions& o) { o.geometry.photo_one_others = 1.2; }},
+      {"geometry.photo_detect_share", [](SlamOptions& o) { o.geometry.photo_detect_share = 1.0; }},
+      {"geometry.photo_detect_min", [](SlamOptions& o) { o.geometry.photo_detect_min = 0; }},
+      {"geometry.photo_detect_gate", [](SlamOptions& o) { o.geometry.photo_detect_gate = -1; }},
       {"geometry.photo_frames_back", [](SlamOptions& o) { o.geometry.photo_frames_back = 0; }},
   };
   expectGeometryErrorsNameTheirFields(cases);

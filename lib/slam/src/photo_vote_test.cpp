@@ -1,5 +1,6 @@
 // PhotoVote: the photometric test's verdict over the frames a dropped
-// feature's patch is tested against.
+// feature's patch is tested against; photoDetects: the cluster rule of the
+// photometric detection.
 #include <gtest/gtest.h>
 
 #include <initializer_list>
@@ -54,6 +55,18 @@ TEST(PhotoVote, OneFrameOfThreeMayComeNear) {
   EXPECT_FALSE(o.failed);
   EXPECT_FALSE(o.passed);
   EXPECT_FALSE(vote(g, {0.45}).passed);
+}
+
+TEST(PhotoDetects, NeedsEnoughTestedPatchesMostOfThemFailing) {
+  GeometryOptions g;  // defaults: 4 tested, more than 0.8 failing
+  ASSERT_GT(g.photo_detect_share, 0);
+  EXPECT_TRUE(photoDetects(4, 4, g));
+  EXPECT_TRUE(photoDetects(10, 9, g));
+  EXPECT_FALSE(photoDetects(10, 8, g));  // not more than 0.8
+  EXPECT_FALSE(photoDetects(3, 3, g));   // too few tested
+  EXPECT_FALSE(photoDetects(0, 0, g));
+  g.photo_detect_share = 0;  // off
+  EXPECT_FALSE(photoDetects(10, 10, g));
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <cstdlib>
 #include <cmath>
 #include <mutex>
 #include <numeric>
@@ -633,6 +634,26 @@ void Tracker::removeDynamicFeatures() {
       if (k <= 2) break;
     }
   }
+  // For detection: 1 the static hypothesis explains the patch, 0 its depth
+  // agrees but its pixels do not match, -1 untestable, -2 its depth
+  // disagrees in a frame.
+  const auto photoVerdict = [&](int i) {
+    if (current_.depth[i] <= 0) return -1;
+    for (const std::vector<std::size_t>& frames : photo_tries) {
+      PhotoVote vote(options_.geometry);
+      bool testable = true;
+      for (std::size_t f : frames) {
+        PhotoAgreement a;
+        testable = photoAgreement(i, clusters->depth, f, &a);
+        if (!testable) break;
+        if (a.depth_share < options_.geometry.photo_depth_share) return -2;
+        vote.add(a.ncc);
+        if (vote.failed()) break;
+      }
+      if (testable) return vote.passed() ? 1 : 0;
+    }
+    return -1;
+  };
   const auto photoStatic = [&](int i) {
     if (current_.depth[i] <= 0) return false;
     for (const std::vector<std::size_t>& frames : photo_tries) {
@@ -867,6 +888,55 @@ void Tracker::removeDynamicFeatures() {
   } else {
     remove(verdict);
   }
+  // Photometric detection (geometry.photo_detect_share, session 18): a
+  // cluster with too few anchor matches is judged by short-baseline evidence
+  // (map points mapped a frame or two before, carried matches), which a slow
+  // mover passes. Its features' patches are tested as in the release below,
+  // under the pose fitted without the dynamic clusters; a cluster most of
+  // whose depth-agreeing patches still do not match (the texture moved along
+  // the surface) is dynamic. Patches whose depth disagrees say nothing here
+  // (occluded in that frame, say), nor are clusters that scored at or below
+  // photo_detect_gate x the frame's reference tested (clearly static). As
+  // with free space, nothing is added when that would make more than
+  // max_dynamic_fraction of the view dynamic.
+  if (options_.geometry.photo_detect_share > 0 && options_.geometry.photo_release_ncc > 0) {
+    const GeometryOptions& g = options_.geometry;
+    const int n_clusters = clusters->clusters;
+    std::vector<int> tested(n_clusters, 0), failed(n_clusters, 0);
+    for (int i = 0; i < current_.size(); ++i) {
+      const int c = current_.cluster[i];
+      if (c < 0 || verdict.clusters[c].dynamic || anchored_in_cluster[c] >= min_features) continue;
+      const geometry::ClusterScore& score = verdict.clusters[c];
+      if (score.judged && score.mean_rho <= g.photo_detect_gate * verdict.reference) continue;
+      const int r = photoVerdict(i);
+      if (r < 0) continue;
+      ++tested[c];
+      failed[c] += r == 0;
+    }
+    std::vector<int> added;
+    int samples = 0, dynamic_samples = 0;
+    for (int c = 0; c < n_clusters; ++c) {
+      const bool detected = photoDetects(tested[c], failed[c], g);
+      samples += clusters->sizes[c];
+      if (detected) added.push_back(c);
+      if (detected || verdict.clusters[c].dynamic) dynamic_samples += clusters->sizes[c];
+    }
+    if (!added.empty() && dynamic_samples <= g.max_dynamic_fraction * samples) {
+      for (int c : added) verdict.clusters[c].dynamic = true;
+      verdict.dynamic_clusters += static_cast<int>(added.size());
+      int removed = 0;
+      for (int i = 0; i < current_.size(); ++i) {
+        if (!dropped(i, verdict) || !current_.points[i]) continue;
+        current_.points[i] = nullptr;
+        current_.outlier[i] = 0;
+        ++removed;
+      }
+      if (removed > 0 && countMapInliers() >= 10) {
+        timedOptimizePose();
+        refitted = true;
+      }
+    }
+  }
   // The photometric test of the static hypothesis, under the pose fitted
   // without the dynamic clusters: judged under the initial pose, it confirms
   // a mover that stage 1 followed (MotionPriorHoldsStageOneOffTheBoard: a
@@ -944,6 +1014,11 @@ void Tracker::removeDynamicFeatures() {
     current_.dynamic[i] = 1;
     ++geometry_.dynamic_features;
   }
+}
+
+bool photoDetects(int tested, int failed, const GeometryOptions& options) {
+  return options.photo_detect_share > 0 && tested >= options.photo_detect_min &&
+         failed > options.photo_detect_share * tested;
 }
 
 void PhotoVote::add(double ncc) {

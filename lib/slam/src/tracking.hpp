@@ -179,6 +179,11 @@ class Tracker {
 // were tested, the worst is above photo_one_ncc (> 0) and every other above
 // photo_one_others. A frame added never turns a failure into a pass, so the
 // test may stop at the first failure.
+// Photometric detection: a cluster at least photo_detect_min of whose
+// features' patches were tested (their depth agreeing) and more than
+// photo_detect_share of them failed is dynamic.
+bool photoDetects(int tested, int failed, const GeometryOptions& options);
+
 class PhotoVote {
  public:
   explicit PhotoVote(const GeometryOptions& options) : options_(options) {}

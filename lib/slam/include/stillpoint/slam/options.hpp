@@ -186,6 +186,21 @@ struct GeometryOptions {
   // within 0.0003 m (lib/geometry/README.md, session 18).
   double photo_one_ncc = 0.3;
   double photo_one_others = 0.65;
+  // Photometric detection (session 18): in a cluster with fewer anchor
+  // matches than verdict.min_features that is not flagged and scored above
+  // photo_detect_gate x the frame's reference (or was not judged), every
+  // feature with depth is tested as above; when at least photo_detect_min
+  // were tested with their depth agreeing and more than photo_detect_share
+  // of those did not match, the cluster is dynamic (0 = off). Such clusters
+  // are judged on map points mapped a frame or two before, which a slow mover
+  // passes (poster-walk: 508 of its missed features in them, 51 in anchored
+  // clusters). 12-run sweeps, P/R: poster-walk 0.889/0.858 -> 0.882/0.878,
+  // mix 0.916/0.901 -> 0.910/0.920, halfsphere 0.892/0.894 -> 0.885/0.901,
+  // rpy 0.859/0.922 -> 0.856/0.927; ATE within 0.0003 m
+  // (lib/geometry/README.md, session 18).
+  double photo_detect_share = 0.8;
+  int photo_detect_min = 4;
+  double photo_detect_gate = 1.0;
   // Features the test frees still count as "dynamic before" for their
   // cluster's memory (carried to the next frame as evidence, marked in the
   // anchor), so that a mixed cluster (a walker and the floor) is still held
