@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
-#include <cstdlib>
 #include <cmath>
 #include <mutex>
 #include <numeric>
@@ -634,9 +633,8 @@ void Tracker::removeDynamicFeatures() {
       if (k <= 2) break;
     }
   }
-  // For detection: 1 the static hypothesis explains the patch, 0 its depth
-  // agrees but its pixels do not match, -1 untestable, -2 its depth
-  // disagrees in a frame.
+  // 1: the static hypothesis explains the patch; 0: its depth agrees but its
+  // pixels do not match; -1: untestable; -2: its depth disagrees in a frame.
   const auto photoVerdict = [&](int i) {
     if (current_.depth[i] <= 0) return -1;
     for (const std::vector<std::size_t>& frames : photo_tries) {
@@ -646,6 +644,8 @@ void Tracker::removeDynamicFeatures() {
         PhotoAgreement a;
         testable = photoAgreement(i, clusters->depth, f, &a);
         if (!testable) break;
+        // Failed (or depth disagrees): the other frames cannot change the
+        // verdict. Most dropped features are movers and stop here.
         if (a.depth_share < options_.geometry.photo_depth_share) return -2;
         vote.add(a.ncc);
         if (vote.failed()) break;
@@ -654,24 +654,7 @@ void Tracker::removeDynamicFeatures() {
     }
     return -1;
   };
-  const auto photoStatic = [&](int i) {
-    if (current_.depth[i] <= 0) return false;
-    for (const std::vector<std::size_t>& frames : photo_tries) {
-      PhotoVote vote(options_.geometry);
-      bool testable = true;
-      for (std::size_t f : frames) {
-        PhotoAgreement a;
-        testable = photoAgreement(i, clusters->depth, f, &a);
-        if (!testable) break;
-        vote.add(a.depth_share >= options_.geometry.photo_depth_share ? a.ncc : -1);
-        // Failed (or depth disagrees): the other frames cannot change the
-        // verdict. Most dropped features are movers and stop here.
-        if (vote.failed()) break;
-      }
-      if (testable) return vote.passed();
-    }
-    return false;
-  };
+  const auto photoStatic = [&](int i) { return photoVerdict(i) == 1; };
   std::vector<int> anchored_in_cluster(clusters->clusters, 0);
   for (int i = 0; i < current_.size(); ++i) {
     const cv::Point2f& px = current_.keys[i].pt;
