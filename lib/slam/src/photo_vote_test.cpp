@@ -32,7 +32,7 @@ TEST(PhotoVote, EveryFrameAboveTheLimitPasses) {
   EXPECT_TRUE(vote(g, {0.9, 0.7, 0.61}).passed);
   EXPECT_TRUE(vote(g, {0.8}).passed);
   EXPECT_TRUE(vote(g, {0.9, 0.59, 0.9}).failed);
-  EXPECT_TRUE(vote(g, {-1}).failed);  // depth disagreed
+  EXPECT_TRUE(vote(g, {-1}).failed);  // a flat patch (no NCC)
 }
 
 TEST(PhotoVote, OneFrameOfThreeMayComeNear) {
@@ -43,7 +43,7 @@ TEST(PhotoVote, OneFrameOfThreeMayComeNear) {
   EXPECT_FALSE(o.failed);
   EXPECT_TRUE(o.passed);
   EXPECT_TRUE(vote(g, {0.35, 0.7, 0.66}).passed);
-  // Too far off in that frame, two frames short, or depth disagreeing: fails
+  // Too far off in that frame, two frames short, or a flat patch: fails
   // at once.
   EXPECT_TRUE(vote(g, {0.9, 0.25}).failed);
   EXPECT_TRUE(vote(g, {0.5, 0.55}).failed);

@@ -173,17 +173,18 @@ class Tracker {
   bool photoAgreement(int i, const cv::Mat& depth, std::size_t frame, PhotoAgreement* out) const;
 };
 
-// The photometric test's verdict over the frames a patch is tested against,
-// added one at a time (NCC there, -1 where its depth disagrees): it passes
-// when every frame is above geometry.photo_release_ncc, or when three or more
-// were tested, the worst is above photo_one_ncc (> 0) and every other above
-// photo_one_others. A frame added never turns a failure into a pass, so the
-// test may stop at the first failure.
 // Photometric detection: a cluster at least photo_detect_min of whose
 // features' patches were tested (their depth agreeing) and more than
 // photo_detect_share of them failed is dynamic.
 bool photoDetects(int tested, int failed, const GeometryOptions& options);
 
+// The photometric test's verdict over the frames a patch is tested against,
+// their NCC added one at a time (a patch whose depth disagrees in a frame has
+// no verdict and never gets here): it passes when every frame is above
+// geometry.photo_release_ncc, or when three or more were tested, the worst
+// is above photo_one_ncc (> 0) and every other above photo_one_others. A
+// frame added never turns a failure into a pass, so the test may stop at the
+// first failure.
 class PhotoVote {
  public:
   explicit PhotoVote(const GeometryOptions& options) : options_(options) {}
