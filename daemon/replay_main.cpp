@@ -2,6 +2,7 @@
 // sequence, writes the trajectory and prints a summary whose last line is
 // machine-readable.
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -9,6 +10,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <map>
 #include <string>
 #include <thread>
 #include <vector>
@@ -20,6 +22,7 @@
 #include "stillpoint/eval/trajectory.hpp"
 #include "stillpoint/slam/options.hpp"
 #include "stillpoint/slam/system.hpp"
+#include "stillpoint/synth/score.hpp"
 
 namespace {
 
@@ -30,7 +33,7 @@ constexpr const char* kUsage =
     "                         [--config SLAM.yaml] [--sequential] [--paced]\n"
     "                         [--modules none|geometry,semantic] [--features-out FEATURES.txt]\n"
     "                         [--keyframes-out KEYFRAMES.txt] [--keyframe-trajectory KF_TRAJ.txt]\n"
-    "                         [--max-frames N] [--log-level debug|info|warn|error]\n"
+    "                         [--known-movers] [--max-frames N] [--log-level debug|info|warn|error]\n"
     "       stillpoint-replay --help | --version\n"
     "\n"
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
@@ -46,11 +49,14 @@ constexpr const char* kUsage =
     "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
     "--keyframe-trajectory writes the final poses of the keyframes (culled ones included) in TUM\n"
     "format, to tell keyframe (map) error from per-frame tracking error.\n"
+    "--known-movers gives tracking the sequence's own mover masks (mask.txt, written by\n"
+    "stillpoint-synth) as known movers: their features stay out of the pose and the map. With\n"
+    "--modules none it measures the best a detector could do (a perfect one).\n"
     "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n";
 
 struct Args {
   std::string dataset, camera, output, config, modules, features_out, keyframes_out, keyframe_trajectory, log_level = "warn";
-  bool sequential = false, paced = false;
+  bool sequential = false, paced = false, known_movers = false;
   bool geometry = false, semantic = false;  // from --modules
   long max_frames = -1;
 };
@@ -95,6 +101,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       args->sequential = true;
     } else if (a == "--paced") {
       args->paced = true;
+    } else if (a == "--known-movers") {
+      args->known_movers = true;
     } else if (!a.empty() && a[0] == '-') {
       *error = "unknown option " + a;
       return false;
@@ -217,6 +225,15 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "stillpoint-replay: %s\n", data.error().c_str());
     return 1;
   }
+  std::map<Timestamp, std::string> mover_masks;
+  if (args.known_movers) {
+    auto listed = synth::readMaskList(args.dataset);
+    if (!listed) {
+      std::fprintf(stderr, "stillpoint-replay: --known-movers: %s\n", listed.error().c_str());
+      return 1;
+    }
+    mover_masks = std::move(*listed);
+  }
   // The segmentation thread runs at nice 10, as stillpointd's default
   // (threads.semantic.nice): a keyframe's segmentation must not take the CPU
   // from tracking, and tracking times with the module on mean the same here.
@@ -248,7 +265,18 @@ int main(int argc, char** argv) {
       const auto due = start + std::chrono::nanoseconds(frame->stamp.nanoseconds() - first_stamp.nanoseconds());
       std::this_thread::sleep_until(due);
     }
-    auto out = (*system)->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
+    cv::Mat movers;
+    if (args.known_movers) {
+      // Every frame needs its mask: one missing would silently let its movers into the map.
+      const auto mask = mover_masks.find(frame->stamp);
+      if (mask != mover_masks.end()) movers = cv::imread(mask->second, cv::IMREAD_UNCHANGED);
+      if (movers.empty()) {
+        std::fprintf(stderr, "stillpoint-replay: --known-movers: no readable mask for frame %zu (%s)\n", i,
+                     frame->stamp.toSecondsString().c_str());
+        return 1;
+      }
+    }
+    auto out = (*system)->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr, movers});
     if (!out) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, out.error().c_str());
       ++skipped;

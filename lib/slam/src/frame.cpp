@@ -1,6 +1,8 @@
 #include "frame.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 namespace stillpoint::slam {
 
@@ -90,6 +92,16 @@ void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, featu
   frame->clearMatches();
   frame->dynamic.assign(n, 0);
   frame->cluster.assign(n, -1);
+}
+
+void markKnownMovers(Frame* frame, const cv::Mat& movers) {
+  const bool wide = movers.type() == CV_16UC1;
+  for (int i = 0; i < frame->size(); ++i) {
+    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, movers.cols - 1);
+    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, movers.rows - 1);
+    if (wide ? movers.at<std::uint16_t>(y, x) != 0 : movers.at<std::uint8_t>(y, x) != 0)
+      frame->dynamic[i] = kSemanticDynamic;
+  }
 }
 
 }  // namespace stillpoint::slam

@@ -78,4 +78,9 @@ struct Frame {
 // CV_32F, 0 = none) at each keypoint. `depth_m` may be empty (no depth).
 void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb);
 
+// Marks the features inside `movers` (CV_8UC1 or CV_16UC1, the image's size,
+// non-zero = moving) as kSemanticDynamic: movers known from outside are kept
+// out of the pose and the map as semantic masks are.
+void markKnownMovers(Frame* frame, const cv::Mat& movers);
+
 }  // namespace stillpoint::slam

@@ -215,6 +215,11 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
     if (input.bgr.type() != CV_8UC3) return Error{"colour image must be CV_8UC3 (BGR)"};
     if (input.bgr.size() != expected) return Error{"colour image size differs from the camera's"};
   }
+  if (!input.movers.empty()) {
+    if (input.movers.type() != CV_8UC1 && input.movers.type() != CV_16UC1)
+      return Error{"movers mask must be CV_8UC1 or CV_16UC1"};
+    if (input.movers.size() != expected) return Error{"movers mask size differs from the camera's"};
+  }
 
   const auto t0 = std::chrono::steady_clock::now();
   Frame frame;
@@ -228,6 +233,7 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   const bool clusters_pending = s.clustering && !input.depth_m.empty();
   if (clusters_pending) s.clustering->submit(frame.id, input.depth_m.clone());
   buildFrame(&frame, input.gray, input.depth_m, &s.orb);
+  if (!input.movers.empty()) markKnownMovers(&frame, input.movers);
   // The tracker keeps it for geometry.freespace_frames frames.
   if (clusters_pending && s.options.geometry.photo_release_ncc > 0) frame.gray = input.gray.clone();
   const auto t1 = std::chrono::steady_clock::now();

@@ -183,8 +183,7 @@ Result<std::map<Timestamp, std::vector<std::uint16_t>>> readStillMovers(const fs
 
 }  // namespace
 
-Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const std::string& features_path,
-                                          int min_mover_features, double min_speed_m_s) {
+Result<std::map<Timestamp, std::string>> readMaskList(const std::string& sequence_dir) {
   const fs::path list = fs::path(sequence_dir) / "mask.txt";
   std::map<Timestamp, std::string> masks;
   const Status listed = forEachRecord(list.string(), "cannot open " + list.string() + " (not a stillpoint-synth sequence?)",
@@ -196,6 +195,15 @@ Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const
     return Status::success();
   });
   if (!listed) return Error{listed.error()};
+  return masks;
+}
+
+Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const std::string& features_path,
+                                          int min_mover_features, double min_speed_m_s) {
+  const fs::path list = fs::path(sequence_dir) / "mask.txt";
+  Result<std::map<Timestamp, std::string>> listed = readMaskList(sequence_dir);
+  if (!listed.ok()) return Error{listed.error()};
+  const std::map<Timestamp, std::string> masks = std::move(*listed);
   Result<std::map<Timestamp, std::vector<FlaggedFeature>>> features = readFlaggedFeatures(features_path);
   if (!features.ok()) return Error{features.error()};
   std::map<Timestamp, std::vector<std::uint16_t>> still;

@@ -33,6 +33,12 @@ struct RgbdInput {
   // CV_8UC3 colour image (camera size) for the semantic module; may be empty:
   // a keyframe made from a frame without colour is not segmented.
   cv::Mat bgr{};  // (default initialiser: 3-field aggregate initialisation stays warning-free)
+  // Known movers (may be empty): CV_8UC1 or CV_16UC1, camera size, non-zero
+  // where something moves, e.g. from a detector in another process. The
+  // features there stay out of the pose and the map, as the semantic
+  // module's do. With a sequence's true masks (stillpoint-replay
+  // --known-movers) it measures the best the dynamic-object modules can do.
+  cv::Mat movers{};
 };
 
 // Where one frame's tracking time went (milliseconds).

@@ -78,6 +78,10 @@ struct SequenceScore {
 
 SequenceScore averageScores(std::span<const FrameScore> frames, int min_mover_features = 10);
 
+// A generated sequence's mask list (SEQUENCE_DIR/mask.txt): each colour
+// frame's timestamp and the path of its mask (CV_16UC1, 0 = static).
+Result<std::map<Timestamp, std::string>> readMaskList(const std::string& sequence_dir);
+
 // Reads a feature file; errors name the file and line.
 Result<std::map<Timestamp, std::vector<FlaggedFeature>>> readFlaggedFeatures(const std::string& path);
 
