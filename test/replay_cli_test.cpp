@@ -265,5 +265,52 @@ TEST_F(ReplayCli, EveryFrameBadExitsOne) {
   EXPECT_TRUE(contains(test::lastLine(r.out), "frames=0 ")) << describe(r);
 }
 
+// --- known movers (--known-movers: the sequence's own mask.txt) ----------------
+
+// mask.txt and one mask per colour frame, as stillpoint-synth writes them
+// (16-bit, 0 = static), of the given size.
+void writeMasks(const dataset::testing::SyntheticDataset& seq, cv::Size size) {
+  const fs::path dir(seq.directory);
+  fs::create_directories(dir / "mask");
+  std::string list = "# mover masks\n";
+  for (const Timestamp& stamp : seq.colour_stamps) {
+    const std::string file = "mask/" + stamp.toSecondsString() + ".png";
+    cv::Mat mask(size, CV_16UC1, cv::Scalar(0));
+    mask(cv::Rect(0, 0, size.width / 4, size.height / 4)).setTo(1);
+    ASSERT_TRUE(cv::imwrite((dir / file).string(), mask));
+    list += stamp.toSecondsString() + " " + file + "\n";
+  }
+  writeFile(dir / "mask.txt", list);
+}
+
+TEST_F(ReplayCli, KnownMoversAreReadForEveryFrame) {
+  ASSERT_NO_FATAL_FAILURE(writeMasks(seq_, cv::Size(seq_.camera.width, seq_.camera.height)));
+  const RunResult r = replaySequence({"--known-movers"});
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  EXPECT_TRUE(contains(r.out, "0 skipped (bad input)")) << describe(r);
+}
+
+TEST_F(ReplayCli, KnownMoversWithoutMaskListIsNamed) {
+  const RunResult r = replaySequence({"--known-movers"});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, "mask.txt")) << describe(r);
+}
+
+TEST_F(ReplayCli, KnownMoversMissingMaskStopsTheRun) {
+  ASSERT_NO_FATAL_FAILURE(writeMasks(seq_, cv::Size(seq_.camera.width, seq_.camera.height)));
+  fs::remove(fs::path(seq_.directory) / "mask" / (seq_.colour_stamps[4].toSecondsString() + ".png"));
+  const RunResult r = replaySequence({"--known-movers"});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, "no readable mask for frame 4")) << describe(r);
+}
+
+TEST_F(ReplayCli, KnownMoversOfTheWrongSizeAreBadInput) {
+  ASSERT_NO_FATAL_FAILURE(writeMasks(seq_, cv::Size(seq_.camera.width / 2, seq_.camera.height / 2)));
+  const RunResult r = replaySequence({"--known-movers"});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.out, "10 skipped (bad input)")) << describe(r);
+  EXPECT_TRUE(contains(r.err, "movers mask size differs")) << describe(r);
+}
+
 }  // namespace
 }  // namespace stillpoint
