@@ -1108,24 +1108,61 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
   constexpr int kMaxPatch = 31 * 31;  // geometry.photo_patch_radius <= 15 (options)
   std::array<double, kMaxPatch> qx, qy;
   const int may_disagree = n - static_cast<int>(std::ceil(options_.geometry.photo_depth_share * n - 1e-9));
+  // A pixel without depth takes the keypoint's: the patch is small.
+  const auto depthAt = [&](const float* depth_row, int x) {
+    const float z = depth_row ? depth_row[x] : 0.0f;
+    return z > camera_.min_depth && z < camera_.max_depth ? z : current_.depth[i];
+  };
+  // In the image with a bilinear neighbourhood (the second pass samples it).
+  const auto inImage = [&](const Vec2& q, double margin) {
+    return q.x() >= margin && q.y() >= margin && q.x() < seen.gray.cols - 1 - margin &&
+           q.y() < seen.gray.rows - 1 - margin;
+  };
+  // Whether the whole patch provably stays in front of the seen camera and
+  // in its image, without warping each pixel: the patch's rays between its
+  // nearest and farthest depth fill a truncated pyramid, whose image under a
+  // pinhole camera lies inside the hull of its 8 corners' images. Then the
+  // first pass may stop as soon as the depth has failed (the result is the
+  // same as warping every pixel); a camera with distortion warps them all.
+  bool stays_in = false;
+  if (!distorted) {
+    float z_near = current_.depth[i], z_far = current_.depth[i];
+    for (int y = y0 - r; y <= y0 + r; ++y) {
+      const float* depth_row = depth.empty() ? nullptr : depth.ptr<float>(y);
+      for (int x = x0 - r; x <= x0 + r; ++x) {
+        const float z = depthAt(depth_row, x);
+        z_near = std::min(z_near, z), z_far = std::max(z_far, z);
+      }
+    }
+    stays_in = true;
+    for (int corner = 0; corner < 8 && stays_in; ++corner) {
+      const Vec2 uv(corner & 1 ? x0 + r : x0 - r, corner & 2 ? y0 + r : y0 - r);
+      const Vec3 p = R * camera_.unproject(uv, corner & 4 ? z_far : z_near) + t;
+      stays_in = p.z() > camera_.min_depth && inImage(camera_.project(p), 0.01);
+    }
+  }
   int agree = 0, k = 0;
   for (int y = y0 - r; y <= y0 + r; ++y) {
     const float* depth_row = depth.empty() ? nullptr : depth.ptr<float>(y);
     for (int x = x0 - r; x <= x0 + r; ++x, ++k) {
-      // A pixel without depth takes the keypoint's: the patch is small.
-      float z = depth_row ? depth_row[x] : 0.0f;
-      if (!(z > camera_.min_depth && z < camera_.max_depth)) z = current_.depth[i];
+      const float z = depthAt(depth_row, x);
       Vec2 uv(x, y);
       if (distorted) uv = camera_.undistortPixel(uv);
       const Vec3 p = R * camera_.unproject(uv, z) + t;
       if (p.z() <= camera_.min_depth) return false;
       Vec2 q = camera_.project(p);
       if (distorted) q = camera_.distortPixel(q);
-      // In the image with a bilinear neighbourhood (the second pass samples it).
-      if (!(q.x() >= 0 && q.y() >= 0 && q.x() < seen.gray.cols - 1 && q.y() < seen.gray.rows - 1)) return false;
+      if (!inImage(q, 0.0)) return false;
       qx[k] = q.x(), qy[k] = q.y();
       const float zs = seen.depth.at<float>(static_cast<int>(q.y() + 0.5), static_cast<int>(q.x() + 0.5));
       agree += zs > camera_.min_depth && std::abs(zs - p.z()) < tol0 + tol2 * p.z() * p.z();
+      if (stays_in && k + 1 - agree > may_disagree) {
+        // Failed on depth; the share reported is at least the final one,
+        // and already below geometry.photo_depth_share.
+        out->depth_share = static_cast<double>(n - (k + 1 - agree)) / n;
+        out->ncc = -1;
+        return true;
+      }
     }
   }
   out->depth_share = static_cast<double>(agree) / n;
