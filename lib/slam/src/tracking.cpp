@@ -1108,11 +1108,18 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
   constexpr int kMaxPatch = 31 * 31;  // geometry.photo_patch_radius <= 15 (options)
   std::array<double, kMaxPatch> qx, qy;
   const int may_disagree = n - static_cast<int>(std::ceil(options_.geometry.photo_depth_share * n - 1e-9));
-  // A pixel without depth takes the keypoint's: the patch is small.
-  const auto depthAt = [&](const float* depth_row, int x) {
-    const float z = depth_row ? depth_row[x] : 0.0f;
-    return z > camera_.min_depth && z < camera_.max_depth ? z : current_.depth[i];
-  };
+  // The patch's depths, read once. A pixel without depth takes the
+  // keypoint's: the patch is small.
+  std::array<float, kMaxPatch> patch_z;
+  float z_near = current_.depth[i], z_far = current_.depth[i];
+  for (int y = y0 - r, k = 0; y <= y0 + r; ++y) {
+    const float* depth_row = depth.empty() ? nullptr : depth.ptr<float>(y);
+    for (int x = x0 - r; x <= x0 + r; ++x, ++k) {
+      const float z = depth_row ? depth_row[x] : 0.0f;
+      patch_z[k] = z > camera_.min_depth && z < camera_.max_depth ? z : current_.depth[i];
+      z_near = std::min(z_near, patch_z[k]), z_far = std::max(z_far, patch_z[k]);
+    }
+  }
   // In the image with a bilinear neighbourhood (the second pass samples it).
   const auto inImage = [&](const Vec2& q, double margin) {
     return q.x() >= margin && q.y() >= margin && q.x() < seen.gray.cols - 1 - margin &&
@@ -1124,28 +1131,16 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
   // pinhole camera lies inside the hull of its 8 corners' images. Then the
   // first pass may stop as soon as the depth has failed (the result is the
   // same as warping every pixel); a camera with distortion warps them all.
-  bool stays_in = false;
-  if (!distorted) {
-    float z_near = current_.depth[i], z_far = current_.depth[i];
-    for (int y = y0 - r; y <= y0 + r; ++y) {
-      const float* depth_row = depth.empty() ? nullptr : depth.ptr<float>(y);
-      for (int x = x0 - r; x <= x0 + r; ++x) {
-        const float z = depthAt(depth_row, x);
-        z_near = std::min(z_near, z), z_far = std::max(z_far, z);
-      }
-    }
-    stays_in = true;
-    for (int corner = 0; corner < 8 && stays_in; ++corner) {
-      const Vec2 uv(corner & 1 ? x0 + r : x0 - r, corner & 2 ? y0 + r : y0 - r);
-      const Vec3 p = R * camera_.unproject(uv, corner & 4 ? z_far : z_near) + t;
-      stays_in = p.z() > camera_.min_depth && inImage(camera_.project(p), 0.01);
-    }
+  bool stays_in = !distorted;
+  for (int corner = 0; corner < 8 && stays_in; ++corner) {
+    const Vec2 uv(corner & 1 ? x0 + r : x0 - r, corner & 2 ? y0 + r : y0 - r);
+    const Vec3 p = R * camera_.unproject(uv, corner & 4 ? z_far : z_near) + t;
+    stays_in = p.z() > camera_.min_depth && inImage(camera_.project(p), 0.01);
   }
   int agree = 0, k = 0;
   for (int y = y0 - r; y <= y0 + r; ++y) {
-    const float* depth_row = depth.empty() ? nullptr : depth.ptr<float>(y);
     for (int x = x0 - r; x <= x0 + r; ++x, ++k) {
-      const float z = depthAt(depth_row, x);
+      const float z = patch_z[k];
       Vec2 uv(x, y);
       if (distorted) uv = camera_.undistortPixel(uv);
       const Vec3 p = R * camera_.unproject(uv, z) + t;
