@@ -151,7 +151,8 @@ void OrbExtractor::buildPyramid(const cv::Mat& gray) {
   }
 }
 
-void OrbExtractor::detectLevel(int level, std::vector<cv::KeyPoint>* out) const {
+void OrbExtractor::detectLevel(int level, const cv::Mat& sparse, int sparse_every,
+                               std::vector<cv::KeyPoint>* out) const {
   const cv::Mat& image = pyramid_[level];
   const int budget = features_per_level_[level];
   const int min_x = kEdgeThreshold - 3, min_y = kEdgeThreshold - 3;
@@ -199,24 +200,47 @@ void OrbExtractor::detectLevel(int level, std::vector<cv::KeyPoint>* out) const 
     int rank;
     float response;
     int index;
+    bool sparse;  // its cell lies in the sparse region
+  };
+  const bool thin = !sparse.empty() && sparse_every > 1;
+  const double to_sparse_x = thin ? scales_[level] * sparse.cols / pyramid_[0].cols : 0;
+  const double to_sparse_y = thin ? scales_[level] * sparse.rows / pyramid_[0].rows : 0;
+  const auto sparseCell = [&](int cell_index) {
+    if (!thin) return false;
+    const int x = static_cast<int>((min_x + (cell_index % cols) * cell + cell / 2) * to_sparse_x);
+    const int y = static_cast<int>((min_y + (cell_index / cols) * cell + cell / 2) * to_sparse_y);
+    return sparse.at<std::uint8_t>(std::clamp(y, 0, sparse.rows - 1), std::clamp(x, 0, sparse.cols - 1)) != 0;
   };
   // Round robin over cells: every cell gives its best corner before any cell
   // gives its second, which spreads features evenly over the image.
   std::vector<Candidate> candidates;
   candidates.reserve(corners.size());
-  for (auto& members : per_cell) {
+  for (std::size_t c = 0; c < per_cell.size(); ++c) {
+    auto& members = per_cell[c];
     std::sort(members.begin(), members.end(),
               [&](int a, int b) { return corners[a].response > corners[b].response; });
+    const bool in_sparse = !members.empty() && sparseCell(static_cast<int>(c));
     for (std::size_t rank = 0; rank < members.size(); ++rank)
-      candidates.push_back({static_cast<int>(rank), corners[members[rank]].response, members[rank]});
+      candidates.push_back({static_cast<int>(rank), corners[members[rank]].response, members[rank], in_sparse});
   }
-  const std::size_t keep = std::min<std::size_t>(budget, candidates.size());
-  std::partial_sort(candidates.begin(), candidates.begin() + keep, candidates.end(),
-                    [](const Candidate& a, const Candidate& b) {
-                      if (a.rank != b.rank) return a.rank < b.rank;
-                      if (a.response != b.response) return a.response > b.response;
-                      return a.index < b.index;
-                    });
+  const auto order = [](const Candidate& a, const Candidate& b) {
+    if (a.rank != b.rank) return a.rank < b.rank;
+    if (a.response != b.response) return a.response > b.response;
+    return a.index < b.index;
+  };
+  std::size_t keep = std::min<std::size_t>(budget, candidates.size());
+  if (thin) {
+    // The same order, but in the sparse region only every sparse_every-th
+    // corner it reaches is kept.
+    std::sort(candidates.begin(), candidates.end(), order);
+    std::size_t kept = 0;
+    int sparse_seen = 0;
+    for (std::size_t k = 0; k < candidates.size() && kept < keep; ++k)
+      if (!candidates[k].sparse || sparse_seen++ % sparse_every == 0) candidates[kept++] = candidates[k];
+    keep = kept;
+  } else {
+    std::partial_sort(candidates.begin(), candidates.begin() + keep, candidates.end(), order);
+  }
   const float scale = static_cast<float>(scales_[level]);
   for (std::size_t k = 0; k < keep; ++k) {
     cv::KeyPoint kp = corners[candidates[k].index];
@@ -230,12 +254,13 @@ void OrbExtractor::detectLevel(int level, std::vector<cv::KeyPoint>* out) const 
   }
 }
 
-void OrbExtractor::extract(const cv::Mat& gray, std::vector<cv::KeyPoint>* keypoints,
-                           cv::Mat* descriptors) {
+void OrbExtractor::extract(const cv::Mat& gray, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors,
+                           const cv::Mat& sparse, int sparse_every) {
   keypoints->clear();
   CV_Assert(gray.type() == CV_8UC1);
   buildPyramid(gray);
-  for (int l = 0; l < options_.num_levels; ++l) detectLevel(l, keypoints);
+  CV_Assert(sparse.empty() || sparse.type() == CV_8UC1);
+  for (int l = 0; l < options_.num_levels; ++l) detectLevel(l, sparse, sparse_every, keypoints);
   descriptors->create(static_cast<int>(keypoints->size()), 32, CV_8U);
   for (std::size_t i = 0; i < keypoints->size(); ++i) {
     const cv::KeyPoint& kp = (*keypoints)[i];

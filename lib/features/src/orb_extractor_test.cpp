@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 #include <opencv2/imgproc.hpp>
 
 #include "stillpoint/features/descriptor.hpp"
@@ -97,6 +99,39 @@ TEST(OrbExtractor, DescriptorsSurviveInPlaneRotation) {
   EXPECT_GT(good, checked * 7 / 10) << good << " of " << checked;
   // Corresponding corners are far closer than unrelated ones.
   EXPECT_LT(matched_sum * 3, random_sum) << matched_sum / checked << " vs " << random_sum / checked;
+}
+
+// Cells in the sparse region (here the left half, given at 1/8 scale as the
+// tracker does) keep one in N of the corners the round robin reaches there, so
+// they end up about N times sparser than the other cells, which get the
+// budget they leave.
+TEST(OrbExtractor, SparseRegionLeavesItsBudgetToTheRest) {
+  OrbExtractor orb{OrbOptions{}};
+  const cv::Mat image = texturedImage(640, 480, 5);
+  const auto halves = [](const std::vector<cv::KeyPoint>& kps) {
+    std::pair<int, int> n{0, 0};
+    for (const cv::KeyPoint& kp : kps) (kp.pt.x < 320 ? n.first : n.second)++;
+    return n;
+  };
+  std::vector<cv::KeyPoint> plain, thinned, off;
+  cv::Mat d_plain, d_thinned, d_off;
+  orb.extract(image, &plain, &d_plain);
+  cv::Mat sparse = cv::Mat::zeros(60, 80, CV_8UC1);
+  sparse.colRange(0, 40).setTo(255);
+  orb.extract(image, &thinned, &d_thinned, sparse, 4);
+  const auto [left, right] = halves(plain);
+  const auto [left4, right4] = halves(thinned);
+  std::printf("left/right half: %d/%d plain, %d/%d with the left half sparse (1 in 4)\n", left, right, left4, right4);
+  EXPECT_EQ(thinned.size(), plain.size());
+  EXPECT_EQ(d_thinned.rows, static_cast<int>(thinned.size()));
+  // Cells straddling the border count by their centre.
+  EXPECT_LT(left4, left / 2);
+  EXPECT_GT(right4, right + (left - left4) * 9 / 10);
+  EXPECT_NEAR(4.0 * left4 / right4, 1.0, 0.25);
+  // One in one, or no region: the plain extraction.
+  orb.extract(image, &off, &d_off, sparse, 1);
+  ASSERT_EQ(off.size(), plain.size());
+  EXPECT_EQ(cv::norm(d_off, d_plain, cv::NORM_HAMMING), 0);
 }
 
 TEST(OrbExtractor, HandlesFlatAndTinyImages) {

@@ -62,8 +62,9 @@ void Frame::clearMatches() {
   outlier.assign(keys.size(), 0);
 }
 
-void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb) {
-  orb->extract(gray, &frame->keys, &frame->descriptors);
+void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb,
+                const cv::Mat& sparse, int sparse_every) {
+  orb->extract(gray, &frame->keys, &frame->descriptors, sparse, sparse_every);
   const CameraModel& cam = *frame->camera;
   const int n = frame->size();
   frame->un.resize(n);

@@ -76,7 +76,9 @@ struct Frame {
 
 // Extracts features from an 8-bit grey image and samples depth (metres,
 // CV_32F, 0 = none) at each keypoint. `depth_m` may be empty (no depth).
-void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb);
+// `sparse` and `sparse_every`: where the budget is thinned (OrbExtractor).
+void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb,
+                const cv::Mat& sparse = cv::Mat(), int sparse_every = 1);
 
 // Marks the features inside `movers` (CV_8UC1 or CV_16UC1, the image's size,
 // non-zero = moving) as kSemanticDynamic: movers known from outside are kept

@@ -20,6 +20,10 @@ Status TrackingOptions::validate() const {
   if (trajectory_records < -1) return Error{"tracking.trajectory_records must be >= -1 (-1: every frame)"};
   if (motion_prior_sigma_m < 0) return Error{"tracking.motion_prior_sigma_m must be >= 0 (0: no prior)"};
   if (motion_prior_sigma_deg <= 0) return Error{"tracking.motion_prior_sigma_deg must be > 0"};
+  if (mover_cells_every < 1) return Error{"tracking.mover_cells_every must be >= 1 (1: off)"};
+  if (!(mover_cells_min_share >= 0 && mover_cells_min_share <= 1))
+    return Error{"tracking.mover_cells_min_share must be in [0, 1]"};
+  if (!(mover_cells_radius_px > 0)) return Error{"tracking.mover_cells_radius_px must be > 0"};
   return Status::success();
 }
 
@@ -166,6 +170,9 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("tracking", "trajectory_records", o.tracking.trajectory_records);
   v("tracking", "motion_prior_sigma_m", o.tracking.motion_prior_sigma_m);
   v("tracking", "motion_prior_sigma_deg", o.tracking.motion_prior_sigma_deg);
+  v("tracking", "mover_cells_every", o.tracking.mover_cells_every);
+  v("tracking", "mover_cells_min_share", o.tracking.mover_cells_min_share);
+  v("tracking", "mover_cells_radius_px", o.tracking.mover_cells_radius_px);
   v("keyframes", "max_interval_s", o.keyframes.max_interval_s);
   v("keyframes", "min_interval_frames", o.keyframes.min_interval_frames);
   v("keyframes", "tracked_ratio", o.keyframes.tracked_ratio);

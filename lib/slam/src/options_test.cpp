@@ -73,6 +73,9 @@ TEST(SlamOptionsValidate, EachOutOfRangeValueNamesItsField) {
       {"tracking.local_keyframes_max", [](SlamOptions& o) { o.tracking.local_keyframes_max = 0; }},
       {"tracking.relocalisation_candidates", [](SlamOptions& o) { o.tracking.relocalisation_candidates = 0; }},
       {"tracking.trajectory_records", [](SlamOptions& o) { o.tracking.trajectory_records = -2; }},
+      {"tracking.mover_cells_every", [](SlamOptions& o) { o.tracking.mover_cells_every = 0; }},
+      {"tracking.mover_cells_min_share", [](SlamOptions& o) { o.tracking.mover_cells_min_share = 1.5; }},
+      {"tracking.mover_cells_radius_px", [](SlamOptions& o) { o.tracking.mover_cells_radius_px = 0; }},
       {"keyframes.max_interval_s", [](SlamOptions& o) { o.keyframes.max_interval_s = -1; }},
       {"keyframes.min_interval_frames", [](SlamOptions& o) { o.keyframes.min_interval_frames = -1; }},
       {"keyframes.tracked_ratio", [](SlamOptions& o) { o.keyframes.tracked_ratio = 1.5; }},
@@ -177,6 +180,9 @@ SlamOptions everythingChanged() {
   o.tracking.local_keyframes_max = 45;
   o.tracking.relocalisation_candidates = 12;
   o.tracking.trajectory_records = 300;
+  o.tracking.mover_cells_every = 3;
+  o.tracking.mover_cells_min_share = 0.25;
+  o.tracking.mover_cells_radius_px = 40;
   o.keyframes.max_interval_s = 0.75;
   o.keyframes.min_interval_frames = 3;
   o.keyframes.tracked_ratio = 0.55;
@@ -237,6 +243,9 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.tracking.trajectory_records, b.tracking.trajectory_records);
   EXPECT_EQ(a.keyframes.max_interval_s, b.keyframes.max_interval_s);
   EXPECT_EQ(a.keyframes.min_interval_frames, b.keyframes.min_interval_frames);
+  EXPECT_EQ(a.tracking.mover_cells_every, b.tracking.mover_cells_every);
+  EXPECT_EQ(a.tracking.mover_cells_min_share, b.tracking.mover_cells_min_share);
+  EXPECT_EQ(a.tracking.mover_cells_radius_px, b.tracking.mover_cells_radius_px);
   EXPECT_EQ(a.keyframes.tracked_ratio, b.keyframes.tracked_ratio);
   EXPECT_EQ(a.keyframes.close_tracked_min, b.keyframes.close_tracked_min);
   EXPECT_EQ(a.keyframes.close_untracked_min, b.keyframes.close_untracked_min);

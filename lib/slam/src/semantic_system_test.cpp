@@ -281,6 +281,9 @@ TEST(SemanticModule, GrownMasksStayAroundTheirMatches) {
     options.semantic.propagate_grow_px = grow;
     options.semantic.propagate_warp_px = warp;
     options.semantic.propagate_motion_px = gate;
+    // Counts of marked features compare propagation modes: the marked region
+    // keeps its share of the feature budget in all of them.
+    options.tracking.mover_cells_every = 1;
     auto system = SlamSystem::create(frames.camera, options, std::make_unique<RectangleSegmenter>(kRect, false));
     EXPECT_TRUE(system.ok()) << system.error();
     if (!system.ok()) return 0;

@@ -232,7 +232,7 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   // and the tracker keeps it for geometry.anchor_frames frames).
   const bool clusters_pending = s.clustering && !input.depth_m.empty();
   if (clusters_pending) s.clustering->submit(frame.id, input.depth_m.clone());
-  buildFrame(&frame, input.gray, input.depth_m, &s.orb);
+  buildFrame(&frame, input.gray, input.depth_m, &s.orb, s.tracker.moverCells(), s.options.tracking.mover_cells_every);
   if (!input.movers.empty()) markKnownMovers(&frame, input.movers);
   // The tracker keeps it for geometry.freespace_frames frames.
   if (clusters_pending && s.options.geometry.photo_release_ncc > 0) frame.gray = input.gray.clone();

@@ -1233,6 +1233,57 @@ TEST(SlamSystemKnownMovers, MasksKeepTheBoardOutOfThePoseAndTheMap) {
   EXPECT_NEAR(errors[2].rms_translation, errors[1].rms_translation, 1e-9);
 }
 
+// Once the board's features are known to move, later frames spend less of the
+// feature budget on it and more on the room (tracking.mover_cells_*), and the
+// room is still tracked as well. The board holds 6-10 % of the features: under
+// a minimum share of 20 % it keeps them all.
+TEST(SlamSystemKnownMovers, MoversGetLessOfTheFeatureBudget) {
+  const MovingBoardSequence data = movingBoardSequence(30);
+  SlamOptions options = sequentialOptions();
+  options.geometry.enabled = false;
+  options.mapping.keep_culled_keyframes = true;
+  constexpr int kRuns = 3;  // every cell alike; movers 4x sparser from a share of 20 %; ... of any share
+  int inside[kRuns] = {}, outside[kRuns] = {};
+  PoseErrors errors[kRuns];
+  for (int run = 0; run < kRuns; ++run) {
+    options.tracking.mover_cells_every = run == 0 ? 1 : 4;
+    options.tracking.mover_cells_min_share = run == 2 ? 0.0 : 0.2;
+    auto system = makeSystem(data.seq.camera, options);
+    ASSERT_TRUE(system);
+    std::vector<SE3> online;
+    for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
+      RgbdInput input = data.seq.frames[i];
+      input.movers = data.masks[i];
+      const auto out = system->track(input);
+      ASSERT_TRUE(out.ok()) << out.error();
+      ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+      online.push_back(out->T_w_c);
+    }
+    system->finish();
+    errors[run] = compare(online, data.seq.T_w_c);
+    for (const KeyFrameView& kf : system->keyframes()) {
+      const auto k = static_cast<std::size_t>(std::find_if(data.seq.frames.begin(), data.seq.frames.end(),
+                                                           [&](const RgbdInput& f) { return f.stamp == kf.stamp; }) -
+                                              data.seq.frames.begin());
+      ASSERT_LT(k, data.masks.size());
+      if (k <= 10) continue;  // the board starts moving (and so masked) in frame 10
+      for (const KeyFrameFeature& f : kf.features)
+        (data.masks[k].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) ? inside : outside)[run]++;
+    }
+    std::printf("mover_cells_every %d, min share %.2f: keyframe features on the board %d, off it %d; online rms "
+                "%.2f mm\n",
+                options.tracking.mover_cells_every, options.tracking.mover_cells_min_share, inside[run], outside[run],
+                errors[run].rms_translation * 1e3);
+  }
+  ASSERT_GT(inside[0], 0);
+  EXPECT_EQ(inside[1], inside[0]);
+  EXPECT_EQ(outside[1], outside[0]);
+  // Keyframes may differ in number: compare the board's share of their features.
+  const auto share = [&](int run) { return double(inside[run]) / std::max(1, inside[run] + outside[run]); };
+  EXPECT_LT(share(2), 0.5 * share(0));
+  EXPECT_LT(errors[2].rms_translation, 0.005);
+}
+
 // The sequence other modules' tests use, read back through TumDataset (the
 // replay path: colour PNG to grey, 16-bit depth to metres). One
 // fronto-parallel plane is a weak scene: a small tilt and a sideways shift

@@ -1,6 +1,7 @@
 #include "tracking.hpp"
 
 #include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <array>
@@ -135,6 +136,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   out->new_keyframe = new_keyframe != nullptr;
   out->geometry = std::move(geometry_);
   out->semantic_features = semantic_marked_;
+  markMoverCells(ok);
   if (ok) {
     rememberAnchor();
   } else {
@@ -145,6 +147,21 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   last_photo_released_ = std::move(photo_released_);
   has_last_ = true;
   return new_keyframe;
+}
+
+void Tracker::markMoverCells(bool tracked) {
+  const TrackingOptions& t = options_.tracking;
+  mover_cells_.release();
+  if (!tracked || t.mover_cells_every <= 1 || current_.size() == 0) return;
+  const auto dynamic = std::count_if(current_.dynamic.begin(), current_.dynamic.end(), [](char d) { return d != 0; });
+  if (dynamic == 0 || dynamic < t.mover_cells_min_share * current_.size()) return;
+  constexpr int kScale = 8;  // the extractor samples one point per grid cell (32 px and up)
+  mover_cells_ = cv::Mat::zeros((camera_.height + kScale - 1) / kScale, (camera_.width + kScale - 1) / kScale, CV_8UC1);
+  const int radius = std::max(1, static_cast<int>(std::lround(t.mover_cells_radius_px * camera_.width / 640.0 / kScale)));
+  for (int i = 0; i < current_.size(); ++i)
+    if (current_.dynamic[i])
+      cv::circle(mover_cells_, cv::Point(cvRound(current_.keys[i].pt.x / kScale), cvRound(current_.keys[i].pt.y / kScale)),
+                 radius, cv::Scalar(255), cv::FILLED);
 }
 
 void Tracker::record(const TrajectoryRecord& r) {

@@ -38,6 +38,10 @@ class Tracker {
   // The most recent tracking.trajectory_records tracked frames (all with -1).
   const std::deque<TrajectoryRecord>& records() const { return records_; }
   TrackingState state() const { return state_; }
+  // Where the last frame's movers were, for the next frame's feature budget
+  // (tracking.mover_cells_*): CV_8UC1 at 1/8 of the image size, non-zero near
+  // its dynamic features; empty when they were too few or tracking failed.
+  const cv::Mat& moverCells() const { return mover_cells_; }
 
  private:
   bool initialise();
@@ -97,6 +101,7 @@ class Tracker {
   std::optional<TrajectoryRecord> last_record_;  // the last tracked frame (motion model)
   std::deque<TrajectoryRecord> records_;
   void record(const TrajectoryRecord& r);
+  void markMoverCells(bool tracked);
   // Frees the keyframes local mapping culled, after dropping our own pointers
   // to them (map lock held exclusively).
   void releaseCulledKeyFrames();
@@ -171,6 +176,7 @@ class Tracker {
     double depth_share = 0;  // share of the patch's pixels whose depth agrees there
   };
   bool photoAgreement(int i, const cv::Mat& depth, std::size_t frame, PhotoAgreement* out) const;
+  cv::Mat mover_cells_;  // moverCells()
 };
 
 // Photometric detection: a cluster at least photo_detect_min of whose

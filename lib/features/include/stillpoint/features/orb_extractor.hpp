@@ -28,7 +28,15 @@ class OrbExtractor {
   // Detects keypoints on an 8-bit grey image and computes their descriptors
   // (one 32-byte row per keypoint). Keypoint coordinates are level-0 pixels;
   // `octave` holds the pyramid level, `angle` degrees, `size` the patch size.
-  void extract(const cv::Mat& gray, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors);
+  //
+  // `sparse` (optional, CV_8UC1 of any size: it is scaled to the image) marks
+  // regions, such as movers, that get a smaller share of the budget: of the
+  // corners the round robin reaches in cells whose centre lies there, one in
+  // `sparse_every` is kept, so those cells end up about that many times
+  // sparser than the others, which get the budget they leave. Empty, or
+  // sparse_every 1: every cell alike.
+  void extract(const cv::Mat& gray, std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors,
+               const cv::Mat& sparse = cv::Mat(), int sparse_every = 1);
 
   const OrbOptions& options() const { return options_; }
   const std::vector<double>& scales() const { return scales_; }            // scale_factor^level
@@ -41,7 +49,7 @@ class OrbExtractor {
 
  private:
   void buildPyramid(const cv::Mat& gray);
-  void detectLevel(int level, std::vector<cv::KeyPoint>* out) const;
+  void detectLevel(int level, const cv::Mat& sparse, int sparse_every, std::vector<cv::KeyPoint>* out) const;
 
   OrbOptions options_;
   std::vector<double> scales_, sigma2_, inv_sigma2_;

@@ -28,6 +28,18 @@ struct TrackingOptions {
   // deviation per frame (m, degrees); 0 = no prior.
   double motion_prior_sigma_m = 0.002;
   double motion_prior_sigma_deg = 1.0;
+  // The movers' share of the feature budget. After a frame whose dynamic
+  // features (geometry module, semantic masks, known movers) were at least
+  // mover_cells_min_share of its features, the ORB grid cells within
+  // mover_cells_radius_px of them (at 640 px width, scaled with the image)
+  // are made mover_cells_every times sparser than the rest, which gets the
+  // budget they leave (OrbExtractor::extract): a mover filling 40 % of the
+  // view otherwise takes 40 % of orb.num_features, which the pose needs.
+  // 1 = off. Below the share a mover keeps all its features, and so its
+  // evidence (README, geometry module).
+  int mover_cells_every = 2;
+  double mover_cells_min_share = 0.2;
+  double mover_cells_radius_px = 32;
   Status validate() const;
 };
 
