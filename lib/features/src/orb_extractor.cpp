@@ -231,11 +231,13 @@ void OrbExtractor::detectLevel(int level, const cv::Mat& sparse, int sparse_ever
   std::size_t keep = std::min<std::size_t>(budget, candidates.size());
   if (thin) {
     // The same order, but in the sparse region only every sparse_every-th
-    // corner it reaches is kept.
-    std::sort(candidates.begin(), candidates.end(), order);
+    // corner it reaches is kept. The order is needed only as far as the
+    // budget reaches: at most sparse_every x budget candidates.
+    const std::size_t reach = std::min(candidates.size(), keep * static_cast<std::size_t>(sparse_every));
+    std::partial_sort(candidates.begin(), candidates.begin() + reach, candidates.end(), order);
     std::size_t kept = 0;
     int sparse_seen = 0;
-    for (std::size_t k = 0; k < candidates.size() && kept < keep; ++k)
+    for (std::size_t k = 0; k < reach && kept < keep; ++k)
       if (!candidates[k].sparse || sparse_seen++ % sparse_every == 0) candidates[kept++] = candidates[k];
     keep = kept;
   } else {
