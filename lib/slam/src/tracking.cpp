@@ -64,6 +64,12 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     std::shared_lock lock(map_->mutex());
     const bool was_lost = state_ == TrackingState::kLost;
     if (!was_lost) {
+      // Reads only the frame's keypoints and descriptors, which stage 1
+      // leaves alone, and the anchor, which stays until the frame is done.
+      if (clusters_pending_ && !anchors_.empty() && !options_.sequential)
+        anchor_matches_ = std::async(std::launch::async, [this] {
+          return matchByDescriptor(current_, anchors_.front(), 0.7f, false, true);
+        });
       if (options_.semantic.enabled && options_.semantic.propagate_masks) markSemanticMovers();
       {
         ScopedStageTimer timer(&times_.initial_pose);
@@ -137,6 +143,8 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   out->geometry = std::move(geometry_);
   out->semantic_features = semantic_marked_;
   markMoverCells(ok);
+  if (anchor_matches_.valid()) anchor_matches_.wait();  // not used: stage 1 failed
+  anchor_matches_ = {};
   if (ok) {
     rememberAnchor();
   } else {
@@ -604,7 +612,9 @@ void Tracker::removeDynamicFeatures() {
   for (int i = 0; i < current_.size(); ++i) inherited[i] |= current_.dynamic[i] == kSemanticDynamic;
   if (!anchors_.empty()) {
     const Frame& anchor = anchors_.front();
-    for (const auto& [j, i] : matchByDescriptor(current_, anchor, 0.7f, false, true)) {
+    const auto matches =
+        anchor_matches_.valid() ? anchor_matches_.get() : matchByDescriptor(current_, anchor, 0.7f, false, true);
+    for (const auto& [j, i] : matches) {
       anchor_point[j] = anchor.unprojectToWorld(i);
       has_anchor[j] = 1;
       anchor_distance[j] = features::hammingDistance(anchor.descriptor(i), current_.descriptor(j));

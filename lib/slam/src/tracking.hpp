@@ -2,6 +2,7 @@
 // Frame-to-map tracking: motion model, reference keyframe, local map,
 // relocalisation, and the keyframe decision.
 #include <deque>
+#include <future>
 #include <memory>
 #include <optional>
 #include <utility>
@@ -127,6 +128,10 @@ class Tracker {
   // depth, final pose; no matches), oldest first: the geometry module's
   // evidence baseline. Cleared when tracking is lost.
   std::deque<Frame> anchors_;
+  // The current frame's descriptor matches to the oldest anchor, which need no
+  // pose: in threaded mode they are computed in their own thread while stage 1
+  // runs (sequential replays compute them inline, when they are needed).
+  std::future<std::vector<std::pair<int, int>>> anchor_matches_;
   // Features of the current / last frame that the photometric test freed from
   // a dynamic cluster (with geometry.photo_release_memory): static for the
   // pose and the map, but they pass on their cluster's memory.
