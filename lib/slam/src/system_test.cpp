@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <string>
 #include <utility>
@@ -1181,6 +1182,35 @@ TEST(SlamSystemGeometry, ProbationKeepsAnAppearingBoardOutOfThePose) {
   EXPECT_LT(runs[1].errors.rms_translation, 0.005);
 }
 
+// Tracks the board sequence with `options`, frame i given movers(i) as its
+// known movers (an empty mask: none); every frame must track. Returns the
+// online poses' errors and the keyframes.
+void trackBoardWithMovers(const MovingBoardSequence& data, const SlamOptions& options,
+                          const std::function<cv::Mat(std::size_t)>& movers, PoseErrors* errors,
+                          std::vector<KeyFrameView>* keyframes) {
+  auto system = makeSystem(data.seq.camera, options);
+  ASSERT_TRUE(system);
+  std::vector<SE3> online;
+  for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
+    RgbdInput input = data.seq.frames[i];
+    input.movers = movers(i);
+    const auto out = system->track(input);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    online.push_back(out->T_w_c);
+  }
+  system->finish();
+  *errors = compare(online, data.seq.T_w_c);
+  *keyframes = system->keyframes();
+}
+
+// The index of the frame a keyframe was made from.
+std::size_t frameOf(const MovingBoardSequence& data, const KeyFrameView& kf) {
+  const auto it = std::find_if(data.seq.frames.begin(), data.seq.frames.end(),
+                               [&](const RgbdInput& f) { return f.stamp == kf.stamp; });
+  return static_cast<std::size_t>(it - data.seq.frames.begin());
+}
+
 // Known movers (RgbdInput::movers, e.g. a detector in another process): with
 // the dynamic-object modules off, the board's own masks keep its features
 // out of the pose and out of the map, 8-bit and 16-bit masks alike.
@@ -1190,31 +1220,23 @@ TEST(SlamSystemKnownMovers, MasksKeepTheBoardOutOfThePoseAndTheMap) {
   options.geometry.enabled = false;
   PoseErrors errors[3];
   for (int run = 0; run < 3; ++run) {  // 0: no masks, 1: 8-bit masks, 2: 16-bit masks
-    auto system = makeSystem(data.seq.camera, options);
-    ASSERT_TRUE(system);
-    std::vector<SE3> online;
-    for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
-      RgbdInput input = data.seq.frames[i];
-      if (run == 1) input.movers = data.masks[i];
-      if (run == 2) data.masks[i].convertTo(input.movers, CV_16U, 300);
-      const auto out = system->track(input);
-      ASSERT_TRUE(out.ok()) << out.error();
-      ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-      online.push_back(out->T_w_c);
-    }
-    system->finish();
-    errors[run] = compare(online, data.seq.T_w_c);
+    std::vector<KeyFrameView> keyframes;
+    const auto movers = [&](std::size_t i) {
+      cv::Mat m;
+      if (run == 1) m = data.masks[i];
+      if (run == 2) data.masks[i].convertTo(m, CV_16U, 300);
+      return m;
+    };
+    ASSERT_NO_FATAL_FAILURE(trackBoardWithMovers(data, options, movers, &errors[run], &keyframes));
     std::printf("moving board, geometry module off, %s: online rms %.2f mm, max %.2f mm\n",
                 run == 0 ? "no masks" : run == 1 ? "8-bit masks" : "16-bit masks", errors[run].rms_translation * 1e3,
                 errors[run].max_translation * 1e3);
     if (run == 0) continue;
     // No keyframe holds a map point inside its frame's mask.
     int inside = 0, mapped_inside = 0;
-    for (const KeyFrameView& kf : system->keyframes()) {
+    for (const KeyFrameView& kf : keyframes) {
       if (kf.bad) continue;
-      const auto k = static_cast<std::size_t>(std::find_if(data.seq.frames.begin(), data.seq.frames.end(),
-                                                           [&](const RgbdInput& f) { return f.stamp == kf.stamp; }) -
-                                              data.seq.frames.begin());
+      const std::size_t k = frameOf(data, kf);
       ASSERT_LT(k, data.masks.size());
       for (const KeyFrameFeature& f : kf.features) {
         if (!data.masks[k].at<std::uint8_t>(cvRound(f.v), cvRound(f.u))) continue;
@@ -1248,23 +1270,11 @@ TEST(SlamSystemKnownMovers, MoversGetLessOfTheFeatureBudget) {
   for (int run = 0; run < kRuns; ++run) {
     options.tracking.mover_cells_every = run == 0 ? 1 : 4;
     options.tracking.mover_cells_min_share = run == 2 ? 0.0 : 0.2;
-    auto system = makeSystem(data.seq.camera, options);
-    ASSERT_TRUE(system);
-    std::vector<SE3> online;
-    for (std::size_t i = 0; i < data.seq.frames.size(); ++i) {
-      RgbdInput input = data.seq.frames[i];
-      input.movers = data.masks[i];
-      const auto out = system->track(input);
-      ASSERT_TRUE(out.ok()) << out.error();
-      ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-      online.push_back(out->T_w_c);
-    }
-    system->finish();
-    errors[run] = compare(online, data.seq.T_w_c);
-    for (const KeyFrameView& kf : system->keyframes()) {
-      const auto k = static_cast<std::size_t>(std::find_if(data.seq.frames.begin(), data.seq.frames.end(),
-                                                           [&](const RgbdInput& f) { return f.stamp == kf.stamp; }) -
-                                              data.seq.frames.begin());
+    std::vector<KeyFrameView> keyframes;
+    ASSERT_NO_FATAL_FAILURE(trackBoardWithMovers(
+        data, options, [&](std::size_t i) { return data.masks[i]; }, &errors[run], &keyframes));
+    for (const KeyFrameView& kf : keyframes) {
+      const std::size_t k = frameOf(data, kf);
       ASSERT_LT(k, data.masks.size());
       if (k <= 10) continue;  // the board starts moving (and so masked) in frame 10
       for (const KeyFrameFeature& f : kf.features)
