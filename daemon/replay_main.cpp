@@ -234,12 +234,19 @@ int main(int argc, char** argv) {
     }
     mover_masks = std::move(*listed);
   }
-  // The segmentation thread runs at nice 10, as stillpointd's default
-  // (threads.semantic.nice): a keyframe's segmentation must not take the CPU
-  // from tracking, and tracking times with the module on mean the same here.
+  // The SLAM system's threads run as under stillpointd's defaults, so that
+  // tracking times mean the same here: local mapping, the depth clustering and
+  // the tracker's helper at nice 5 (threads.mapping.nice; they inherit it from
+  // the thread that creates the system), the segmentation thread at nice 10
+  // (threads.semantic.nice). A keyframe's bundle adjustment or segmentation
+  // must not take the CPU from tracking, which runs here (nice 0).
   slam::SlamThreadHooks hooks;
   hooks.semantic_start = [] { setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), 10); };
-  auto system = slam::SlamSystem::create(*camera, options, hooks);
+  Result<std::unique_ptr<slam::SlamSystem>> system = Error{"not created"};
+  std::thread([&] {
+    setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), 5);
+    system = slam::SlamSystem::create(*camera, options, hooks);
+  }).join();
   if (!system) {
     std::fprintf(stderr, "stillpoint-replay: %s\n", system.error().c_str());
     return 1;

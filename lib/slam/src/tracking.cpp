@@ -41,7 +41,9 @@ Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const Le
       levels_(levels),
       map_(map),
       clustering_(clustering),
-      close_depth_(options.tracking.close_depth_baselines * camera.baseline) {}
+      close_depth_(options.tracking.close_depth_baselines * camera.baseline) {
+  if (clustering_ && !options_.sequential) helper_ = std::make_unique<TaskThread>();
+}
 
 KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, TrackOutput* out) {
   current_ = std::move(frame);
@@ -66,8 +68,8 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     if (!was_lost) {
       // Reads only the frame's keypoints and descriptors, which stage 1
       // leaves alone, and the anchor, which stays until the frame is done.
-      if (clusters_pending_ && !anchors_.empty() && !options_.sequential)
-        anchor_matches_ = std::async(std::launch::async, [this] {
+      if (clusters_pending_ && !anchors_.empty() && helper_)
+        anchor_matches_ = helper_->run([this] {
           return matchByDescriptor(current_, anchors_.front(), 0.7f, false, true);
         });
       if (options_.semantic.enabled && options_.semantic.propagate_masks) markSemanticMovers();

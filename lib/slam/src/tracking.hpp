@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "map.hpp"
+#include "task_thread.hpp"
 #include "stillpoint/geometry/clustering_worker.hpp"
 #include "stillpoint/slam/options.hpp"
 #include "stillpoint/slam/system.hpp"
@@ -129,9 +130,10 @@ class Tracker {
   // evidence baseline. Cleared when tracking is lost.
   std::deque<Frame> anchors_;
   // The current frame's descriptor matches to the oldest anchor, which need no
-  // pose: in threaded mode they are computed in their own thread while stage 1
-  // runs (sequential replays compute them inline, when they are needed).
+  // pose: in threaded mode `helper_` computes them while stage 1 runs
+  // (sequential replays compute them inline, when they are needed).
   std::future<std::vector<std::pair<int, int>>> anchor_matches_;
+  std::unique_ptr<TaskThread> helper_;  // threaded mode with the geometry module only
   // Features of the current / last frame that the photometric test freed from
   // a dynamic cluster (with geometry.photo_release_memory): static for the
   // pose and the map, but they pass on their cluster's memory.
