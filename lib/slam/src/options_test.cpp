@@ -139,6 +139,7 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.freespace_split_radius_m", [](SlamOptions& o) { o.geometry.freespace_split_radius_m = -1; }},
       {"geometry.freespace_grow_angle_deg", [](SlamOptions& o) { o.geometry.freespace_grow_angle_deg = 95; }},
       {"geometry.freespace_frames", [](SlamOptions& o) { o.geometry.freespace_frames = 0; }},
+      {"geometry.carried_frames", [](SlamOptions& o) { o.geometry.carried_frames = 0; }},
       {"geometry.evidence_depth_max_m", [](SlamOptions& o) { o.geometry.evidence_depth_max_m = -1; }},
       {"geometry.static_match_margin", [](SlamOptions& o) { o.geometry.static_match_margin = 300; }},
       {"geometry.photo_release_ncc", [](SlamOptions& o) { o.geometry.photo_release_ncc = 1.5; }},
@@ -219,6 +220,7 @@ SlamOptions everythingChanged() {
   o.geometry.freespace_split_protect_chi2 = 20;
   o.geometry.freespace_grow_plane_m = 0.03;
   o.geometry.freespace_grow_angle_deg = 40;
+  o.geometry.carried_frames = 7;
   o.geometry.frame_sigma_factor = 3.0;
   o.geometry.frame_sigma_from = "all";
   o.geometry.frame_sigma_quantile = 0.75;
@@ -280,6 +282,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.geometry.freespace_split_protect_chi2, b.geometry.freespace_split_protect_chi2);
   EXPECT_EQ(a.geometry.freespace_grow_plane_m, b.geometry.freespace_grow_plane_m);
   EXPECT_EQ(a.geometry.freespace_grow_angle_deg, b.geometry.freespace_grow_angle_deg);
+  EXPECT_EQ(a.geometry.carried_frames, b.geometry.carried_frames);
   EXPECT_EQ(a.geometry.frame_sigma_factor, b.geometry.frame_sigma_factor);
   EXPECT_EQ(a.geometry.frame_sigma_from, b.geometry.frame_sigma_from);
   EXPECT_EQ(a.geometry.frame_sigma_quantile, b.geometry.frame_sigma_quantile);

@@ -155,6 +155,8 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   }
   last_ = std::move(current_);
   last_photo_released_ = std::move(photo_released_);
+  last_chain_ = std::move(chain_);
+  chain_.clear();
   has_last_ = true;
   return new_keyframe;
 }
@@ -489,6 +491,7 @@ void Tracker::refreshLastFrame() {
   // may have moved it); then give it temporary points from depth so the
   // motion model has enough to match against.
   if (last_record_) last_.T_c_w = last_record_->T_c_w();
+  carried_from_.clear();
   std::vector<std::pair<float, int>> by_depth;
   for (int i = 0; i < last_.size(); ++i) {
     if (last_.depth[i] <= 0) continue;
@@ -503,6 +506,7 @@ void Tracker::refreshLastFrame() {
     auto p = std::make_shared<MapPoint>(-1, last_.unprojectToWorld(i), nullptr);
     std::copy(last_.descriptor(i), last_.descriptor(i) + 32, p->descriptor.begin());
     p->moving = true;
+    carried_from_[p.get()] = i;
     last_.points[i] = std::move(p);
     last_.outlier[i] = 0;
   }
@@ -574,8 +578,37 @@ void Tracker::removeDynamicFeatures() {
   // matches, and its error is the whole displacement), else its stage-1 match
   // (last frame or local map: only the motion of one frame).
   std::vector<std::shared_ptr<MapPoint>> evidence(current_.points);
-  for (std::size_t i = 0; i < carried_.size(); ++i)
-    if (!evidence[i] && carried_[i]) evidence[i] = carried_[i];
+  // Carried evidence (a match to a feature found moving in the last frame) is
+  // the oldest position of its chain of such matches, at most
+  // geometry.carried_frames back: a mover that slows down or turns keeps the
+  // error of several frames of its motion, not of one. Each link is a
+  // projection-search match that may have hopped to a look-alike neighbour
+  // (floor planks), so a chain of n links is judged at n times the noise of
+  // one: its chi2 is divided by n (a steady mover's grows as n^2).
+  chain_.assign(current_.size(), {});
+  std::vector<int> chain_links(current_.size(), 1);
+  const auto max_links = static_cast<std::size_t>(options_.geometry.carried_frames);
+  for (std::size_t i = 0; i < carried_.size(); ++i) {
+    if (!carried_[i]) continue;
+    std::vector<Vec3>& chain = chain_[i];
+    chain.push_back(carried_[i]->position);
+    const auto from = carried_from_.find(carried_[i].get());
+    if (from != carried_from_.end() && from->second < static_cast<int>(last_chain_.size()))
+      for (const Vec3& p : last_chain_[from->second]) {
+        if (chain.size() >= max_links) break;
+        chain.push_back(p);
+      }
+    if (evidence[i]) continue;
+    if (chain.size() == 1) {
+      evidence[i] = carried_[i];
+      continue;
+    }
+    chain_links[i] = static_cast<int>(chain.size());
+    auto oldest = std::make_shared<MapPoint>(-1, chain.back(), nullptr);
+    oldest->descriptor = carried_[i]->descriptor;
+    oldest->moving = true;
+    evidence[i] = std::move(oldest);
+  }
   // Matches of the projection search with a close second in the window are
   // mostly mismatches on repetitive texture (README): not evidence.
   // Their map points still learn the verdict of the cluster they fell in
@@ -726,7 +759,8 @@ void Tracker::removeDynamicFeatures() {
       const auto& p = evidence[i];
       const bool by_anchor = anchored && has_anchor[i];
       if (!by_anchor && ((anchored && anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
-      const EvidenceError e = evidenceError(i, by_anchor ? anchor_point[i] : p->position);
+      EvidenceError e = evidenceError(i, by_anchor ? anchor_point[i] : p->position);
+      if (!by_anchor) e.level_chi2 /= chain_links[i];
       residual_vectors[i] = e.residual;
       // Only disagreeing evidence needs the test (chi2 above the cap).
       if (e.level_chi2 > options_.geometry.verdict.rho_cap) {

@@ -5,6 +5,7 @@
 #include <future>
 #include <memory>
 #include <optional>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -112,6 +113,12 @@ class Tracker {
   std::vector<std::shared_ptr<MapPoint>> dynamic_suspects_;
   // Stage-1 matches to last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
+  // The last frame's feature each carried point stands for (refreshLastFrame).
+  std::unordered_map<const MapPoint*, int> carried_from_;
+  // Per feature of the current / last frame: the world positions of the chain
+  // of moving features it was carried from, the last frame's first, at most
+  // geometry.carried_frames (empty: not carried).
+  std::vector<std::vector<Vec3>> chain_, last_chain_;
   // Per keypoint of the current frame: best / second-best Hamming distance of
   // its motion-model match (0: none, or matched by a ratio-tested search).
   std::vector<float> match_ratio_;
