@@ -3,14 +3,13 @@
 // its own work. std::async would start a thread per job, and on a loaded
 // 2-core host a new thread waits about 0.65 ms for a core (the scheduler
 // places a new thread behind the running ones), most of the ~0.8 ms it was
-// meant to overlap; a sleeping thread woken for the job gets one in tens of
-// microseconds (README "Session 21"). The thread is started by the
+// meant to overlap; a sleeping thread woken for the job got one after 0.3 ms
+// on average there (README "Session 21"). The thread is started by the
 // constructor and inherits the constructing thread's placement (cores,
 // priority): SlamSystem builds its tracker on the thread that stillpointd
 // places as "mapping".
 #include <condition_variable>
 #include <deque>
-#include <functional>
 #include <future>
 #include <mutex>
 #include <stop_token>
