@@ -759,8 +759,15 @@ void Tracker::removeDynamicFeatures() {
       const auto& p = evidence[i];
       const bool by_anchor = anchored && has_anchor[i];
       if (!by_anchor && ((anchored && anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
-      EvidenceError e = evidenceError(i, by_anchor ? anchor_point[i] : p->position);
-      if (!by_anchor) e.level_chi2 /= chain_links[i];
+      // A carried chain is long-baseline evidence like the anchor's: when the
+      // frame falls back to its stage-1 matches (the pose is in doubt), the
+      // carried match counts only for its last frame's point.
+      const bool chained = !by_anchor && chain_links[i] > 1;  // then carried_[i] is set
+      const Vec3& point = by_anchor                ? anchor_point[i]
+                          : chained && !anchored ? carried_[i]->position
+                                                 : p->position;
+      EvidenceError e = evidenceError(i, point);
+      if (chained && anchored) e.level_chi2 /= chain_links[i];
       residual_vectors[i] = e.residual;
       // Only disagreeing evidence needs the test (chi2 above the cap).
       if (e.level_chi2 > options_.geometry.verdict.rho_cap) {
@@ -768,7 +775,7 @@ void Tracker::removeDynamicFeatures() {
         const int distance = by_anchor ? anchor_distance[i] : features::hammingDistance(d, current_.descriptor(i));
         // Set aside from the verdict, but still a matched feature whose
         // outcome is reported (and scored).
-        if (staticExplains(i, by_anchor ? anchor_point[i] : p->position, d, distance)) {
+        if (staticExplains(i, point, d, distance)) {
           explained.push_back({i, e.level_chi2, evidenceKind(i, by_anchor)});
           continue;
         }
