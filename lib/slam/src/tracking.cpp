@@ -69,9 +69,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       // Reads only the frame's keypoints and descriptors, which stage 1
       // leaves alone, and the anchor, which stays until the frame is done.
       if (clusters_pending_ && !anchors_.empty() && helper_)
-        anchor_matches_ = helper_->run([this] {
-          return matchByDescriptor(current_, anchors_.front(), 0.7f, false, true);
-        });
+        anchor_matches_ = helper_->run([this] { return matchAnchor(); });
       if (options_.semantic.enabled && options_.semantic.propagate_masks) markSemanticMovers();
       {
         ScopedStageTimer timer(&times_.initial_pose);
@@ -599,15 +597,8 @@ void Tracker::removeDynamicFeatures() {
         chain.push_back(p);
       }
     if (evidence[i]) continue;
-    if (chain.size() == 1) {
-      evidence[i] = carried_[i];
-      continue;
-    }
+    evidence[i] = carried_[i];
     chain_links[i] = static_cast<int>(chain.size());
-    auto oldest = std::make_shared<MapPoint>(-1, chain.back(), nullptr);
-    oldest->descriptor = carried_[i]->descriptor;
-    oldest->moving = true;
-    evidence[i] = std::move(oldest);
   }
   // Matches of the projection search with a close second in the window are
   // mostly mismatches on repetitive texture (README): not evidence.
@@ -647,8 +638,7 @@ void Tracker::removeDynamicFeatures() {
   for (int i = 0; i < current_.size(); ++i) inherited[i] |= current_.dynamic[i] == kSemanticDynamic;
   if (!anchors_.empty()) {
     const Frame& anchor = anchors_.front();
-    const auto matches =
-        anchor_matches_.valid() ? anchor_matches_.get() : matchByDescriptor(current_, anchor, 0.7f, false, true);
+    const auto matches = anchor_matches_.valid() ? anchor_matches_.get() : matchAnchor();
     for (const auto& [j, i] : matches) {
       anchor_point[j] = anchor.unprojectToWorld(i);
       has_anchor[j] = 1;
@@ -762,10 +752,8 @@ void Tracker::removeDynamicFeatures() {
       // A carried chain is long-baseline evidence like the anchor's: when the
       // frame falls back to its stage-1 matches (the pose is in doubt), the
       // carried match counts only for its last frame's point.
-      const bool chained = !by_anchor && chain_links[i] > 1;  // then carried_[i] is set
-      const Vec3& point = by_anchor                ? anchor_point[i]
-                          : chained && !anchored ? carried_[i]->position
-                                                 : p->position;
+      const bool chained = !by_anchor && chain_links[i] > 1;  // p is the carried point
+      const Vec3& point = by_anchor ? anchor_point[i] : chained && anchored ? chain_[i].back() : p->position;
       EvidenceError e = evidenceError(i, point);
       if (chained && anchored) e.level_chi2 /= chain_links[i];
       residual_vectors[i] = e.residual;
@@ -1339,6 +1327,11 @@ Tracker::EvidenceError Tracker::evidenceError(int i, const Vec3& p_w) const {
     e.level_chi2 += ur * ur * e.inv_level_sigma2;
   }
   return e;
+}
+
+std::vector<std::pair<int, int>> Tracker::matchAnchor() const {
+  // No search window (a mover's match is its whole displacement), mutual.
+  return matchByDescriptor(current_, anchors_.front(), 0.7f, false, true);
 }
 
 std::shared_ptr<const geometry::DepthClusters> Tracker::currentClusters() {

@@ -126,6 +126,8 @@ class Tracker {
   bool clusters_pending_ = false, clusters_fetched_ = false;
   std::shared_ptr<const geometry::DepthClusters> clusters_;
   std::shared_ptr<const geometry::DepthClusters> currentClusters();
+  // The current frame's (index, anchor index) descriptor matches to the oldest anchor.
+  std::vector<std::pair<int, int>> matchAnchor() const;
   // geometry.exclude_known_movers: keeps the stage-1 matches of clusters
   // mostly matched to the last frame's dynamic features out of the initial
   // pose (returned as outliers, still evidence).
