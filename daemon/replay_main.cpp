@@ -43,8 +43,8 @@ constexpr const char* kUsage =
     "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
     "(default: as the config enables them; listed modules are on, the others off).\n"
     "--features-out writes every feature the geometry module judged, one line\n"
-    "'timestamp u v dynamic(0|1) cluster chi2 evidence inherited depth distance ratio ru rv rz freespace explained',\n"
-    "for stillpoint-synth score.\n"
+    "'timestamp u v dynamic(0|1) cluster chi2 evidence inherited depth distance ratio ru rv rz freespace explained\n"
+    "baseline', for stillpoint-synth score.\n"
     "--keyframes-out writes the features of every segmented keyframe after the run, one line\n"
     "'timestamp u v unmapped(0|1)' (1: the feature holds no map point), for stillpoint-synth score.\n"
     "--keyframe-trajectory writes the final poses of the keyframes (culled ones included) in TUM\n"
@@ -205,14 +205,15 @@ int main(int argc, char** argv) {
       return 1;
     }
     std::fputs("# timestamp u v dynamic cluster chi2 evidence inherited depth distance ratio ru rv rz freespace\n"
-               "# explained: features with evidence the geometry module judged (cluster label, squared\n"
+               "# explained baseline: features with evidence the geometry module judged (cluster label, squared\n"
                "# reprojection error / sigma^2 against the initial pose, evidence 0 anchor frame | 1 map point |\n"
                "# 2 carried or reference keyframe, inherited 1 = matched to a feature dynamic before, keypoint\n"
                "# depth in m, Hamming distance of the evidence match, its ratio to the second best in the\n"
                "# projection search window, 0: none or not searched, chi2's components: u, v, depth term over\n"
                "# sigma, share of its cluster's depth samples in space the anchor frame saw empty, -1: not\n"
                "# tested, explained 1 = evidence disagreed but the static hypothesis explains it as well: left\n"
-               "# out of the verdict, still reported)\n",
+               "# out of the verdict, still reported, baseline: frames back of an anchor match, 0: other\n"
+               "# evidence)\n",
                features_out);
   }
 
@@ -308,10 +309,11 @@ int main(int argc, char** argv) {
       rejudged += g.rejudged;
       if (features_out)
         for (const slam::JudgedFeature& f : g.judged)
-          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f %d %d %.3f %d %.3f %.2f %.2f %.2f %.3f %d\n",
+          std::fprintf(features_out, "%s %.2f %.2f %d %d %.3f %d %d %.3f %d %.3f %.2f %.2f %.2f %.3f %d %d\n",
                        frame->stamp.toSecondsString().c_str(), f.u, f.v, f.dynamic, f.cluster, f.chi2,
                        static_cast<int>(f.evidence), f.inherited ? 1 : 0, f.depth, f.distance, f.ratio,
-                       f.residual.x(), f.residual.y(), f.residual.z(), f.freespace, f.explained ? 1 : 0);
+                       f.residual.x(), f.residual.y(), f.residual.z(), f.freespace, f.explained ? 1 : 0,
+                       f.baseline);
     }
     switch (out->state) {
       case slam::TrackingState::kOk:

@@ -222,6 +222,60 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
   return out;
 }
 
+std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
+                                                       const std::vector<int>& features) {
+  // matchByDescriptor accepts (j, i) when i is the first keypoint of `other`
+  // at j's nearest distance whose own best frame keypoint (first by index,
+  // ratio test) is j. Both scans keep matchByDescriptor's reach (two levels)
+  // and index order, so ties fall the same way.
+  int top_level = 0;
+  for (const cv::KeyPoint& k : current.keys) top_level = std::max(top_level, k.octave);
+  for (const cv::KeyPoint& k : other.keys) top_level = std::max(top_level, k.octave);
+  std::vector<std::vector<int>> other_near(top_level + 1), current_near(top_level + 1);
+  const auto addNear = [top_level](std::vector<std::vector<int>>* near, int octave, int index) {
+    for (int level = std::max(0, octave - 2); level <= std::min(top_level, octave + 2); ++level)
+      (*near)[level].push_back(index);
+  };
+  for (int i = 0; i < other.size(); ++i)
+    if (other.depth[i] > 0 && other.keys[i].octave >= 0) addNear(&other_near, other.keys[i].octave, i);
+  for (int j = 0; j < current.size(); ++j) addNear(&current_near, current.keys[j].octave, j);
+  std::vector<int> matched, owner(current.size(), -1);
+  std::vector<float> rotations;
+  for (int j : features) {
+    const std::vector<int>& reach = other_near[current.keys[j].octave];
+    const std::uint8_t* d_j = current.descriptor(j);
+    int nearest = 256;
+    for (int i : reach) nearest = std::min(nearest, hammingDistance(other.descriptor(i), d_j));
+    if (nearest > kMatchThresholdLow) continue;
+    for (int i : reach) {
+      const std::uint8_t* d_i = other.descriptor(i);
+      if (hammingDistance(d_i, d_j) != nearest) continue;
+      int best = 256, second = 256, best_idx = -1;
+      for (int k : current_near[other.keys[i].octave]) {
+        const int d = hammingDistance(d_i, current.descriptor(k));
+        if (d < best) {
+          second = best;
+          best = d;
+          best_idx = k;
+        } else if (d < second) {
+          second = d;
+        }
+      }
+      if (best_idx != j || best > ratio * second) continue;
+      owner[j] = i;
+      break;
+    }
+    if (owner[j] < 0) continue;
+    matched.push_back(j);
+    rotations.push_back(other.keys[owner[j]].angle - current.keys[j].angle);
+  }
+  filterByOrientation(rotations, &matched);
+  std::vector<std::pair<int, int>> out;
+  out.reserve(matched.size());
+  for (int j : matched) out.emplace_back(j, owner[j]);
+  return out;
+}
+
 int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio) {
   const auto matches = matchByDescriptor(*current, keyframe, ratio);
   for (const auto& [j, i] : matches) {

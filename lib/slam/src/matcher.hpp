@@ -40,6 +40,15 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const K
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const Frame& other, float ratio,
                                                    bool need_point, bool mutual = false);
 
+// The mutual matches of matchByDescriptor(current, other, ratio, false, true)
+// that fall on `features` (frame keypoint indices, ascending), found by
+// scanning `other` once per listed keypoint, and `current` once per
+// keypoint of `other` that may own it, instead of `current` once per
+// keypoint of `other`: a few clusters' features cost a few per cent of a
+// whole frame's matching. The orientation filter sees only these matches.
+std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
+                                                       const std::vector<int>& features);
+
 // Projects `points` into `kf` and fuses: adds observations for unmatched
 // keypoints, merges duplicates. Returns the number fused or added.
 int fuse(Map* map, KeyFrame* kf, const std::vector<std::shared_ptr<MapPoint>>& points, float radius);

@@ -5,7 +5,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <random>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -127,6 +129,56 @@ TEST(MatchByDescriptor, MeetsKeypointsWithinTwoLevelsFirstByIndex) {
   matches = matchByDescriptor(current, other, 0.8f, false, false);
   ASSERT_EQ(matches.size(), 1u);
   EXPECT_EQ(matches[0], std::make_pair(0, 0));
+}
+
+// Matching only some of the frame's keypoints finds exactly the matches the
+// whole frame's mutual matching finds for them: the same reach, ratio test,
+// mutual check and ties. Descriptors are random, half of the frame's copied
+// from the other's with a few bits flipped, and some copied twice (ties).
+TEST(MatchSomeByDescriptor, FindsTheWholeMatchingsMatchesOfItsFeatures) {
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> byte(0, 255), level(0, 7), bit(0, 255);
+  const auto randomFrame = [&](int n) {
+    std::vector<cv::Point2f> pixels;
+    for (int i = 0; i < n; ++i) pixels.emplace_back(static_cast<float>(10 + i % 60 * 10), static_cast<float>(10 + i / 60 * 10));
+    Frame f = frameWith(pixels, std::vector<int>(n, 0));
+    for (int i = 0; i < n; ++i) {
+      f.keys[i].octave = level(rng);
+      for (int b = 0; b < 32; ++b) f.descriptors.at<std::uint8_t>(i, b) = static_cast<std::uint8_t>(byte(rng));
+    }
+    return f;
+  };
+  Frame other = randomFrame(300);
+  for (int i = 0; i < other.size(); ++i) other.depth[i] = i % 7 == 0 ? -1.0f : 2.0f;  // some without depth
+  Frame current = randomFrame(400);
+  for (int j = 0; j < current.size(); j += 2) {
+    const int i = (j * 7) % other.size();
+    other.descriptors.row(i).copyTo(current.descriptors.row(j));
+    for (int flips = j % 12; flips > 0; --flips) {
+      const int b = bit(rng);
+      current.descriptors.at<std::uint8_t>(j, b / 8) ^= static_cast<std::uint8_t>(1 << (b % 8));
+    }
+    current.keys[j].octave = std::clamp(other.keys[i].octave + j % 5 - 2, 0, 7);
+  }
+  for (int j = 1; j < 40; j += 4) current.descriptors.row(j - 1).copyTo(current.descriptors.row(j));  // ties
+  // Frame keypoints nearer to a second keypoint of the other's than to the
+  // one copied to them (the mutual check decides).
+  for (int j = 100; j < 200; j += 4) {
+    const int i2 = (j * 11 + 5) % other.size();
+    current.descriptors.row(j).copyTo(other.descriptors.row(i2));
+    other.descriptors.at<std::uint8_t>(i2, 0) ^= 1;
+    other.depth[i2] = 2.0f;
+    other.keys[i2].octave = current.keys[j].octave;
+  }
+  std::vector<int> some;
+  for (int j = 0; j < current.size(); ++j)
+    if (j % 3 != 1) some.push_back(j);
+  const auto whole = matchByDescriptor(current, other, 0.7f, false, true);
+  std::vector<std::pair<int, int>> expected;
+  for (const auto& m : whole)
+    if (m.first % 3 != 1) expected.push_back(m);
+  ASSERT_GT(expected.size(), 40u);
+  EXPECT_EQ(matchSomeByDescriptor(current, other, 0.7f, some), expected);
 }
 
 }  // namespace

@@ -58,6 +58,9 @@ Status GeometryOptions::validate() const {
     return Error{"geometry.max_dynamic_fraction must be in (0, 1]"};
   if (anchor_frames < 0 || anchor_frames > 30) return Error{"geometry.anchor_frames must be in [0, 30]"};
   if (carried_frames < 1 || carried_frames > 30) return Error{"geometry.carried_frames must be in [1, 30]"};
+  if (near_anchor_frames != 0 && (near_anchor_frames < 2 || near_anchor_frames > 30))
+    return Error{"geometry.near_anchor_frames must be 0 (off) or in [2, 30]"};
+  if (!(lone_moving_chi2 >= 0)) return Error{"geometry.lone_moving_chi2 must be >= 0 (0: off)"};
   if (!(frame_sigma_factor >= 0 && frame_sigma_factor <= 100))
     return Error{"geometry.frame_sigma_factor must be in [0, 100] (0: off)"};
   if (frame_sigma_from != "reference" && frame_sigma_from != "all")
@@ -219,6 +222,8 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "point_dynamic_weight", o.geometry.point_dynamic_weight);
   v("geometry", "anchor_frames", o.geometry.anchor_frames);
   v("geometry", "carried_frames", o.geometry.carried_frames);
+  v("geometry", "near_anchor_frames", o.geometry.near_anchor_frames);
+  v("geometry", "lone_moving_chi2", o.geometry.lone_moving_chi2);
   v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
   v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
   v("geometry", "rejudge", o.geometry.rejudge);

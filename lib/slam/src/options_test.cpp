@@ -140,6 +140,9 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.freespace_grow_angle_deg", [](SlamOptions& o) { o.geometry.freespace_grow_angle_deg = 95; }},
       {"geometry.freespace_frames", [](SlamOptions& o) { o.geometry.freespace_frames = 0; }},
       {"geometry.carried_frames", [](SlamOptions& o) { o.geometry.carried_frames = 0; }},
+      {"geometry.near_anchor_frames", [](SlamOptions& o) { o.geometry.near_anchor_frames = 1; }},
+      {"geometry.near_anchor_frames", [](SlamOptions& o) { o.geometry.near_anchor_frames = 31; }},
+      {"geometry.lone_moving_chi2", [](SlamOptions& o) { o.geometry.lone_moving_chi2 = -1; }},
       {"geometry.evidence_depth_max_m", [](SlamOptions& o) { o.geometry.evidence_depth_max_m = -1; }},
       {"geometry.static_match_margin", [](SlamOptions& o) { o.geometry.static_match_margin = 300; }},
       {"geometry.photo_release_ncc", [](SlamOptions& o) { o.geometry.photo_release_ncc = 1.5; }},
@@ -221,6 +224,8 @@ SlamOptions everythingChanged() {
   o.geometry.freespace_grow_plane_m = 0.03;
   o.geometry.freespace_grow_angle_deg = 40;
   o.geometry.carried_frames = 7;
+  o.geometry.near_anchor_frames = 4;
+  o.geometry.lone_moving_chi2 = 12.5;
   o.geometry.frame_sigma_factor = 3.0;
   o.geometry.frame_sigma_from = "all";
   o.geometry.frame_sigma_quantile = 0.75;
@@ -283,6 +288,8 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.geometry.freespace_grow_plane_m, b.geometry.freespace_grow_plane_m);
   EXPECT_EQ(a.geometry.freespace_grow_angle_deg, b.geometry.freespace_grow_angle_deg);
   EXPECT_EQ(a.geometry.carried_frames, b.geometry.carried_frames);
+  EXPECT_EQ(a.geometry.near_anchor_frames, b.geometry.near_anchor_frames);
+  EXPECT_EQ(a.geometry.lone_moving_chi2, b.geometry.lone_moving_chi2);
   EXPECT_EQ(a.geometry.frame_sigma_factor, b.geometry.frame_sigma_factor);
   EXPECT_EQ(a.geometry.frame_sigma_from, b.geometry.frame_sigma_from);
   EXPECT_EQ(a.geometry.frame_sigma_quantile, b.geometry.frame_sigma_quantile);

@@ -636,16 +636,19 @@ void Tracker::removeDynamicFeatures() {
   // Features following a semantic mask count as moving before too: they keep
   // their anchor evidence and hold their cluster like the module's own.
   for (int i = 0; i < current_.size(); ++i) inherited[i] |= current_.dynamic[i] == kSemanticDynamic;
+  // Feature j's anchor evidence: keypoint i of `anchor`, `back` frames back.
+  std::vector<int> anchor_baseline(current_.size(), 0);
+  const auto takeAnchor = [&](int j, const Frame& anchor, int i, int back) {
+    anchor_baseline[j] = back;
+    anchor_point[j] = anchor.unprojectToWorld(i);
+    has_anchor[j] = 1;
+    anchor_distance[j] = features::hammingDistance(anchor.descriptor(i), current_.descriptor(j));
+    anchor_descriptor[j] = anchor.descriptor(i);
+    inherited[j] |= anchor.dynamic[i];
+  };
   if (!anchors_.empty()) {
-    const Frame& anchor = anchors_.front();
     const auto matches = anchor_matches_.valid() ? anchor_matches_.get() : matchAnchor();
-    for (const auto& [j, i] : matches) {
-      anchor_point[j] = anchor.unprojectToWorld(i);
-      has_anchor[j] = 1;
-      anchor_distance[j] = features::hammingDistance(anchor.descriptor(i), current_.descriptor(j));
-      anchor_descriptor[j] = anchor.descriptor(i);
-      inherited[j] |= anchor.dynamic[i];
-    }
+    for (const auto& [j, i] : matches) takeAnchor(j, anchors_.front(), i, static_cast<int>(anchors_.size()));
   }
   // Motion evidence needs the static hypothesis to be worse. Where the
   // evidence point projects under the pose, a keypoint whose descriptor is
@@ -708,11 +711,35 @@ void Tracker::removeDynamicFeatures() {
     return -1;
   };
   const auto photoStatic = [&](int i) { return photoVerdict(i) == 1; };
+  const int min_features = options_.geometry.verdict.min_features;
   std::vector<int> anchored_in_cluster(clusters->clusters, 0);
   for (int i = 0; i < current_.size(); ++i) {
     const cv::Point2f& px = current_.keys[i].pt;
     current_.cluster[i] = static_cast<std::int16_t>(clusters->labelAt(camera_, px.x, px.y, current_.depth[i]));
     if (current_.cluster[i] >= 0 && has_anchor[i]) ++anchored_in_cluster[current_.cluster[i]];
+  }
+  // Nearer anchors (geometry.near_anchor_frames): the features of clusters
+  // with too few anchor matches are matched to the frames k = N, N - 1, ..., 2
+  // back, while their cluster still has too few. A cluster with enough
+  // matches at k is judged by them: a fixed baseline shorter than the
+  // anchor's, where its look changed less (a surface turning edge-on), but
+  // longer and surer than a map point's or a carried match's. Its features
+  // matched at a longer baseline keep that match.
+  for (int k = std::min(options_.geometry.near_anchor_frames, static_cast<int>(anchors_.size()) - 1); k >= 2; --k) {
+    std::vector<int> features;
+    for (int i = 0; i < current_.size(); ++i)
+      if (current_.cluster[i] >= 0 && anchored_in_cluster[current_.cluster[i]] < min_features) features.push_back(i);
+    if (features.empty()) break;
+    const Frame& nearer = anchors_[anchors_.size() - k];
+    const auto matches = matchSomeByDescriptor(current_, nearer, 0.7f, features);
+    std::vector<int> found(clusters->clusters, 0);
+    for (const auto& [j, i] : matches) ++found[current_.cluster[j]];
+    for (const auto& [j, i] : matches) {
+      const int c = current_.cluster[j];
+      if (found[c] < min_features || has_anchor[j]) continue;
+      takeAnchor(j, nearer, i, k);
+      ++anchored_in_cluster[c];
+    }
   }
 
   const FreeSpace free = freeSpaceViolations(*clusters);
@@ -720,7 +747,6 @@ void Tracker::removeDynamicFeatures() {
 
   // A cluster with enough anchor matches is judged by them alone (fixed
   // baseline); the others by whatever evidence their features have.
-  const int min_features = options_.geometry.verdict.min_features;
   std::vector<geometry::FeatureResidual> residuals;
   std::vector<int> matched;
   std::vector<JudgedFeature::Evidence> kinds;
@@ -737,7 +763,11 @@ void Tracker::removeDynamicFeatures() {
     JudgedFeature::Evidence kind;
   };
   std::vector<Explained> explained;
+  // The chi2 of each feature judged by carried evidence (0: other or none),
+  // for geometry.lone_moving_chi2.
+  std::vector<double> carried_chi2(current_.size(), 0.0);
   const auto judge = [&](bool anchored) {
+    std::fill(carried_chi2.begin(), carried_chi2.end(), 0.0);
     explained.clear();
     residuals.clear();
     matched.clear();
@@ -770,6 +800,7 @@ void Tracker::removeDynamicFeatures() {
       }
       errors.push_back(e);
       residuals.push_back({c, e.level_chi2, inherited[i] != 0});
+      if (evidenceKind(i, by_anchor) == JudgedFeature::Evidence::kCarried) carried_chi2[i] = e.level_chi2;
       matched.push_back(i);
       kinds.push_back(evidenceKind(i, by_anchor));
     }
@@ -891,9 +922,14 @@ void Tracker::removeDynamicFeatures() {
       if (off_moved[i] && agrees[i] && on[c] < split_keep * (on[c] + off[c])) released[i] = 1;
     }
   };
-  // A feature leaves the pose and counts as moving: in a dynamic cluster, not released.
+  // A feature leaves the pose and counts as moving: in a dynamic cluster, not
+  // released; or in a cluster too small to judge, still moving along its own
+  // track (geometry.lone_moving_chi2).
+  const double lone_chi2 = options_.geometry.lone_moving_chi2;
   const auto dropped = [&](int i, const geometry::ClusterVerdict& v) {
-    return current_.cluster[i] >= 0 && v.clusters[current_.cluster[i]].dynamic && !released[i];
+    if (current_.cluster[i] < 0 || released[i]) return false;
+    const geometry::ClusterScore& c = v.clusters[current_.cluster[i]];
+    return c.dynamic || (lone_chi2 > 0 && !c.judged && inherited[i] && carried_chi2[i] > lone_chi2);
   };
   // Drops the features of dynamic clusters from the pose and refits it.
   const std::vector<std::shared_ptr<MapPoint>> points = current_.points;
@@ -1032,6 +1068,7 @@ void Tracker::removeDynamicFeatures() {
                     by_anchor ? 0.0f : match_ratio_[i], residual_vectors[i].cast<float>(),
                     geometry_.freespace[current_.cluster[i]]};
     f.explained = set_aside;
+    f.baseline = by_anchor ? anchor_baseline[i] : 0;
     geometry_.judged.push_back(f);
   };
   const float w = static_cast<float>(options_.geometry.point_dynamic_weight);

@@ -109,6 +109,21 @@ struct GeometryOptions {
   // 12-run sweeps, 3 against 1: recall up 0.003-0.026 on every sequence,
   // precision down 0.001-0.007 (README "Session 21").
   int carried_frames = 3;
+  // Nearer anchors (session 22). A cluster with fewer than
+  // verdict.min_features anchor matches is judged by short-baseline evidence
+  // (map points, carried matches), which scores static surfaces high and
+  // slow movers low. Its features are matched again, the same way, to the
+  // frames near_anchor_frames, near_anchor_frames - 1, ..., 2 back, while it
+  // still has too few: a cluster with at least min_features matches to one
+  // of them is judged by those (a feature matched at the longer baseline
+  // keeps that match). 0 = off; else in [2, 30] (frames at or beyond
+  // anchor_frames are not tried).
+  int near_anchor_frames = 3;
+  // A feature of a cluster with too few evidence features to be judged,
+  // whose evidence match lay on a moving surface before (inherited) and
+  // disagrees with the pose above this chi2, is moving: the verdict cannot
+  // reach it, its own track can. 0 = off (session 22).
+  double lone_moving_chi2 = 3.0;
   // When clusters holding more than this share of the judged features come
   // out dynamic under the anchor evidence, the initial pose is taken to be
   // wrong and the frame is judged by its stage-1 matches instead.

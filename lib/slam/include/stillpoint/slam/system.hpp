@@ -76,6 +76,9 @@ struct JudgedFeature {
   // (geometry.static_match_margin): left out of
   // the verdict, reported with its outcome all the same.
   bool explained = false;
+  // kAnchor: how many frames back its anchor match lies (geometry.anchor_frames,
+  // or fewer for a nearer anchor: geometry.near_anchor_frames); else 0.
+  int baseline = 0;
 };
 
 // What the geometry module saw in one frame (for visualisation and scoring).
