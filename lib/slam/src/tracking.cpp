@@ -724,26 +724,34 @@ void Tracker::removeDynamicFeatures() {
   // matches at k is judged by them: a fixed baseline shorter than the
   // anchor's, where its look changed less (a surface turning edge-on), but
   // longer and surer than a map point's or a carried match's. Its features
-  // matched at a longer baseline keep that match.
-  for (int k = std::min(options_.geometry.near_anchor_frames, static_cast<int>(anchors_.size()) - 1); k >= 2; --k) {
-    std::vector<int> features;
-    for (int i = 0; i < current_.size(); ++i)
-      if (current_.cluster[i] >= 0 && anchored_in_cluster[current_.cluster[i]] < min_features) features.push_back(i);
-    if (features.empty()) break;
-    const Frame& nearer = anchors_[anchors_.size() - k];
-    const auto matches = matchSomeByDescriptor(current_, nearer, 0.7f, features);
-    std::vector<int> found(clusters->clusters, 0);
-    for (const auto& [j, i] : matches) ++found[current_.cluster[j]];
-    for (const auto& [j, i] : matches) {
-      const int c = current_.cluster[j];
-      if (found[c] < min_features || has_anchor[j]) continue;
-      takeAnchor(j, nearer, i, k);
-      ++anchored_in_cluster[c];
+  // matched at a longer baseline keep that match. It reads only the frame's
+  // keypoints and labels: the helper matches while the free-space test runs.
+  auto nearerAnchors = [this, anchored = anchored_in_cluster, min_features, n = clusters->clusters]() mutable {
+    std::vector<NearerAnchor> out;
+    for (int k = std::min(options_.geometry.near_anchor_frames, static_cast<int>(anchors_.size()) - 1); k >= 2; --k) {
+      std::vector<int> features;
+      for (int i = 0; i < current_.size(); ++i)
+        if (current_.cluster[i] >= 0 && anchored[current_.cluster[i]] < min_features) features.push_back(i);
+      if (features.empty()) break;
+      const auto matches = matchSomeByDescriptor(current_, anchors_[anchors_.size() - k], 0.7f, features);
+      std::vector<int> found(n, 0);
+      for (const auto& [j, i] : matches) ++found[current_.cluster[j]];
+      for (const auto& [j, i] : matches)
+        if (found[current_.cluster[j]] >= min_features) out.push_back({j, i, k});
+      for (int c = 0; c < n; ++c)
+        if (found[c] >= min_features) anchored[c] = min_features;  // judged at this baseline: not tried nearer
     }
-  }
-
+    return out;
+  };
+  std::future<std::vector<NearerAnchor>> nearer;
+  if (helper_ && options_.geometry.near_anchor_frames > 0) nearer = helper_->run(nearerAnchors);
   const FreeSpace free = freeSpaceViolations(*clusters);
   geometry_.freespace = free.share;
+  for (const NearerAnchor& a : nearer.valid() ? nearer.get() : nearerAnchors()) {
+    if (has_anchor[a.feature]) continue;  // keeps its match at the longer baseline
+    takeAnchor(a.feature, anchors_[anchors_.size() - a.frames_back], a.keypoint, a.frames_back);
+    ++anchored_in_cluster[current_.cluster[a.feature]];
+  }
 
   // A cluster with enough anchor matches is judged by them alone (fixed
   // baseline); the others by whatever evidence their features have.

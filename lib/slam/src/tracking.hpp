@@ -143,6 +143,11 @@ class Tracker {
   // (sequential replays compute them inline, when they are needed).
   std::future<std::vector<std::pair<int, int>>> anchor_matches_;
   std::unique_ptr<TaskThread> helper_;  // threaded mode with the geometry module only
+  // A current feature matched to keypoint `keypoint` of the anchor kept
+  // `frames_back` frames back (geometry.near_anchor_frames).
+  struct NearerAnchor {
+    int feature, keypoint, frames_back;
+  };
   // Features of the current / last frame that the photometric test freed from
   // a dynamic cluster (with geometry.photo_release_memory): static for the
   // pose and the map, but they pass on their cluster's memory.
