@@ -808,9 +808,9 @@ void Tracker::removeDynamicFeatures() {
       }
       errors.push_back(e);
       residuals.push_back({c, e.level_chi2, inherited[i] != 0});
-      if (evidenceKind(i, by_anchor) == JudgedFeature::Evidence::kCarried) carried_chi2[i] = e.level_chi2;
       matched.push_back(i);
       kinds.push_back(evidenceKind(i, by_anchor));
+      if (kinds.back() == JudgedFeature::Evidence::kCarried) carried_chi2[i] = e.level_chi2;
     }
     geometry::ClusterVerdict v = geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
     const GeometryOptions& g = options_.geometry;
