@@ -239,32 +239,36 @@ std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, con
   for (int i = 0; i < other.size(); ++i)
     if (other.depth[i] > 0 && other.keys[i].octave >= 0) addNear(&other_near, other.keys[i].octave, i);
   for (int j = 0; j < current.size(); ++j) addNear(&current_near, current.keys[j].octave, j);
-  std::vector<int> matched, owner(current.size(), -1);
+  // Whether i's best frame keypoint is j, at distance d_ij, and passes the
+  // ratio test: no other k has ratio * d(i, k) < d_ij, and none before j
+  // ties it (at d_ij = 0 the ratio cannot tell). Stops at the first k that
+  // fails it, which is what makes rejections cheap.
+  const auto bestOf = [&](int i, int j, int d_ij) {
+    const std::uint8_t* d_i = other.descriptor(i);
+    for (int k : current_near[other.keys[i].octave]) {
+      if (k == j) continue;
+      const int d = hammingDistance(d_i, current.descriptor(k));
+      if (d_ij > ratio * d || (k < j && d <= d_ij)) return false;
+    }
+    return true;
+  };
+  std::vector<int> matched, owner(current.size(), -1), distance;
   std::vector<float> rotations;
   for (int j : features) {
     const std::vector<int>& reach = other_near[current.keys[j].octave];
     const std::uint8_t* d_j = current.descriptor(j);
+    distance.resize(reach.size());
     int nearest = 256;
-    for (int i : reach) nearest = std::min(nearest, hammingDistance(other.descriptor(i), d_j));
-    if (nearest > kMatchThresholdLow) continue;
-    for (int i : reach) {
-      const std::uint8_t* d_i = other.descriptor(i);
-      if (hammingDistance(d_i, d_j) != nearest) continue;
-      int best = 256, second = 256, best_idx = -1;
-      for (int k : current_near[other.keys[i].octave]) {
-        const int d = hammingDistance(d_i, current.descriptor(k));
-        if (d < best) {
-          second = best;
-          best = d;
-          best_idx = k;
-        } else if (d < second) {
-          second = d;
-        }
-      }
-      if (best_idx != j || best > ratio * second) continue;
-      owner[j] = i;
-      break;
+    for (std::size_t r = 0; r < reach.size(); ++r) {
+      distance[r] = hammingDistance(other.descriptor(reach[r]), d_j);
+      nearest = std::min(nearest, distance[r]);
     }
+    if (nearest > kMatchThresholdLow) continue;
+    for (std::size_t r = 0; r < reach.size(); ++r)
+      if (distance[r] == nearest && bestOf(reach[r], j, nearest)) {
+        owner[j] = reach[r];
+        break;
+      }
     if (owner[j] < 0) continue;
     matched.push_back(j);
     rotations.push_back(other.keys[owner[j]].angle - current.keys[j].angle);
