@@ -4,7 +4,72 @@
 #include <limits>
 #include <vector>
 
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#define STILLPOINT_HAVE_AVX512_POPCNT 1
+#endif
+
 namespace stillpoint::features {
+namespace {
+
+#ifdef STILLPOINT_HAVE_AVX512_POPCNT
+// GCC 12's AVX-512 headers leave an undefined register uninitialised on
+// purpose (_mm512_undefined_epi32) and then warn about it.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+// Two descriptors per 512-bit register; the popcounts of their 4 words each
+// are summed pairwise (unpack) and then across the register's halves (two
+// permutes), giving the 8 distances in order.
+__attribute__((target("avx512f,avx512vpopcntdq"))) void hammingDistancesAvx512(const std::uint8_t* query,
+                                                                              const std::uint8_t* descriptors,
+                                                                              int count, int* out) {
+  const __m512i q = _mm512_broadcast_i64x4(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(query)));
+  const __m512i low = _mm512_setr_epi64(0, 4, 1, 5, 8, 12, 9, 13);
+  const __m512i high = _mm512_setr_epi64(2, 6, 3, 7, 10, 14, 11, 15);
+  int k = 0;
+  for (; k + 8 <= count; k += 8) {
+    const std::uint8_t* p = descriptors + static_cast<std::size_t>(k) * kDescriptorBytes;
+    const __m512i a = _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(p), q));
+    const __m512i b = _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(p + 64), q));
+    const __m512i c = _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(p + 128), q));
+    const __m512i d = _mm512_popcnt_epi64(_mm512_xor_si512(_mm512_loadu_si512(p + 192), q));
+    // [a0+a1, b0+b1, a2+a3, b2+b3, a4+a5, ...]: halves of each descriptor.
+    const __m512i ab = _mm512_add_epi64(_mm512_unpacklo_epi64(a, b), _mm512_unpackhi_epi64(a, b));
+    const __m512i cd = _mm512_add_epi64(_mm512_unpacklo_epi64(c, d), _mm512_unpackhi_epi64(c, d));
+    const __m512i sums = _mm512_add_epi64(_mm512_permutex2var_epi64(ab, low, cd), _mm512_permutex2var_epi64(ab, high, cd));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + k), _mm512_cvtepi64_epi32(sums));
+  }
+  hammingDistancesScalar(query, descriptors + static_cast<std::size_t>(k) * kDescriptorBytes, count - k, out + k);
+}
+#pragma GCC diagnostic pop
+
+bool haveAvx512Popcount() {
+  static const bool have = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vpopcntdq");
+  return have;
+}
+#endif
+
+}  // namespace
+
+void hammingDistancesScalar(const std::uint8_t* query, const std::uint8_t* descriptors, int count, int* out) {
+  for (int k = 0; k < count; ++k)
+    out[k] = hammingDistance(query, descriptors + static_cast<std::size_t>(k) * kDescriptorBytes);
+}
+
+const char* hammingDistancesPath() {
+#ifdef STILLPOINT_HAVE_AVX512_POPCNT
+  if (haveAvx512Popcount()) return "avx512";
+#endif
+  return "scalar";
+}
+
+void hammingDistances(const std::uint8_t* query, const std::uint8_t* descriptors, int count, int* out) {
+#ifdef STILLPOINT_HAVE_AVX512_POPCNT
+  if (haveAvx512Popcount()) return hammingDistancesAvx512(query, descriptors, count, out);
+#endif
+  hammingDistancesScalar(query, descriptors, count, out);
+}
 
 int medianDescriptorIndex(const std::uint8_t* const* descriptors, int count) {
   if (count <= 0) return -1;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 
 #include "stillpoint/features/descriptor.hpp"
 
@@ -41,6 +42,82 @@ bool projectIntoFrame(const Frame& f, const Vec3& p_w, Vec3* p_c, Vec2* uv) {
   *uv = f.camera->project(*p_c);
   return uv->x() >= 0 && uv->x() < f.camera->width && uv->y() >= 0 && uv->y() < f.camera->height;
 }
+
+// The least of [begin, end), 256 (more than any distance) when empty.
+int minOf(const int* begin, const int* end) {
+  int m = 256;
+  for (; begin != end; ++begin) m = std::min(m, *begin);
+  return m;
+}
+
+// The least distance, the first position holding it (-1 when there is
+// none), and the least of the others.
+struct NearestTwo {
+  int best = 256, second = 256, position = -1;
+};
+// Also lowers nearest[r] to d[r] in the same pass.
+NearestTwo nearestTwo(const std::vector<int>& d, int* nearest) {
+  NearestTwo n;
+  if (d.empty()) return n;
+  for (std::size_t r = 0; r < d.size(); ++r) {
+    nearest[r] = std::min(nearest[r], d[r]);
+    n.best = std::min(n.best, d[r]);
+  }
+  n.position = static_cast<int>(std::find(d.begin(), d.end(), n.best) - d.begin());
+  n.second = std::min(minOf(d.data(), d.data() + n.position), minOf(d.data() + n.position + 1, d.data() + d.size()));
+  return n;
+}
+
+int topLevel(const Frame& a, const Frame& b) {
+  int top = 0;
+  for (const cv::KeyPoint& k : a.keys) top = std::max(top, k.octave);
+  for (const cv::KeyPoint& k : b.keys) top = std::max(top, k.octave);
+  return top;
+}
+
+// A frame's keypoints within two pyramid levels of each level (those `keep`
+// accepts), in index order, with their descriptors back to back so that a
+// query meets them all in one hammingDistances call (cache-line aligned: the
+// vector path loads two descriptors at a time, and a load across two lines
+// costs it a third of its speed).
+class LevelReach {
+ public:
+  template <class Keep>
+  LevelReach(const Frame& f, int top_level, Keep keep)
+      : index(top_level + 1), storage_(top_level + 1), descriptors_(top_level + 1) {
+    const auto levels = [&](int i, auto visit) {
+      const int o = f.keys[i].octave;
+      for (int level = std::max(0, o - 2); level <= std::min(top_level, o + 2); ++level) visit(level);
+    };
+    std::vector<char> kept(f.size());
+    for (int i = 0; i < f.size(); ++i)
+      if ((kept[i] = keep(i))) levels(i, [&](int level) { index[level].push_back(i); });
+    for (int level = 0; level <= top_level; ++level) {
+      storage_[level].resize(index[level].size() * features::kDescriptorBytes + kAlign - 1);
+      const auto address = reinterpret_cast<std::uintptr_t>(storage_[level].data());
+      descriptors_[level] = storage_[level].data() + (kAlign - address % kAlign) % kAlign;
+    }
+    std::vector<std::uint8_t*> next(descriptors_);
+    for (int i = 0; i < f.size(); ++i)
+      if (kept[i])
+        levels(i, [&](int level) {
+          std::memcpy(next[level], f.descriptor(i), features::kDescriptorBytes);
+          next[level] += features::kDescriptorBytes;
+        });
+  }
+  // The query's distance to each keypoint of index[level], in that order.
+  void distances(const std::uint8_t* query, int level, std::vector<int>* out) const {
+    out->resize(index[level].size());
+    features::hammingDistances(query, descriptors_[level], static_cast<int>(out->size()), out->data());
+  }
+
+  std::vector<std::vector<int>> index;
+
+ private:
+  static constexpr std::uintptr_t kAlign = 64;
+  std::vector<std::vector<std::uint8_t>> storage_;
+  std::vector<std::uint8_t*> descriptors_;  // into storage_, aligned
+};
 
 }  // namespace
 
@@ -168,46 +245,35 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const K
 
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const Frame& kf, float ratio,
                                                    bool need_point, bool mutual) {
-  // Frame keypoints by level so a map point only meets candidates of nearby
-  // scale; brute force is affordable at ~1000 x ~1000 with popcount.
-  std::vector<float> rotations;
-  std::vector<int> matched;
+  // Frame keypoints by level so a keyframe keypoint only meets candidates of
+  // nearby scale; brute force (hammingDistances) is affordable at ~1000 x
+  // ~1000.
+  const int top_level = topLevel(current, kf);
+  const LevelReach reach(current, top_level, [&](int j) { return !(need_point && current.dynamic[j]); });
   std::vector<int> best_for_frame(current.size(), 256);
   std::vector<int> owner(current.size(), -1);
-  std::vector<int> nearest(current.size(), 256);  // each frame keypoint's nearest distance to any candidate
-  // The frame's candidates for each level (within 2 levels of it), in index
-  // order, so the scan below meets them in the same order as a full scan
-  // would (ties keep the first) without visiting the others.
-  int top_level = 0;
-  for (const cv::KeyPoint& k : current.keys) top_level = std::max(top_level, k.octave);
-  for (const cv::KeyPoint& k : kf.keys) top_level = std::max(top_level, k.octave);
-  std::vector<std::vector<int>> candidates(top_level + 1);
-  for (int j = 0; j < current.size(); ++j) {
-    if (need_point && current.dynamic[j]) continue;
-    const int o = current.keys[j].octave;
-    for (int level = std::max(0, o - 2); level <= std::min(top_level, o + 2); ++level) candidates[level].push_back(j);
-  }
+  // Each candidate's nearest distance to any keyframe keypoint, per level list.
+  std::vector<std::vector<int>> nearest_at(top_level + 1);
+  for (int level = 0; level <= top_level; ++level) nearest_at[level].assign(reach.index[level].size(), 256);
+  std::vector<int> distance;
   for (int i = 0; i < kf.size(); ++i) {
     if (need_point ? !kf.points[i] || kf.points[i]->bad : !(kf.depth[i] > 0)) continue;
     if (kf.keys[i].octave < 0) continue;  // never from our extractor
-    const std::uint8_t* d_kf = kf.descriptor(i);
-    int best = 256, second = 256, best_idx = -1;
-    for (int j : candidates[kf.keys[i].octave]) {
-      const int d = hammingDistance(d_kf, current.descriptor(j));
-      nearest[j] = std::min(nearest[j], d);
-      if (d < best) {
-        second = best;
-        best = d;
-        best_idx = j;
-      } else if (d < second) {
-        second = d;
-      }
-    }
-    if (best_idx < 0 || best > kMatchThresholdLow || best > ratio * second) continue;
-    if (best >= best_for_frame[best_idx]) continue;
-    best_for_frame[best_idx] = best;
-    owner[best_idx] = i;
+    const int level = kf.keys[i].octave;
+    reach.distances(kf.descriptor(i), level, &distance);
+    const NearestTwo n = nearestTwo(distance, nearest_at[level].data());
+    if (n.position < 0 || n.best > kMatchThresholdLow || n.best > ratio * n.second) continue;
+    const int j = reach.index[level][n.position];
+    if (n.best >= best_for_frame[j]) continue;
+    best_for_frame[j] = n.best;
+    owner[j] = i;
   }
+  std::vector<int> nearest(current.size(), 256);
+  for (int level = 0; level <= top_level; ++level)
+    for (std::size_t r = 0; r < reach.index[level].size(); ++r)
+      nearest[reach.index[level][r]] = std::min(nearest[reach.index[level][r]], nearest_at[level][r]);
+  std::vector<float> rotations;
+  std::vector<int> matched;
   for (int j = 0; j < current.size(); ++j) {
     if (owner[j] < 0) continue;
     // Mutual: no other candidate lies strictly nearer to the frame keypoint.
@@ -228,45 +294,32 @@ std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, con
   // at j's nearest distance whose own best frame keypoint (first by index,
   // ratio test) is j. Both scans keep matchByDescriptor's reach (two levels)
   // and index order, so ties fall the same way.
-  int top_level = 0;
-  for (const cv::KeyPoint& k : current.keys) top_level = std::max(top_level, k.octave);
-  for (const cv::KeyPoint& k : other.keys) top_level = std::max(top_level, k.octave);
-  std::vector<std::vector<int>> other_near(top_level + 1), current_near(top_level + 1);
-  const auto addNear = [top_level](std::vector<std::vector<int>>* near, int octave, int index) {
-    for (int level = std::max(0, octave - 2); level <= std::min(top_level, octave + 2); ++level)
-      (*near)[level].push_back(index);
-  };
-  for (int i = 0; i < other.size(); ++i)
-    if (other.depth[i] > 0 && other.keys[i].octave >= 0) addNear(&other_near, other.keys[i].octave, i);
-  for (int j = 0; j < current.size(); ++j) addNear(&current_near, current.keys[j].octave, j);
+  const int top_level = topLevel(current, other);
+  const LevelReach other_near(other, top_level, [&](int i) { return other.depth[i] > 0 && other.keys[i].octave >= 0; });
+  const LevelReach current_near(current, top_level, [](int) { return true; });
+  std::vector<int> distance, back;
   // Whether i's best frame keypoint is j, at distance d_ij, and passes the
   // ratio test: no other k has ratio * d(i, k) < d_ij, and none before j
-  // ties it (at d_ij = 0 the ratio cannot tell). Stops at the first k that
-  // fails it, which is what makes rejections cheap.
+  // ties it (at d_ij = 0 the ratio cannot tell).
   const auto bestOf = [&](int i, int j, int d_ij) {
-    const std::uint8_t* d_i = other.descriptor(i);
-    for (int k : current_near[other.keys[i].octave]) {
-      if (k == j) continue;
-      const int d = hammingDistance(d_i, current.descriptor(k));
-      if (d_ij > ratio * d || (k < j && d <= d_ij)) return false;
-    }
-    return true;
+    const int level = other.keys[i].octave;
+    current_near.distances(other.descriptor(i), level, &back);
+    const std::vector<int>& index = current_near.index[level];
+    const auto at = std::lower_bound(index.begin(), index.end(), j) - index.begin();  // j is in i's reach
+    const int before = minOf(back.data(), back.data() + at);
+    const int after = minOf(back.data() + at + 1, back.data() + back.size());
+    return before > d_ij && !(d_ij > ratio * std::min(before, after));
   };
-  std::vector<int> matched, owner(current.size(), -1), distance;
+  std::vector<int> matched, owner(current.size(), -1);
   std::vector<float> rotations;
   for (int j : features) {
-    const std::vector<int>& reach = other_near[current.keys[j].octave];
-    const std::uint8_t* d_j = current.descriptor(j);
-    distance.resize(reach.size());
-    int nearest = 256;
-    for (std::size_t r = 0; r < reach.size(); ++r) {
-      distance[r] = hammingDistance(other.descriptor(reach[r]), d_j);
-      nearest = std::min(nearest, distance[r]);
-    }
+    const int level = current.keys[j].octave;
+    other_near.distances(current.descriptor(j), level, &distance);
+    const int nearest = minOf(distance.data(), distance.data() + distance.size());
     if (nearest > kMatchThresholdLow) continue;
-    for (std::size_t r = 0; r < reach.size(); ++r)
-      if (distance[r] == nearest && bestOf(reach[r], j, nearest)) {
-        owner[j] = reach[r];
+    for (std::size_t r = 0; r < distance.size(); ++r)
+      if (distance[r] == nearest && bestOf(other_near.index[level][r], j, nearest)) {
+        owner[j] = other_near.index[level][r];
         break;
       }
     if (owner[j] < 0) continue;

@@ -131,6 +131,25 @@ TEST(MatchByDescriptor, MeetsKeypointsWithinTwoLevelsFirstByIndex) {
   EXPECT_EQ(matches[0], std::make_pair(0, 0));
 }
 
+// The ratio test weighs the nearest candidate against the runner-up whether
+// that comes before or after it in index order (10 bits against 12 fails at
+// 0.7, against 20 passes), and matching only some keypoints agrees.
+TEST(MatchByDescriptor, RatioTestMeetsTheRunnerUpOnEitherSide) {
+  Frame other = frameWith({{320, 240}}, {0});
+  other.depth[0] = 2.0f;
+  for (const std::vector<int>& ones : {std::vector<int>{12, 10}, {10, 12}, {20, 10}, {10, 20}}) {
+    const Frame current = frameWith({{100, 100}, {300, 200}}, ones);
+    const int nearest = ones[0] < ones[1] ? 0 : 1;
+    const bool passes = std::max(ones[0], ones[1]) == 20;
+    const auto whole = matchByDescriptor(current, other, 0.7f, false, true);
+    ASSERT_EQ(whole.size(), passes ? 1u : 0u) << ones[0] << " " << ones[1];
+    if (passes) {
+      EXPECT_EQ(whole[0], std::make_pair(nearest, 0));
+    }
+    EXPECT_EQ(matchSomeByDescriptor(current, other, 0.7f, {0, 1}), whole) << ones[0] << " " << ones[1];
+  }
+}
+
 // Matching only some of the frame's keypoints finds exactly the matches the
 // whole frame's mutual matching finds for them: the same reach, ratio test,
 // mutual check and ties. Descriptors are random, half of the frame's copied

@@ -1240,17 +1240,45 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
     const Vec3 p = R * camera_.unproject(uv, corner & 4 ? z_far : z_near) + t;
     stays_in = p.z() > camera_.min_depth && inImage(camera_.project(p), 0.01);
   }
+  // Without distortion the warp is linear in the pixel before the division:
+  // p = z * (a + x * b + y * c) + t, one reciprocal per pixel.
+  const Vec3 b = R.col(0) / camera_.fx, c = R.col(1) / camera_.fy;
+  const Vec3 a = R.col(2) - camera_.cx * b - camera_.cy * c;
+  // Pixel (x, y) at depth z in the seen camera (p) and image (q); false
+  // when behind it.
+  const auto warp = [&](int x, int y, double z, Vec3* p, Vec2* q) {
+    if (distorted) {
+      *p = R * camera_.unproject(camera_.undistortPixel(Vec2(x, y)), z) + t;
+      if (p->z() <= camera_.min_depth) return false;
+      *q = camera_.distortPixel(camera_.project(*p));
+      return true;
+    }
+    *p = z * (a + x * b + y * c) + t;
+    if (p->z() <= camera_.min_depth) return false;
+    const double inv_z = 1.0 / p->z();
+    *q = Vec2(camera_.fx * p->x() * inv_z + camera_.cx, camera_.fy * p->y() * inv_z + camera_.cy);
+    return true;
+  };
+  // The seen frame's images are cold (several frames back), and each patch
+  // row lands on other cache lines: their loads are issued together first
+  // rather than one row's miss after another's.
+  for (int y = y0 - r, k = r; y <= y0 + r; ++y, k += 2 * r + 1) {
+    Vec3 p;
+    Vec2 q;
+    if (!warp(x0, y, patch_z[k], &p, &q) || !inImage(q, r + 1.0)) continue;
+    const int qx = static_cast<int>(q.x()), qy = static_cast<int>(q.y());
+    __builtin_prefetch(seen.depth.ptr<float>(qy) + qx - r);
+    __builtin_prefetch(seen.depth.ptr<float>(qy) + qx + r);
+    __builtin_prefetch(seen.gray.ptr<std::uint8_t>(qy) + qx);
+    __builtin_prefetch(seen.gray.ptr<std::uint8_t>(qy + 1) + qx);
+  }
   int agree = 0, k = 0;
   for (int y = y0 - r; y <= y0 + r; ++y) {
     for (int x = x0 - r; x <= x0 + r; ++x, ++k) {
       const float z = patch_z[k];
-      Vec2 uv(x, y);
-      if (distorted) uv = camera_.undistortPixel(uv);
-      const Vec3 p = R * camera_.unproject(uv, z) + t;
-      if (p.z() <= camera_.min_depth) return false;
-      Vec2 q = camera_.project(p);
-      if (distorted) q = camera_.distortPixel(q);
-      if (!inImage(q, 0.0)) return false;
+      Vec3 p;
+      Vec2 q;
+      if (!warp(x, y, z, &p, &q) || !inImage(q, 0.0)) return false;
       qx[k] = q.x(), qy[k] = q.y();
       const float zs = seen.depth.at<float>(static_cast<int>(q.y() + 0.5), static_cast<int>(q.x() + 0.5));
       agree += zs > camera_.min_depth && std::abs(zs - p.z()) < tol0 + tol2 * p.z() * p.z();
