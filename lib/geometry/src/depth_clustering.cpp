@@ -117,25 +117,38 @@ Result<DepthClusters> DepthClusterer::cluster(const cv::Mat& depth_m, const Came
     }
   }
 
-  // Lloyd iterations.
-  std::vector<int> assign(samples.size(), -1);
-  std::vector<float> dist(samples.size());
+  // Lloyd iterations. The assignment runs centre by centre over all samples
+  // (coordinates in separate arrays), which the compiler vectorises; each
+  // sample still meets the centres in order and keeps the first nearest.
+  const std::size_t n = samples.size();
+  std::vector<float> xs(n), ys(n), zs(n);
+  for (std::size_t i = 0; i < n; ++i) xs[i] = samples[i].x, ys[i] = samples[i].y, zs[i] = samples[i].z;
+  std::vector<int> assign(n, -1), nearest(n);
+  std::vector<float> dist(n);
   std::vector<double> sums(3 * k);
   std::vector<int> counts(k);
-  const std::size_t converged = static_cast<std::size_t>(options_.converged_fraction * samples.size());
+  const std::size_t converged = static_cast<std::size_t>(options_.converged_fraction * n);
   for (int it = 0; it < options_.max_iterations; ++it) {
-    std::size_t changed = 0;
-    for (std::size_t i = 0; i < samples.size(); ++i) {
-      int best = 0;
-      float best_d = squaredDistance(samples[i], &centres[0]);
-      for (int j = 1; j < k; ++j) {
-        const float d = squaredDistance(samples[i], &centres[3 * j]);
-        if (d < best_d) best_d = d, best = j;
+    std::fill(nearest.begin(), nearest.end(), 0);
+    std::fill(dist.begin(), dist.end(), std::numeric_limits<float>::infinity());
+    for (int j = 0; j < k; ++j) {
+      const float cx = centres[3 * j], cy = centres[3 * j + 1], cz = centres[3 * j + 2];
+      const float* __restrict x = xs.data();
+      const float* __restrict y = ys.data();
+      const float* __restrict z = zs.data();
+      float* __restrict best_d = dist.data();
+      int* __restrict best = nearest.data();
+      for (std::size_t i = 0; i < n; ++i) {
+        const float dx = x[i] - cx, dy = y[i] - cy, dz = z[i] - cz;
+        const float d = dx * dx + dy * dy + dz * dz;
+        const int nearer = -static_cast<int>(d < best_d[i]);  // all ones or zero
+        best[i] = (j & nearer) | (best[i] & ~nearer);
+        best_d[i] = std::min(best_d[i], d);
       }
-      changed += assign[i] != best;
-      assign[i] = best;
-      dist[i] = best_d;
     }
+    std::size_t changed = 0;
+    for (std::size_t i = 0; i < n; ++i) changed += assign[i] != nearest[i];
+    assign.swap(nearest);
     out.iterations = it + 1;
     std::fill(sums.begin(), sums.end(), 0.0);
     std::fill(counts.begin(), counts.end(), 0);

@@ -1159,6 +1159,10 @@ Tracker::FreeSpace Tracker::freeSpaceViolations(const geometry::DepthClusters& c
       if (distorted) q = camera_.distortPixel(q);
       const int qx = static_cast<int>(std::lround(q.x())), qy = static_cast<int>(std::lround(q.y()));
       if (qx < 1 || qy < 1 || qx >= seen.cols - 1 || qy >= seen.rows - 1) continue;
+      // The anchor's depth image is cold: the sample below this one lands
+      // about a step further down it, so its rows are fetched now.
+      for (int ahead = qy + clusters.step - 1; ahead <= std::min(seen.rows - 1, qy + clusters.step + 1); ++ahead)
+        __builtin_prefetch(seen.ptr<float>(ahead) + qx);
       // The nearest surface the anchor saw around that pixel: a point on a
       // depth edge may fall on either side of it.
       float nearest = std::numeric_limits<float>::max();
@@ -1211,6 +1215,15 @@ bool Tracker::photoAgreement(int i, const cv::Mat& depth, std::size_t frame, Pho
   constexpr int kMaxPatch = 31 * 31;  // geometry.photo_patch_radius <= 15 (options)
   std::array<double, kMaxPatch> qx, qy;
   const int may_disagree = n - static_cast<int>(std::ceil(options_.geometry.photo_depth_share * n - 1e-9));
+  // The patch's rows lie on as many cache lines, mostly cold: all are
+  // fetched at once (the seen frame's below, once the warp places them).
+  for (int y = y0 - r; y <= y0 + r; ++y) {
+    if (!depth.empty()) {
+      __builtin_prefetch(depth.ptr<float>(y) + x0 - r);
+      __builtin_prefetch(depth.ptr<float>(y) + x0 + r);
+    }
+    __builtin_prefetch(gray.ptr<std::uint8_t>(y) + x0);
+  }
   // The patch's depths, read once. A pixel without depth takes the
   // keypoint's: the patch is small.
   std::array<float, kMaxPatch> patch_z;
