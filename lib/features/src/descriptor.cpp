@@ -7,6 +7,8 @@
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
 #define STILLPOINT_HAVE_AVX512_POPCNT 1
+#elif defined(__aarch64__)
+#include <arm_neon.h>
 #endif
 
 namespace stillpoint::features {
@@ -50,6 +52,20 @@ bool haveAvx512Popcount() {
 }
 #endif
 
+#ifdef __aarch64__
+// Advanced SIMD is part of every AArch64 CPU (the Jetsons included): each
+// descriptor is two 16-byte registers, counted per byte (CNT) and summed
+// across (at most 256, so widened to 16 bits before the last add).
+void hammingDistancesNeon(const std::uint8_t* query, const std::uint8_t* descriptors, int count, int* out) {
+  const uint8x16_t q0 = vld1q_u8(query), q1 = vld1q_u8(query + 16);
+  for (int k = 0; k < count; ++k) {
+    const std::uint8_t* d = descriptors + static_cast<std::size_t>(k) * kDescriptorBytes;
+    const uint8x16_t bits = vaddq_u8(vcntq_u8(veorq_u8(vld1q_u8(d), q0)), vcntq_u8(veorq_u8(vld1q_u8(d + 16), q1)));
+    out[k] = vaddvq_u16(vpaddlq_u8(bits));
+  }
+}
+#endif
+
 }  // namespace
 
 void hammingDistancesScalar(const std::uint8_t* query, const std::uint8_t* descriptors, int count, int* out) {
@@ -58,15 +74,19 @@ void hammingDistancesScalar(const std::uint8_t* query, const std::uint8_t* descr
 }
 
 const char* hammingDistancesPath() {
-#ifdef STILLPOINT_HAVE_AVX512_POPCNT
+#if defined(STILLPOINT_HAVE_AVX512_POPCNT)
   if (haveAvx512Popcount()) return "avx512";
+#elif defined(__aarch64__)
+  return "neon";
 #endif
   return "scalar";
 }
 
 void hammingDistances(const std::uint8_t* query, const std::uint8_t* descriptors, int count, int* out) {
-#ifdef STILLPOINT_HAVE_AVX512_POPCNT
+#if defined(STILLPOINT_HAVE_AVX512_POPCNT)
   if (haveAvx512Popcount()) return hammingDistancesAvx512(query, descriptors, count, out);
+#elif defined(__aarch64__)
+  return hammingDistancesNeon(query, descriptors, count, out);
 #endif
   hammingDistancesScalar(query, descriptors, count, out);
 }

@@ -20,13 +20,14 @@ inline int hammingDistance(const std::uint8_t* a, const std::uint8_t* b) {
 }
 
 // Hamming distances from `query` to `count` descriptors stored back to back
-// at `descriptors` (kDescriptorBytes each): out[k] for the k-th. Uses AVX-512
-// VPOPCNTDQ, eight descriptors at a time, where the CPU has it (checked once
-// at run time); the same results as hammingDistance otherwise.
+// at `descriptors` (kDescriptorBytes each): out[k] for the k-th, the same as
+// hammingDistance's. On x86-64 with AVX-512 VPOPCNTDQ (checked once at run
+// time) eight descriptors at a time; on AArch64 one at a time in Advanced
+// SIMD registers; elsewhere hammingDistance in a loop.
 void hammingDistances(const std::uint8_t* query, const std::uint8_t* descriptors, int count, int* out);
 // The same without the vector path (tests compare the two).
 void hammingDistancesScalar(const std::uint8_t* query, const std::uint8_t* descriptors, int count, int* out);
-// Which path hammingDistances takes on this CPU: "avx512" or "scalar".
+// Which path hammingDistances takes on this CPU: "avx512", "neon" or "scalar".
 const char* hammingDistancesPath();
 
 // Index of the descriptor with the least summed distance to all others (the
