@@ -3,7 +3,9 @@
 #include <ceres/ceres.h>
 #include <ceres/rotation.h>
 
+#include <array>
 #include <mutex>
+#include <random>
 #include <set>
 #include <unordered_map>
 
@@ -343,6 +345,62 @@ SE3 minimisePose(const PoseProblem& problem, const std::vector<char>& active, co
 }
 
 }  // namespace
+
+double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap) {
+  double sum = 0;
+  for (std::size_t k = 0; k < problem.points_w.size(); ++k)
+    sum += std::min(reprojectionChi2(*problem.camera, T_c_w, problem.points_w[k], problem.observations[k]), cap);
+  return sum;
+}
+
+ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initial) {
+  const PoseProblem& matches = problem.pose;
+  ConsensusResult result{initial, 0, truncatedPoseCost(matches, initial, problem.cap)};
+  result.cost = result.initial_cost;
+  std::vector<int> sampleable;
+  for (std::size_t k = 0; k < problem.sampleable.size(); ++k)
+    if (problem.sampleable[k]) sampleable.push_back(static_cast<int>(k));
+  if (sampleable.size() < 3) return result;
+  std::mt19937 rng(problem.seed);
+  std::uniform_int_distribution<std::size_t> pick(0, sampleable.size() - 1);
+  SE3 best = initial;
+  for (int s = 0; s < problem.samples; ++s) {
+    std::array<int, 3> k{};
+    bool distinct = false;
+    for (int attempt = 0; attempt < 10 && !distinct; ++attempt) {
+      for (int& x : k) x = sampleable[pick(rng)];
+      const auto g = [&](int i) { return problem.group[k[i]]; };
+      distinct = g(0) != g(1) && g(0) != g(2) && g(1) != g(2);
+    }
+    if (!distinct) continue;
+    Eigen::Matrix3d from, to;
+    for (int c = 0; c < 3; ++c) from.col(c) = matches.points_w[k[c]], to.col(c) = problem.seen[k[c]];
+    if ((from.col(1) - from.col(0)).cross(from.col(2) - from.col(0)).norm() < 1e-4) continue;  // collinear
+    SE3 T;
+    T.matrix() = Eigen::umeyama(from, to, false);
+    const double cost = truncatedPoseCost(matches, T, problem.cap);
+    if (cost < result.cost) result.cost = cost, best = T;
+  }
+  if (result.cost >= result.initial_cost) return result;
+  // Refitted on the inliers of the best hypothesis, while that lowers the cost.
+  result.T_c_w = best;
+  for (int round = 0; round < 2; ++round) {
+    PoseProblem inliers;
+    inliers.camera = matches.camera;
+    for (std::size_t k = 0; k < matches.points_w.size(); ++k)
+      if (reprojectionChi2(*matches.camera, result.T_c_w, matches.points_w[k], matches.observations[k]) < problem.cap) {
+        inliers.points_w.push_back(matches.points_w[k]);
+        inliers.observations.push_back(matches.observations[k]);
+      }
+    if (inliers.points_w.size() < 6) break;
+    const SE3 T = optimizePose(inliers, result.T_c_w).T_c_w;
+    const double cost = truncatedPoseCost(matches, T, problem.cap);
+    if (cost >= result.cost) break;
+    result.cost = cost;
+    result.T_c_w = T;
+  }
+  return result;
+}
 
 PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds) {
   const std::size_t n = problem.points_w.size();

@@ -1,6 +1,7 @@
 #pragma once
 // Pose-only optimisation and local bundle adjustment with Ceres.
 #include <atomic>
+#include <cstdint>
 #include <vector>
 
 #include "map.hpp"
@@ -41,6 +42,38 @@ struct PoseResult {
 // analytic Jacobians: it runs on every frame, where a general solver's set-up
 // cost dominates (see optimizePoseCeres, the reference it is tested against).
 PoseResult optimizePose(const PoseProblem& problem, const SE3& initial, int rounds = 4);
+
+// The pose that explains the most of a set of matches, where a minority may
+// share another motion: MSAC. Each hypothesis is the rigid motion of three
+// matches measured in 3D in the camera (`seen`, from depth), taken from three
+// different `group`s (depth clusters: three points of one surface are a poor
+// sample and likely share its motion); it is scored by the truncated cost
+// sum min(chi2, cap) over all matches. The best is refitted on its inliers
+// (a fit over all the matches would be pulled back by the ones it rejects).
+// A redescending search, unlike optimizePose: it can leave the basin of a
+// pose that a moving minority has pulled into a compromise, where both the
+// minority and the rest stay under the chi-square gate.
+struct ConsensusProblem {
+  PoseProblem pose;
+  std::vector<Vec3> seen;         // per match: its point in the camera frame
+  std::vector<char> sampleable;   // per match: `seen` can be sampled (good depth)
+  std::vector<int> group;         // per match
+  double cap = kChi2Stereo;
+  int samples = 48;
+  std::uint32_t seed = 0;         // deterministic per frame
+};
+
+struct ConsensusResult {
+  SE3 T_c_w;
+  double cost = 0;          // truncated cost of T_c_w
+  double initial_cost = 0;  // of the initial pose
+};
+
+// Returns the initial pose (cost == initial_cost) when no hypothesis beats it.
+ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initial);
+
+// sum min(chi2, cap) over the problem's matches under T_c_w.
+double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap);
 
 // The same optimisation through Ceres (auto-diff, Huber loss); slower, kept
 // as the reference implementation for tests and benchmarks.

@@ -60,6 +60,9 @@ Status GeometryOptions::validate() const {
   if (carried_frames < 1 || carried_frames > 30) return Error{"geometry.carried_frames must be in [1, 30]"};
   if (near_anchor_frames != 0 && (near_anchor_frames < 2 || near_anchor_frames > 30))
     return Error{"geometry.near_anchor_frames must be 0 (off) or in [2, 30]"};
+  if (!(consensus_ratio >= 0 && consensus_ratio <= 1)) return Error{"geometry.consensus_ratio must be in [0, 1] (0: off)"};
+  if (consensus_samples < 1 || consensus_samples > 10000)
+    return Error{"geometry.consensus_samples must be in [1, 10000]"};
   if (!(lone_moving_chi2 >= 0)) return Error{"geometry.lone_moving_chi2 must be >= 0 (0: off)"};
   if (!(frame_sigma_factor >= 0 && frame_sigma_factor <= 100))
     return Error{"geometry.frame_sigma_factor must be in [0, 100] (0: off)"};
@@ -227,6 +230,8 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
   v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
   v("geometry", "rejudge", o.geometry.rejudge);
+  v("geometry", "consensus_ratio", o.geometry.consensus_ratio);
+  v("geometry", "consensus_samples", o.geometry.consensus_samples);
   v("geometry", "frame_sigma_factor", o.geometry.frame_sigma_factor);
   v("geometry", "frame_sigma_from", o.geometry.frame_sigma_from);
   v("geometry", "frame_sigma_quantile", o.geometry.frame_sigma_quantile);

@@ -143,6 +143,9 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.near_anchor_frames", [](SlamOptions& o) { o.geometry.near_anchor_frames = 1; }},
       {"geometry.near_anchor_frames", [](SlamOptions& o) { o.geometry.near_anchor_frames = 31; }},
       {"geometry.lone_moving_chi2", [](SlamOptions& o) { o.geometry.lone_moving_chi2 = -1; }},
+      {"geometry.consensus_ratio", [](SlamOptions& o) { o.geometry.consensus_ratio = 1.5; }},
+      {"geometry.consensus_ratio", [](SlamOptions& o) { o.geometry.consensus_ratio = -0.1; }},
+      {"geometry.consensus_samples", [](SlamOptions& o) { o.geometry.consensus_samples = 0; }},
       {"geometry.evidence_depth_max_m", [](SlamOptions& o) { o.geometry.evidence_depth_max_m = -1; }},
       {"geometry.static_match_margin", [](SlamOptions& o) { o.geometry.static_match_margin = 300; }},
       {"geometry.photo_release_ncc", [](SlamOptions& o) { o.geometry.photo_release_ncc = 1.5; }},
@@ -226,6 +229,8 @@ SlamOptions everythingChanged() {
   o.geometry.carried_frames = 7;
   o.geometry.near_anchor_frames = 4;
   o.geometry.lone_moving_chi2 = 12.5;
+  o.geometry.consensus_ratio = 0.75;
+  o.geometry.consensus_samples = 100;
   o.geometry.frame_sigma_factor = 3.0;
   o.geometry.frame_sigma_from = "all";
   o.geometry.frame_sigma_quantile = 0.75;
@@ -290,6 +295,8 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.geometry.carried_frames, b.geometry.carried_frames);
   EXPECT_EQ(a.geometry.near_anchor_frames, b.geometry.near_anchor_frames);
   EXPECT_EQ(a.geometry.lone_moving_chi2, b.geometry.lone_moving_chi2);
+  EXPECT_EQ(a.geometry.consensus_ratio, b.geometry.consensus_ratio);
+  EXPECT_EQ(a.geometry.consensus_samples, b.geometry.consensus_samples);
   EXPECT_EQ(a.geometry.frame_sigma_factor, b.geometry.frame_sigma_factor);
   EXPECT_EQ(a.geometry.frame_sigma_from, b.geometry.frame_sigma_from);
   EXPECT_EQ(a.geometry.frame_sigma_quantile, b.geometry.frame_sigma_quantile);

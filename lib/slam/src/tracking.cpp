@@ -841,6 +841,9 @@ void Tracker::removeDynamicFeatures() {
     return geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
   };
   bool anchored = !anchors_.empty();
+  const SE3 initial_pose = current_.T_c_w;
+  const bool consensus = anchored && options_.geometry.consensus_ratio > 0 &&
+                         adoptConsensusPose(has_anchor, anchor_point, inherited);
   geometry::ClusterVerdict verdict = judge(anchored);
   // Anchor matches measure the initial pose independently of stage 1: when
   // most of the view disagrees with it, the pose is what is wrong (stage 1
@@ -852,10 +855,12 @@ void Tracker::removeDynamicFeatures() {
       if (c.judged) judged += c.features, dynamic += c.dynamic ? c.features : 0;
     if (dynamic > options_.geometry.max_dynamic_fraction * judged) {
       anchored = false;
+      current_.T_c_w = initial_pose;
       verdict = judge(false);
       geometry_.anchor_fallback = true;
     }
   }
+  if (consensus) current_.T_c_w = initial_pose;
   // Dense evidence: a cluster a good share of whose depth samples lie in space
   // the anchor frame saw empty has moved, whatever its features say.
   // As with the anchor evidence, when that would make most of the view
@@ -1413,6 +1418,38 @@ Tracker::EvidenceError Tracker::evidenceError(int i, const Vec3& p_w) const {
     e.level_chi2 += ur * ur * e.inv_level_sigma2;
   }
   return e;
+}
+
+bool Tracker::adoptConsensusPose(const std::vector<char>& has_anchor, const std::vector<Vec3>& anchor_point,
+                                 const std::vector<char>& inherited) {
+  // Features matched to ones found moving before do not vote for the static
+  // world: where a known mover holds most of the anchor matches (a poster
+  // filling the view), the consensus would be its motion.
+  const double far = options_.geometry.evidence_depth_max_m;
+  ConsensusProblem problem;
+  problem.pose.camera = &camera_;
+  problem.cap = options_.geometry.verdict.rho_cap;
+  problem.samples = options_.geometry.consensus_samples;
+  problem.seed = static_cast<std::uint32_t>(current_.id);
+  for (int i = 0; i < current_.size(); ++i) {
+    if (!has_anchor[i] || current_.cluster[i] < 0 || inherited[i]) continue;
+    Observation o = observationOf(current_, i);
+    const double z = current_.depth[i];
+    // As in evidenceError: depth beyond evidence_depth_max_m is no evidence,
+    // nor a point to sample.
+    const bool measured = z > 0 && (far <= 0 || z < far);
+    if (!measured) o.u_right = -1;
+    problem.pose.points_w.push_back(anchor_point[i]);
+    problem.pose.observations.push_back(o);
+    problem.seen.push_back(measured ? camera_.unproject(Vec2(current_.un[i].x, current_.un[i].y), z) : Vec3::Zero());
+    problem.sampleable.push_back(measured);
+    problem.group.push_back(current_.cluster[i]);
+  }
+  if (problem.pose.points_w.size() < 12) return false;
+  const ConsensusResult consensus = consensusPose(problem, current_.T_c_w);
+  if (!(consensus.cost < options_.geometry.consensus_ratio * consensus.initial_cost)) return false;
+  current_.T_c_w = consensus.T_c_w;
+  return true;
 }
 
 std::vector<std::pair<int, int>> Tracker::matchAnchor() const {

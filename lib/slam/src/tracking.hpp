@@ -188,6 +188,11 @@ class Tracker {
     Vec3 residual = Vec3::Zero();  // its components (u, v, depth term) over the level sigma, predicted minus measured
   };
   EvidenceError evidenceError(int i, const Vec3& p_w) const;
+  // geometry.consensus_ratio: replaces the initial pose by consensusPose
+  // over the anchor matches (feature i -> world point anchor_point[i] where
+  // has_anchor[i]) when that explains them clearly better. True when it did.
+  bool adoptConsensusPose(const std::vector<char>& has_anchor, const std::vector<Vec3>& anchor_point,
+                          const std::vector<char>& inherited);
   // The static hypothesis tested on pixels: feature i's patch warped pixel by
   // pixel with its depth (`depth`: the current frame's depth image) into the
   // seen frame `frame` (0: the oldest) under the current pose. False when the patch leaves

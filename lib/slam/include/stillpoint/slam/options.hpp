@@ -137,6 +137,17 @@ struct GeometryOptions {
   // 6-run sweeps it lifts `mix` recall 0.72 -> 0.75 but leaves `poster-walk`
   // as it was and the clean excerpt's ATE 0.0083 -> 0.0092 m (README).
   bool rejudge = false;
+  // Consensus pose (session 24): before the verdict, consensusPose
+  // (optimizer.hpp) searches the pose that explains the anchor matches best
+  // under the truncated cost sum min(chi2, rho_cap); the frame is judged
+  // under it when its cost is below this share of the initial pose's (the
+  // pose itself is then still fitted on the stage-1 matches, without the
+  // dynamic clusters). A slowly starting mover that stage 1 has followed
+  // leaves a compromise under which neither it nor the room clears the
+  // gate; at the baseline of the anchor the consensus rejects it. Features
+  // matched to known movers do not vote. 0 = off; 0.7-1.0 measured (README).
+  double consensus_ratio = 0.9;
+  int consensus_samples = 48;  // three-match hypotheses per frame
   // Per-frame evidence sigma (an experiment, off: README "Results" and
   // lib/geometry/README.md). Static evidence misses by about the same number
   // of pixels at every pyramid level on real images, so with few levels the
