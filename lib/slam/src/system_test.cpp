@@ -631,6 +631,7 @@ struct BoardRun {
   // board, and of those the ones released (reported static).
   int dynamic_on_board = 0, dynamic_off_board = 0;
   int released_on_board = 0, released_off_board = 0;
+  int consensus_frames = 0;  // judged under the consensus pose
 };
 
 void runBoard(const MovingBoardSequence& data, const SlamOptions& options, BoardRun* run,
@@ -643,6 +644,7 @@ void runBoard(const MovingBoardSequence& data, const SlamOptions& options, Board
     ASSERT_TRUE(out.ok()) << out.error();
     ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
     online.push_back(out->T_w_c);
+    run->consensus_frames += out->geometry.consensus_pose;
     for (const JudgedFeature& f : out->geometry.judged) {
       if (out->geometry.scores[f.cluster].dynamic) {
         const bool on_board = data.masks[i].at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) != 0;
@@ -781,6 +783,9 @@ TEST(SlamSystemGeometry, ConsensusPoseCatchesABoardStartingFromRest) {
     printRun(consensus ? "board from rest, consensus pose" : "board from rest, initial pose", runs[consensus]);
   }
   const BoardRun& run = runs[1];
+  std::printf("  judged under the consensus pose in %d of 44 frames\n", run.consensus_frames);
+  EXPECT_EQ(runs[0].consensus_frames, 0);
+  EXPECT_GT(run.consensus_frames, 0);
   EXPECT_GE(run.score.precision(), 0.95);
   EXPECT_GE(run.score.recall(), runs[0].score.recall());
   EXPECT_LT(run.errors.rms_translation, 0.01);

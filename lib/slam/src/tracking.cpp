@@ -841,9 +841,15 @@ void Tracker::removeDynamicFeatures() {
     return geometry::classifyClusters(residuals, clusters->clusters, options_.geometry.verdict);
   };
   bool anchored = !anchors_.empty();
+  // The anchor evidence is measured under the pose that explains it best,
+  // when that is clearly better than the initial pose (which a slowly
+  // starting mover may have pulled into a compromise that both it and the
+  // room pass). Only the verdict: the pose is refitted on the stage-1
+  // matches, without the dynamic clusters, from the initial pose.
   const SE3 initial_pose = current_.T_c_w;
   const bool consensus = anchored && options_.geometry.consensus_ratio > 0 &&
                          adoptConsensusPose(has_anchor, anchor_point, inherited);
+  geometry_.consensus_pose = consensus;
   geometry::ClusterVerdict verdict = judge(anchored);
   // Anchor matches measure the initial pose independently of stage 1: when
   // most of the view disagrees with it, the pose is what is wrong (stage 1
@@ -855,7 +861,8 @@ void Tracker::removeDynamicFeatures() {
       if (c.judged) judged += c.features, dynamic += c.dynamic ? c.features : 0;
     if (dynamic > options_.geometry.max_dynamic_fraction * judged) {
       anchored = false;
-      current_.T_c_w = initial_pose;
+      current_.T_c_w = initial_pose;  // the stage-1 matches agree with the pose they produced
+      geometry_.consensus_pose = false;
       verdict = judge(false);
       geometry_.anchor_fallback = true;
     }

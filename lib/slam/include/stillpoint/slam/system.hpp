@@ -90,6 +90,7 @@ struct GeometryOutput {
   int dynamic_features = 0;      // features excluded from pose and mapping
   bool anchor_fallback = false;  // judged by stage-1 matches: the anchor evidence disagreed with most of the view
   bool rejudged = false;         // the second judgement (under the refitted pose) changed the verdict
+  bool consensus_pose = false;   // judged under the consensus pose of the anchor matches (geometry.consensus_ratio)
   bool freespace_vetoed = false; // free space would have flagged most of the view: the pose is off, nothing added
   double threshold = 0;          // score above which a cluster was dynamic
   double clustering_ms = 0;      // K-Means time (in the module's thread)
