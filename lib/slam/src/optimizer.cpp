@@ -346,16 +346,22 @@ SE3 minimisePose(const PoseProblem& problem, const std::vector<char>& active, co
 
 }  // namespace
 
-double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap) {
+double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap, int* inliers) {
   double sum = 0;
-  for (std::size_t k = 0; k < problem.points_w.size(); ++k)
-    sum += std::min(reprojectionChi2(*problem.camera, T_c_w, problem.points_w[k], problem.observations[k]), cap);
+  int under = 0;
+  for (std::size_t k = 0; k < problem.points_w.size(); ++k) {
+    const double chi2 = reprojectionChi2(*problem.camera, T_c_w, problem.points_w[k], problem.observations[k]);
+    sum += std::min(chi2, cap);
+    under += chi2 < cap;
+  }
+  if (inliers) *inliers = under;
   return sum;
 }
 
 ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initial) {
   const PoseProblem& matches = problem.pose;
-  ConsensusResult result{initial, 0, truncatedPoseCost(matches, initial, problem.cap)};
+  ConsensusResult result{initial, 0, 0, 0};
+  result.initial_cost = truncatedPoseCost(matches, initial, problem.cap, &result.initial_inliers);
   result.cost = result.initial_cost;
   std::vector<int> sampleable;
   for (std::size_t k = 0; k < problem.sampleable.size(); ++k)

@@ -67,13 +67,15 @@ struct ConsensusResult {
   SE3 T_c_w;
   double cost = 0;          // truncated cost of T_c_w
   double initial_cost = 0;  // of the initial pose
+  int initial_inliers = 0;  // matches under the cap at the initial pose
 };
 
 // Returns the initial pose (cost == initial_cost) when no hypothesis beats it.
 ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initial);
 
-// sum min(chi2, cap) over the problem's matches under T_c_w.
-double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap);
+// sum min(chi2, cap) over the problem's matches under T_c_w; `inliers`
+// (optional): how many are under the cap.
+double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap, int* inliers = nullptr);
 
 // The same optimisation through Ceres (auto-diff, Huber loss); slower, kept
 // as the reference implementation for tests and benchmarks.

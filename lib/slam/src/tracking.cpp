@@ -1454,6 +1454,12 @@ bool Tracker::adoptConsensusPose(const std::vector<char>& has_anchor, const std:
   }
   if (problem.pose.points_w.size() < 12) return false;
   const ConsensusResult consensus = consensusPose(problem, current_.T_c_w);
+  // A consensus corrects a compromise that most of the view still passes.
+  // When most of it already fails the initial pose, the pose is what is
+  // wrong (stage 1 had too few map points): the fallback to the stage-1
+  // matches below decides, as without the consensus.
+  const double voters = static_cast<double>(problem.pose.points_w.size());
+  if (consensus.initial_inliers < (1 - options_.geometry.max_dynamic_fraction) * voters) return false;
   if (!(consensus.cost < options_.geometry.consensus_ratio * consensus.initial_cost)) return false;
   current_.T_c_w = consensus.T_c_w;
   return true;
