@@ -143,9 +143,12 @@ struct GeometryOptions {
   // under it when its cost is below this share of the initial pose's (the
   // pose itself is then still fitted on the stage-1 matches, without the
   // dynamic clusters). A slowly starting mover that stage 1 has followed
-  // leaves a compromise under which neither it nor the room clears the
-  // gate; at the baseline of the anchor the consensus rejects it. Features
-  // matched to known movers do not vote. 0 = off; 0.7-1.0 measured (README).
+  // leaves a compromise under which both it and the room pass the
+  // chi-square gate; at the anchor's baseline the consensus rejects it.
+  // Features matched to known movers do not vote, and when fewer than
+  // 1 - max_dynamic_fraction of the voters pass the initial pose, that pose
+  // is wrong and the fallback decides instead. 0 = off; 0.7-1.0 measured
+  // (README).
   double consensus_ratio = 0.9;
   int consensus_samples = 48;  // three-match hypotheses per frame
   // Per-frame evidence sigma (an experiment, off: README "Results" and
