@@ -346,10 +346,10 @@ SE3 minimisePose(const PoseProblem& problem, const std::vector<char>& active, co
 
 }  // namespace
 
-double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap, int* inliers) {
+double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap, int* inliers, double stop_at) {
   double sum = 0;
   int under = 0;
-  for (std::size_t k = 0; k < problem.points_w.size(); ++k) {
+  for (std::size_t k = 0; k < problem.points_w.size() && sum < stop_at; ++k) {
     const double chi2 = reprojectionChi2(*problem.camera, T_c_w, problem.points_w[k], problem.observations[k]);
     sum += std::min(chi2, cap);
     under += chi2 < cap;
@@ -363,6 +363,7 @@ ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initia
   ConsensusResult result{initial, 0, 0, 0};
   result.initial_cost = truncatedPoseCost(matches, initial, problem.cap, &result.initial_inliers);
   result.cost = result.initial_cost;
+  if (result.initial_inliers < problem.min_initial_inliers) return result;
   std::vector<int> sampleable;
   for (std::size_t k = 0; k < problem.sampleable.size(); ++k)
     if (problem.sampleable[k]) sampleable.push_back(static_cast<int>(k));
@@ -384,7 +385,8 @@ ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initia
     if ((from.col(1) - from.col(0)).cross(from.col(2) - from.col(0)).norm() < 1e-4) continue;  // collinear
     SE3 T;
     T.matrix() = Eigen::umeyama(from, to, false);
-    const double cost = truncatedPoseCost(matches, T, problem.cap);
+    // Scored only until it cannot beat the best so far.
+    const double cost = truncatedPoseCost(matches, T, problem.cap, nullptr, result.cost);
     if (cost < result.cost) result.cost = cost, best = T;
   }
   if (result.cost >= result.initial_cost) return result;

@@ -2,6 +2,7 @@
 // Pose-only optimisation and local bundle adjustment with Ceres.
 #include <atomic>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "map.hpp"
@@ -61,6 +62,9 @@ struct ConsensusProblem {
   double cap = kChi2Stereo;
   int samples = 48;
   std::uint32_t seed = 0;         // deterministic per frame
+  // No search when fewer matches pass the initial pose: it is not a
+  // compromise to correct but wrong (the caller's fallback decides).
+  int min_initial_inliers = 0;
 };
 
 struct ConsensusResult {
@@ -70,12 +74,15 @@ struct ConsensusResult {
   int initial_inliers = 0;  // matches under the cap at the initial pose
 };
 
-// Returns the initial pose (cost == initial_cost) when no hypothesis beats it.
+// Returns the initial pose (cost == initial_cost) when no hypothesis beats it
+// or the search did not run (min_initial_inliers).
 ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initial);
 
 // sum min(chi2, cap) over the problem's matches under T_c_w; `inliers`
-// (optional): how many are under the cap.
-double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap, int* inliers = nullptr);
+// (optional): how many are under the cap. Stops adding once the sum reaches
+// `stop_at` (then the sum and count are partial).
+double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap, int* inliers = nullptr,
+                         double stop_at = std::numeric_limits<double>::infinity());
 
 // The same optimisation through Ceres (auto-diff, Huber loss); slower, kept
 // as the reference implementation for tests and benchmarks.

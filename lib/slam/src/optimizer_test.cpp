@@ -232,6 +232,15 @@ TEST(ConsensusPose, LeavesTheCompromiseThatAMovingMinorityPulledThePoseInto) {
   EXPECT_GE(passing(r.T_c_w, false), 0.9 * (all.points_w.size() - 24));
   // Deterministic for one seed.
   EXPECT_TRUE(consensusPose(scene.problem, compromise).T_c_w.isApprox(r.T_c_w));
+  // Asked for more matches under the initial pose than pass it: no search.
+  ConsensusProblem strict = scene.problem;
+  int initial_inliers = 0;
+  truncatedPoseCost(all, compromise, strict.cap, &initial_inliers);
+  strict.min_initial_inliers = initial_inliers + 1;
+  const ConsensusResult none = consensusPose(strict, compromise);
+  EXPECT_TRUE(none.T_c_w.isApprox(compromise));
+  EXPECT_DOUBLE_EQ(none.cost, none.initial_cost);
+  EXPECT_EQ(none.initial_inliers, initial_inliers);
 }
 
 // Under the right pose of a static room nothing explains the matches

@@ -1453,13 +1453,14 @@ bool Tracker::adoptConsensusPose(const std::vector<char>& has_anchor, const std:
     problem.group.push_back(current_.cluster[i]);
   }
   if (problem.pose.points_w.size() < 12) return false;
-  const ConsensusResult consensus = consensusPose(problem, current_.T_c_w);
   // A consensus corrects a compromise that most of the view still passes.
   // When most of it already fails the initial pose, the pose is what is
   // wrong (stage 1 had too few map points): the fallback to the stage-1
-  // matches below decides, as without the consensus.
+  // matches decides, as without the consensus.
   const double voters = static_cast<double>(problem.pose.points_w.size());
-  if (consensus.initial_inliers < (1 - options_.geometry.max_dynamic_fraction) * voters) return false;
+  problem.min_initial_inliers =
+      static_cast<int>(std::ceil((1 - options_.geometry.max_dynamic_fraction) * voters));
+  const ConsensusResult consensus = consensusPose(problem, current_.T_c_w);
   if (!(consensus.cost < options_.geometry.consensus_ratio * consensus.initial_cost)) return false;
   current_.T_c_w = consensus.T_c_w;
   return true;
