@@ -256,8 +256,7 @@ int main(int argc, char** argv) {
   std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0;
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
   std::vector<double> geometry_ms, clustering_ms;
-  std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0, rejudged = 0,
-              consensus = 0;
+  std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0, consensus = 0;
   std::size_t semantic_followed = 0;  // features matched to the last segmented keyframe's masks
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
   const auto start = std::chrono::steady_clock::now();
@@ -307,7 +306,6 @@ int main(int argc, char** argv) {
       clustering_ms.push_back(g.clustering_ms);
       dynamic_clusters += g.dynamic_clusters;
       dynamic_features += g.dynamic_features;
-      rejudged += g.rejudged;
       consensus += g.consensus_pose;
       if (features_out)
         for (const slam::JudgedFeature& f : g.judged)
@@ -388,10 +386,9 @@ int main(int argc, char** argv) {
   std::printf("              %-24s %.1f fps over %.2f s wall\n", "throughput", frames / wall_s, wall_s);
   if (options.geometry.enabled)
     std::printf("geometry:     %zu frames judged, %zu deadline misses, %.2f dynamic clusters and %.1f dynamic "
-                "features per frame, %zu judged under the consensus pose, %zu verdicts changed by the second "
-                "judgement, %d map points culled\n",
+                "features per frame, %zu judged under the consensus pose, %d map points culled\n",
                 geometry_frames, geometry_misses, geometry_frames ? double(dynamic_clusters) / geometry_frames : 0.0,
-                geometry_frames ? double(dynamic_features) / geometry_frames : 0.0, consensus, rejudged,
+                geometry_frames ? double(dynamic_features) / geometry_frames : 0.0, consensus,
                 map.dynamic_points_culled);
   else
     std::printf("geometry:     off\n");

@@ -25,30 +25,19 @@ ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, i
                                 const DynamicClusterOptions& options) {
   ClusterVerdict verdict;
   verdict.clusters.assign(std::max(0, clusters), {});
-  std::vector<std::vector<double>> rhos(verdict.clusters.size());
+  // The sums run in the order of `residuals`, as the mean is defined.
+  std::vector<double> sums(verdict.clusters.size(), 0.0);
   for (const FeatureResidual& r : residuals) {
     if (r.cluster < 0 || r.cluster >= clusters) continue;
     ClusterScore& c = verdict.clusters[r.cluster];
     ++c.features;
     c.inherited += r.inherited;
-    rhos[r.cluster].push_back(truncatedRho(r.chi2, options.rho_cap));
+    sums[r.cluster] += truncatedRho(r.chi2, options.rho_cap);
   }
   std::vector<double> judged;
   for (std::size_t k = 0; k < verdict.clusters.size(); ++k) {
     ClusterScore& c = verdict.clusters[k];
-    std::vector<double>& v = rhos[k];
-    if (v.empty()) {
-      c.mean_rho = 0;
-    } else if (options.median) {
-      const auto mid = v.begin() + v.size() / 2;
-      std::nth_element(v.begin(), mid, v.end());
-      c.mean_rho = *mid;
-      if (v.size() % 2 == 0) c.mean_rho = 0.5 * (c.mean_rho + *std::max_element(v.begin(), mid));
-    } else {
-      double sum = 0;
-      for (double x : v) sum += x;
-      c.mean_rho = sum / v.size();
-    }
+    c.mean_rho = c.features > 0 ? sums[k] / c.features : 0.0;
     c.judged = c.features >= options.min_features;
     if (c.judged) judged.push_back(c.mean_rho);
   }

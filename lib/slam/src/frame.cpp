@@ -4,7 +4,16 @@
 #include <cmath>
 #include <cstdint>
 
+#include "stillpoint/geometry/rules.hpp"
+
 namespace stillpoint::slam {
+
+int maskedNeighbours(const Frame& frame, cv::Point2f at, float z, float radius) {
+  int n = 0;
+  for (int s : frame.grid.query(frame.keys, frame.un, at.x, at.y, radius, 0, -1))
+    n += frame.dynamic[s] == kSemanticDynamic && frame.depth[s] > 0 && geometry::sameSurface(frame.depth[s], z);
+  return n;
+}
 
 LevelInfo LevelInfo::from(const features::OrbExtractor& orb) {
   LevelInfo info;

@@ -80,6 +80,11 @@ struct Frame {
 void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb,
                 const cv::Mat& sparse = cv::Mat(), int sparse_every = 1);
 
+// Features of `frame` flagged by a semantic mask within `radius` px of the
+// undistorted position `at`, on the surface at depth `z` (geometry::sameSurface).
+// Masks and the features they keep out grow over those with two or more.
+int maskedNeighbours(const Frame& frame, cv::Point2f at, float z, float radius);
+
 // Marks the features inside `movers` (CV_8UC1 or CV_16UC1, the image's size,
 // non-zero = moving) as kSemanticDynamic: movers known from outside are kept
 // out of the pose and the map as semantic masks are.

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <set>
 
 #include "matcher.hpp"
 #include "optimizer.hpp"
@@ -27,10 +26,7 @@ void LocalMapper::process(KeyFrame* kf) {
       if (p && !p->bad && p->first_keyframe_id == kf->id) recent_points_.push_back(p);
     cullRecentPoints(kf);
     cullDynamicPoints(kf);
-    if (options_.mapping.fuse)
-      fuseWithNeighbours(kf);
-    else
-      kf->updateConnections();
+    kf->updateConnections();
   }
   abort_ba_ = false;
   if (options_.mapping.local_ba && map_->nextKeyFrameId() > 2) {
@@ -79,29 +75,6 @@ void LocalMapper::cullDynamicPoints(KeyFrame* kf) {
   kf->dynamic_suspects.clear();
   dynamic_points_culled_ += culled;
   if (culled > 0) SP_DEBUG(logger, "keyframe " << kf->id << ": culled " << culled << " dynamic points");
-}
-
-void LocalMapper::fuseWithNeighbours(KeyFrame* kf) {
-  std::vector<KeyFrame*> targets;
-  std::set<KeyFrame*> seen{kf};
-  for (KeyFrame* n : kf->bestNeighbours(options_.mapping.fuse_neighbours)) {
-    if (seen.insert(n).second) targets.push_back(n);
-    for (KeyFrame* n2 : n->bestNeighbours(5))
-      if (seen.insert(n2).second) targets.push_back(n2);
-  }
-  std::vector<std::shared_ptr<MapPoint>> own;
-  for (const auto& p : kf->frame.points)
-    if (p && !p->bad) own.push_back(p);
-  for (KeyFrame* t : targets) fuse(map_, t, own, 3.0f);
-  std::vector<std::shared_ptr<MapPoint>> theirs;
-  std::set<MapPoint*> unique;
-  for (KeyFrame* t : targets)
-    for (const auto& p : t->frame.points)
-      if (p && !p->bad && unique.insert(p.get()).second) theirs.push_back(p);
-  fuse(map_, kf, theirs, 3.0f);
-  for (const auto& p : kf->frame.points)
-    if (p && !p->bad) p->updateFromObservations();
-  kf->updateConnections();
 }
 
 void LocalMapper::cullKeyFrames(KeyFrame* kf) {
@@ -205,33 +178,6 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     judged[k] += f.cluster[i] >= 0;
   }
   const SemanticOptions& o = options_.semantic;
-  // The mask, grown over the keyframe's features at its depth: a detector's
-  // mask misses parts of its object (edges, limbs, what depth agreement cut),
-  // and those parts would become map points.
-  for (int pass = 0; o.mask_grow_px > 0 && n_regions > 0 && pass < o.mask_grow_passes; ++pass) {
-    std::vector<std::pair<int, int>> grown;  // feature, label
-    for (int i = 0; i < f.size(); ++i) {
-      const float z = f.depth[i];
-      if (region_of[i] || z <= 0) continue;
-      std::vector<int> support(n_regions + 1, 0);
-      int best = 0;
-      for (int s : f.grid.query(f.keys, f.un, f.un[i].x, f.un[i].y, o.mask_grow_px, 0, -1)) {
-        const int label = region_of[s];
-        if (!label || f.depth[s] <= 0 || std::abs(f.depth[s] - z) >= 0.1f + 0.05f * z) continue;
-        if (++support[label] > support[best]) best = label;
-      }
-      if (best && support[best] >= 2) grown.emplace_back(i, best);
-    }
-    if (grown.empty()) break;
-    for (const auto& [i, label] : grown) {
-      region_of[i] = label;
-      const int k = label - 1;
-      members[k].push_back(i);
-      with_point[k] += f.points[i] && !f.points[i]->bad;
-      flagged[k] += f.dynamic[i] != 0;
-      judged[k] += f.cluster[i] >= 0;
-    }
-  }
   std::vector<char> confirmed(n_regions, 0);
   std::vector<int> order(n_regions);
   for (int k = 0; k < n_regions; ++k) {
@@ -271,8 +217,6 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       continue;
     }
     f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
-    if (kf->in_mask.empty()) kf->in_mask.assign(f.size(), 0);
-    kf->in_mask[i] = 1;
     ++features_removed;
     if (!p) continue;
     if (p->first_keyframe_id == kf->id) {

@@ -1,6 +1,6 @@
 #pragma once
-// Local mapping: takes new keyframes from tracking, fuses duplicate points
-// with neighbours, culls weak points and redundant keyframes, and refines the
+// Local mapping: takes new keyframes from tracking, culls weak and dynamic
+// points and redundant keyframes, applies semantic masks, and refines the
 // local window with bundle adjustment.
 #include <atomic>
 #include <condition_variable>
@@ -77,7 +77,6 @@ class LocalMapper {
   void run(std::stop_token stop);
   void cullRecentPoints(KeyFrame* kf);
   void cullDynamicPoints(KeyFrame* kf);
-  void fuseWithNeighbours(KeyFrame* kf);
   void cullKeyFrames(KeyFrame* kf);
   void applySemantic(const SemanticResult& result);  // map lock held exclusively
 

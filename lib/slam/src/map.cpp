@@ -165,25 +165,6 @@ void Map::erasePoint(const std::shared_ptr<MapPoint>& point) {
   point->reference = nullptr;  // its keyframe may be freed before the point
 }
 
-void Map::replacePoint(const std::shared_ptr<MapPoint>& a, const std::shared_ptr<MapPoint>& b) {
-  if (a == b || a->bad) return;
-  auto observations = a->observations;
-  a->observations.clear();
-  a->bad = true;
-  a->replaced_by = b;
-  a->reference = nullptr;
-  for (auto& [kf, idx] : observations) {
-    if (!b->observations.count(kf)) {
-      kf->frame.points[idx] = b;
-      b->observations[kf] = idx;
-    } else {
-      kf->frame.points[idx] = nullptr;
-    }
-  }
-  b->visible += a->visible;
-  b->found += a->found;
-  b->updateFromObservations();
-}
 
 void Map::setKeyFrameBad(KeyFrame* kf) {
   if (kf->id == 0 || kf->bad) return;

@@ -64,7 +64,6 @@ class MapPoint {
   // this point, and how many of them saw it inside a movable mask.
   int semantic_checks = 0;
   int semantic_hits = 0;
-  std::shared_ptr<MapPoint> replaced_by;
   std::int64_t local_for_frame = -1;  // tracking's local-map bookkeeping
   bool isTemporary() const { return id < 0; }
   // Temporary point of a feature the geometry module found moving in the
@@ -116,9 +115,6 @@ class KeyFrame {
   // The semantic module's result was applied (its features in movable masks
   // are flagged dynamic and hold no map point).
   bool segmented = false;
-  // Per feature: inside a movable mask applied to this keyframe (empty: none
-  // was). Unlike `dynamic`, not set by propagation from older keyframes.
-  std::vector<char> in_mask;
 
   int trackedPoints(int min_observations) const;
   void addObservation(const std::shared_ptr<MapPoint>& point, int index);
@@ -149,8 +145,6 @@ class Map {
   std::size_t releaseCulledKeyFrames();
   // The keyframe with this id, or null (never made, or culled and freed).
   KeyFrame* keyFrame(std::int64_t id) const;
-  // Replaces `a` by `b` everywhere (fusion of duplicates).
-  void replacePoint(const std::shared_ptr<MapPoint>& a, const std::shared_ptr<MapPoint>& b);
 
   // In id order: the keyframes in the map and the culled ones not yet freed.
   const std::vector<std::unique_ptr<KeyFrame>>& keyframes() const { return keyframes_; }

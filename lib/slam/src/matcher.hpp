@@ -49,9 +49,6 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
 std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
                                                        const std::vector<int>& features);
 
-// Projects `points` into `kf` and fuses: adds observations for unmatched
-// keypoints, merges duplicates. Returns the number fused or added.
-int fuse(Map* map, KeyFrame* kf, const std::vector<std::shared_ptr<MapPoint>>& points, float radius);
 
 // Keeps only matches whose rotation change agrees with the dominant ones.
 void filterByOrientation(const std::vector<float>& rotation_deg, std::vector<int>* match_indices);

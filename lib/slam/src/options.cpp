@@ -43,7 +43,6 @@ Status MappingOptions::validate() const {
   if (!(redundant_ratio > 0 && redundant_ratio <= 1)) return Error{"mapping.redundant_ratio must be in (0, 1]"};
   if (redundant_min_observers < 1) return Error{"mapping.redundant_min_observers must be >= 1"};
   if (!(point_found_ratio >= 0 && point_found_ratio < 1)) return Error{"mapping.point_found_ratio must be in [0, 1)"};
-  if (fuse_neighbours < 1) return Error{"mapping.fuse_neighbours must be >= 1"};
   return Status::success();
 }
 
@@ -53,7 +52,6 @@ Status GeometryOptions::validate() const {
   if (!(deadline_ms > 0 && deadline_ms <= 1000)) return Error{"geometry.deadline_ms must be in (0, 1000]"};
   if (!(point_dynamic_weight > 0 && point_dynamic_weight <= 1))
     return Error{"geometry.point_dynamic_weight must be in (0, 1]"};
-  if (!(depth_sigma_at_1m >= 0 && depth_sigma_at_1m < 1)) return Error{"geometry.depth_sigma_at_1m must be in [0, 1)"};
   if (!(max_dynamic_fraction > 0 && max_dynamic_fraction <= 1))
     return Error{"geometry.max_dynamic_fraction must be in (0, 1]"};
   if (anchor_frames < 0 || anchor_frames > 30) return Error{"geometry.anchor_frames must be in [0, 30]"};
@@ -64,16 +62,7 @@ Status GeometryOptions::validate() const {
   if (consensus_samples < 1 || consensus_samples > 10000)
     return Error{"geometry.consensus_samples must be in [1, 10000]"};
   if (!(lone_moving_chi2 >= 0)) return Error{"geometry.lone_moving_chi2 must be >= 0 (0: off)"};
-  if (!(frame_sigma_factor >= 0 && frame_sigma_factor <= 100))
-    return Error{"geometry.frame_sigma_factor must be in [0, 100] (0: off)"};
-  if (frame_sigma_from != "reference" && frame_sigma_from != "all")
-    return Error{"geometry.frame_sigma_from must be 'reference' or 'all'"};
-  if (!(frame_sigma_quantile >= 0 && frame_sigma_quantile <= 1))
-    return Error{"geometry.frame_sigma_quantile must be in [0, 1]"};
-  if (!(frame_sigma_min_scale > 0 && frame_sigma_min_scale <= 1))
-    return Error{"geometry.frame_sigma_min_scale must be in (0, 1]"};
   if (!(evidence_ratio >= 0 && evidence_ratio <= 1)) return Error{"geometry.evidence_ratio must be in [0, 1]"};
-  if (!(anchor_release_chi2 >= 0)) return Error{"geometry.anchor_release_chi2 must be >= 0"};
   if (!(evidence_depth_max_m >= 0)) return Error{"geometry.evidence_depth_max_m must be >= 0"};
   if (static_match_margin > 256) return Error{"geometry.static_match_margin must be <= 256 (< 0: off)"};
   if (!(photo_release_ncc >= 0 && photo_release_ncc <= 1)) return Error{"geometry.photo_release_ncc must be in [0, 1] (0: off)"};
@@ -98,7 +87,6 @@ Status GeometryOptions::validate() const {
   if (!(freespace_grow_plane_m > 0)) return Error{"geometry.freespace_grow_plane_m must be > 0"};
   if (!(freespace_grow_angle_deg > 0 && freespace_grow_angle_deg < 90))
     return Error{"geometry.freespace_grow_angle_deg must be in (0, 90)"};
-  if (!(projection_ratio >= 0 && projection_ratio <= 1)) return Error{"geometry.projection_ratio must be in [0, 1]"};
   if (probation_frames < 0 || probation_frames > 100) return Error{"geometry.probation_frames must be in [0, 100]"};
   if (probation_min_trusted < 10 || probation_min_trusted > 1000)
     return Error{"geometry.probation_min_trusted must be in [10, 1000]"};
@@ -107,8 +95,6 @@ Status GeometryOptions::validate() const {
 
 Status SemanticOptions::validate() const {
   if (mask_dilation_px < 0 || mask_dilation_px > 100) return Error{"semantic.mask_dilation_px must be in 0..100"};
-  if (!(mask_grow_px >= 0 && mask_grow_px <= 200)) return Error{"semantic.mask_grow_px must be in [0, 200]"};
-  if (mask_grow_passes < 1 || mask_grow_passes > 20) return Error{"semantic.mask_grow_passes must be in [1, 20]"};
   if (queue_capacity < 1 || queue_capacity > 1000) return Error{"semantic.queue_capacity must be in 1..1000"};
   if (sequential_latency_frames < 0 || sequential_latency_frames > 1000)
     return Error{"semantic.sequential_latency_frames must be in 0..1000"};
@@ -131,12 +117,6 @@ Status SemanticOptions::validate() const {
     return Error{"semantic.propagate_grow_px must be in [0, 200]"};
   if (propagate_grow_passes < 1 || propagate_grow_passes > 20)
     return Error{"semantic.propagate_grow_passes must be in [1, 20]"};
-  if (propagate_mask_window < 0 || propagate_mask_window > 100)
-    return Error{"semantic.propagate_mask_window must be in [0, 100]"};
-  if (!(propagate_warp_px >= 0 && propagate_warp_px <= 200))
-    return Error{"semantic.propagate_warp_px must be in [0, 200]"};
-  if (!(propagate_motion_px >= 0 && propagate_motion_px <= 200))
-    return Error{"semantic.propagate_motion_px must be in [0, 200]"};
   if (!(temp_exclusion_px >= 0 && temp_exclusion_px <= 200))
     return Error{"semantic.temp_exclusion_px must be in [0, 200]"};
   if (!(track_score_ratio >= 0 && track_score_ratio <= 1))
@@ -187,13 +167,11 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("keyframes", "close_untracked_min", o.keyframes.close_untracked_min);
   v("keyframes", "min_new_points", o.keyframes.min_new_points);
   v("mapping", "local_ba", o.mapping.local_ba);
-  v("mapping", "fuse", o.mapping.fuse);
   v("mapping", "ba_iterations", o.mapping.ba_iterations);
   v("mapping", "ba_max_keyframes", o.mapping.ba_max_keyframes);
   v("mapping", "redundant_ratio", o.mapping.redundant_ratio);
   v("mapping", "redundant_min_observers", o.mapping.redundant_min_observers);
   v("mapping", "point_found_ratio", o.mapping.point_found_ratio);
-  v("mapping", "fuse_neighbours", o.mapping.fuse_neighbours);
   v("mapping", "keep_culled_keyframes", o.mapping.keep_culled_keyframes);
   v("geometry", "enabled", o.geometry.enabled);
   v("geometry", "clusters", o.geometry.clustering.clusters_at_vga);
@@ -212,7 +190,6 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "freespace_split_min_samples", o.geometry.freespace_split_min_samples);
   v("geometry", "freespace_split_protect_chi2", o.geometry.freespace_split_protect_chi2);
   v("geometry", "rho_cap", o.geometry.verdict.rho_cap);
-  v("geometry", "median", o.geometry.verdict.median);
   v("geometry", "min_features", o.geometry.verdict.min_features);
   v("geometry", "reference_quantile", o.geometry.verdict.reference_quantile);
   v("geometry", "relative_factor", o.geometry.verdict.relative_factor);
@@ -228,16 +205,9 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "near_anchor_frames", o.geometry.near_anchor_frames);
   v("geometry", "lone_moving_chi2", o.geometry.lone_moving_chi2);
   v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
-  v("geometry", "depth_sigma_at_1m", o.geometry.depth_sigma_at_1m);
-  v("geometry", "rejudge", o.geometry.rejudge);
   v("geometry", "consensus_ratio", o.geometry.consensus_ratio);
   v("geometry", "consensus_samples", o.geometry.consensus_samples);
-  v("geometry", "frame_sigma_factor", o.geometry.frame_sigma_factor);
-  v("geometry", "frame_sigma_from", o.geometry.frame_sigma_from);
-  v("geometry", "frame_sigma_quantile", o.geometry.frame_sigma_quantile);
-  v("geometry", "frame_sigma_min_scale", o.geometry.frame_sigma_min_scale);
   v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
-  v("geometry", "anchor_release_chi2", o.geometry.anchor_release_chi2);
   v("geometry", "evidence_depth_max_m", o.geometry.evidence_depth_max_m);
   v("geometry", "static_match_margin", o.geometry.static_match_margin);
   v("geometry", "photo_release_ncc", o.geometry.photo_release_ncc);
@@ -253,8 +223,6 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "photo_release_anchored", o.geometry.photo_release_anchored);
   v("geometry", "photo_frames_back", o.geometry.photo_frames_back);
   v("geometry", "photo_fallback", o.geometry.photo_fallback);
-  v("geometry", "projection_ratio", o.geometry.projection_ratio);
-  v("geometry", "exclude_known_movers", o.geometry.exclude_known_movers);
   v("geometry", "probation_frames", o.geometry.probation_frames);
   v("geometry", "probation_min_trusted", o.geometry.probation_min_trusted);
   v("semantic", "enabled", o.semantic.enabled);
@@ -262,8 +230,6 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "model_dirs", o.semantic.model_dirs);
   v("semantic", "movable_furniture", o.semantic.movable_furniture);
   v("semantic", "mask_dilation_px", o.semantic.mask_dilation_px);
-  v("semantic", "mask_grow_px", o.semantic.mask_grow_px);
-  v("semantic", "mask_grow_passes", o.semantic.mask_grow_passes);
   v("semantic", "queue_capacity", o.semantic.queue_capacity);
   v("semantic", "sequential_latency_frames", o.semantic.sequential_latency_frames);
   v("semantic", "threads", o.semantic.threads);
@@ -280,9 +246,6 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "propagate_grow_px", o.semantic.propagate_grow_px);
   v("semantic", "propagate_grow_passes", o.semantic.propagate_grow_passes);
   v("semantic", "propagate_from_last", o.semantic.propagate_from_last);
-  v("semantic", "propagate_mask_window", o.semantic.propagate_mask_window);
-  v("semantic", "propagate_warp_px", o.semantic.propagate_warp_px);
-  v("semantic", "propagate_motion_px", o.semantic.propagate_motion_px);
   v("semantic", "temp_exclusion_px", o.semantic.temp_exclusion_px);
   v("semantic", "track_score_ratio", o.semantic.track_score_ratio);
   v("semantic", "track_iou", o.semantic.track_iou);

@@ -87,7 +87,6 @@ TEST(SlamOptionsValidate, EachOutOfRangeValueNamesItsField) {
       {"mapping.redundant_ratio", [](SlamOptions& o) { o.mapping.redundant_ratio = 0; }},
       {"mapping.redundant_min_observers", [](SlamOptions& o) { o.mapping.redundant_min_observers = 0; }},
       {"mapping.point_found_ratio", [](SlamOptions& o) { o.mapping.point_found_ratio = 1; }},
-      {"mapping.fuse_neighbours", [](SlamOptions& o) { o.mapping.fuse_neighbours = 0; }},
   };
   for (const BadValue& c : cases) {
     SCOPED_TRACE(c.field);
@@ -122,10 +121,6 @@ void expectGeometryErrorsNameTheirFields(const std::vector<BadValue>& cases) {
 
 TEST(SlamOptionsValidate, FrameSigmaFieldsNameThemselves) {
   const std::vector<BadValue> cases = {
-      {"geometry.frame_sigma_factor", [](SlamOptions& o) { o.geometry.frame_sigma_factor = -1; }},
-      {"geometry.frame_sigma_from", [](SlamOptions& o) { o.geometry.frame_sigma_from = "static"; }},
-      {"geometry.frame_sigma_quantile", [](SlamOptions& o) { o.geometry.frame_sigma_quantile = 1.5; }},
-      {"geometry.frame_sigma_min_scale", [](SlamOptions& o) { o.geometry.frame_sigma_min_scale = 0; }},
   };
   expectGeometryErrorsNameTheirFields(cases);
 }
@@ -202,10 +197,7 @@ SlamOptions everythingChanged() {
   o.mapping.redundant_ratio = 0.85;
   o.mapping.redundant_min_observers = 4;
   o.mapping.point_found_ratio = 0.3;
-  o.mapping.fuse_neighbours = 8;
   o.mapping.keep_culled_keyframes = true;
-  o.geometry.rejudge = true;
-  o.geometry.anchor_release_chi2 = 2.5;
   o.geometry.evidence_depth_max_m = 4.0;
   o.geometry.static_match_margin = -1;
   o.geometry.photo_release_ncc = 0.55;
@@ -231,10 +223,6 @@ SlamOptions everythingChanged() {
   o.geometry.lone_moving_chi2 = 12.5;
   o.geometry.consensus_ratio = 0.75;
   o.geometry.consensus_samples = 100;
-  o.geometry.frame_sigma_factor = 3.0;
-  o.geometry.frame_sigma_from = "all";
-  o.geometry.frame_sigma_quantile = 0.75;
-  o.geometry.frame_sigma_min_scale = 0.5;
   o.sequential = true;
   return o;
 }
@@ -269,9 +257,6 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.mapping.redundant_min_observers, b.mapping.redundant_min_observers);
   EXPECT_EQ(a.mapping.point_found_ratio, b.mapping.point_found_ratio);
   EXPECT_EQ(a.mapping.keep_culled_keyframes, b.mapping.keep_culled_keyframes);
-  EXPECT_EQ(a.mapping.fuse_neighbours, b.mapping.fuse_neighbours);
-  EXPECT_EQ(a.geometry.rejudge, b.geometry.rejudge);
-  EXPECT_EQ(a.geometry.anchor_release_chi2, b.geometry.anchor_release_chi2);
   EXPECT_EQ(a.geometry.evidence_depth_max_m, b.geometry.evidence_depth_max_m);
   EXPECT_EQ(a.geometry.static_match_margin, b.geometry.static_match_margin);
   EXPECT_EQ(a.geometry.photo_release_ncc, b.geometry.photo_release_ncc);
@@ -297,10 +282,6 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.geometry.lone_moving_chi2, b.geometry.lone_moving_chi2);
   EXPECT_EQ(a.geometry.consensus_ratio, b.geometry.consensus_ratio);
   EXPECT_EQ(a.geometry.consensus_samples, b.geometry.consensus_samples);
-  EXPECT_EQ(a.geometry.frame_sigma_factor, b.geometry.frame_sigma_factor);
-  EXPECT_EQ(a.geometry.frame_sigma_from, b.geometry.frame_sigma_from);
-  EXPECT_EQ(a.geometry.frame_sigma_quantile, b.geometry.frame_sigma_quantile);
-  EXPECT_EQ(a.geometry.frame_sigma_min_scale, b.geometry.frame_sigma_min_scale);
   EXPECT_EQ(a.sequential, b.sequential);
 }
 

@@ -720,27 +720,6 @@ TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
   EXPECT_LT(on.rms_translation, off.rms_translation);
 }
 
-// geometry.frame_sigma_* (off by default) with a 3-level pyramid: there the
-// stage-1 pose follows the board from its first moving frame (module off too),
-// its anchor evidence then shows only part of the motion, below the floor
-// under the level sigma (precision 0.87). Normalised by the frame's own
-// static noise, estimated from the reference clusters only and allowed below
-// the level sigma on clean images, the board is caught at once.
-TEST(SlamSystemGeometry, FrameSigmaFindsTheBoardWithThreeLevels) {
-  SlamOptions options = sequentialOptions();
-  options.orb.num_levels = 3;
-  options.geometry.frame_sigma_factor = 3.0;
-  options.geometry.frame_sigma_from = "reference";
-  options.geometry.frame_sigma_min_scale = 0.5;
-  BoardRun run;
-  ASSERT_NO_FATAL_FAILURE(runBoard(movingBoardSequence(45), options, &run));
-  std::printf("moving board, 3 levels, frame sigma: precision %.3f recall %.3f, online rms %.2f mm\n",
-              run.score.precision(), run.score.recall(), run.errors.rms_translation * 1e3);
-  EXPECT_GE(run.score.recall(), 0.9);
-  EXPECT_GE(run.score.precision(), 0.9);
-  EXPECT_LT(run.errors.rms_translation, 0.005);
-}
-
 // tracking.motion_prior_sigma_m: the board covers few features (8 % of the
 // matches) but, 1.3 m away in front of a room 3 m deep, most of what fixes the
 // translation; without a prior stage 1 follows its first 15 mm step (20 mm
@@ -750,7 +729,6 @@ TEST(SlamSystemGeometry, FrameSigmaFindsTheBoardWithThreeLevels) {
 TEST(SlamSystemGeometry, MotionPriorHoldsStageOneOffTheBoard) {
   SlamOptions options = sequentialOptions();
   options.orb.num_levels = 3;
-  options.geometry.frame_sigma_factor = 0.0;  // the level sigma
   options.tracking.motion_prior_sigma_m = 0.002;
   options.tracking.motion_prior_sigma_deg = 1.0;
   BoardRun run;
@@ -792,84 +770,6 @@ TEST(SlamSystemGeometry, ConsensusPoseCatchesABoardStartingFromRest) {
   EXPECT_LT(run.errors.rms_translation, 0.5 * runs[0].errors.rms_translation);
   // The scene is one the initial pose fails on.
   EXPECT_LT(runs[0].score.precision(), 0.9);
-}
-
-// geometry.rejudge: the frame is judged again under the pose refitted without
-// the first verdict's dynamic clusters. The board stays flagged, the static
-// room stays static, and what is reported (flags, cluster scores) is the
-// final verdict the pose was refitted with.
-TEST(SlamSystemGeometry, SecondJudgementKeepsTheBoardFlagged) {
-  const MovingBoardSequence data = movingBoardSequence(45);
-  const Sequence& seq = data.seq;
-  SlamOptions options = sequentialOptions();
-  options.geometry.photo_release_ncc = 0;  // every release counted here is this test's own
-  options.geometry.rejudge = true;
-  options.geometry.freespace_split_keep = 0;  // every feature follows its cluster (the split has its own test)
-  options.geometry.lone_moving_chi2 = 0;      // ... and so does every feature of an unjudged cluster (own test)
-  auto system = makeSystem(seq.camera, options);
-  ASSERT_TRUE(system);
-  BoardScore score;
-  int rejudged = 0;
-  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
-    const auto out = system->track(seq.frames[i]);
-    ASSERT_TRUE(out.ok()) << out.error();
-    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-    rejudged += out->geometry.rejudged;
-    int flagged = 0;
-    for (const JudgedFeature& f : out->geometry.judged) {
-      ASSERT_GE(f.cluster, 0);
-      ASSERT_LT(f.cluster, static_cast<int>(out->geometry.scores.size()));
-      EXPECT_EQ(f.dynamic, out->geometry.scores[f.cluster].dynamic) << "frame " << i;
-      flagged += f.dynamic;
-      if (i < 10) continue;
-      score.add(data.masks[i], f);
-    }
-    EXPECT_LE(flagged, out->geometry.dynamic_features) << "frame " << i;
-  }
-  system->finish();
-  const double precision = score.precision(), recall = score.recall();
-  std::printf("moving board, second judgement: precision %.3f recall %.3f (%d/%d/%d), %d verdicts changed\n",
-              precision, recall, score.true_positive, score.false_positive, score.false_negative, rejudged);
-  EXPECT_GE(recall, 0.9);
-  EXPECT_GE(precision, 0.9);
-}
-
-// geometry.anchor_release_chi2: inside a dynamic cluster, the features whose
-// anchor match agrees with the initial pose stay static (and only those); the
-// board is still found.
-TEST(SlamSystemGeometry, AnchorReleaseKeepsStaticAnchorsOfDynamicClusters) {
-  const MovingBoardSequence data = movingBoardSequence(45);
-  const Sequence& seq = data.seq;
-  SlamOptions options = sequentialOptions();
-  options.geometry.photo_release_ncc = 0;  // every release counted here is this test's own
-  options.geometry.anchor_release_chi2 = 2.0;
-  options.geometry.freespace_split_keep = 0;  // only the anchor release (the split has its own test)
-  options.geometry.lone_moving_chi2 = 0;      // every feature of an unjudged cluster follows it (own test)
-  auto system = makeSystem(seq.camera, options);
-  ASSERT_TRUE(system);
-  BoardScore score;
-  int in_dynamic = 0, released = 0;
-  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
-    const auto out = system->track(seq.frames[i]);
-    ASSERT_TRUE(out.ok()) << out.error();
-    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-    for (const JudgedFeature& f : out->geometry.judged) {
-      ASSERT_GE(f.cluster, 0);
-      ASSERT_LT(f.cluster, static_cast<int>(out->geometry.scores.size()));
-      const bool cluster_dynamic = out->geometry.scores[f.cluster].dynamic;
-      const bool release = f.evidence == JudgedFeature::Evidence::kAnchor && f.chi2 < 2.0f;
-      EXPECT_EQ(f.dynamic, cluster_dynamic && !release) << "frame " << i;
-      in_dynamic += cluster_dynamic;
-      released += cluster_dynamic && release;
-      if (i >= 10) score.add(data.masks[i], f);
-    }
-  }
-  system->finish();
-  std::printf("moving board, anchor release: precision %.3f recall %.3f, %d of %d features of dynamic clusters released\n",
-              score.precision(), score.recall(), released, in_dynamic);
-  EXPECT_GT(in_dynamic, 0);
-  EXPECT_GE(score.recall(), 0.9);
-  EXPECT_GE(score.precision(), 0.9);
 }
 
 // Free space, the dense evidence: once the board has moved over the anchor
@@ -1089,7 +989,6 @@ TEST(SlamSystemGeometry, PhotometricReleaseDoesNotConfirmAPoseThatFollowedTheBoa
   const MovingBoardSequence data = movingBoardSequence(45);
   SlamOptions options = sequentialOptions();
   options.orb.num_levels = 3;
-  options.geometry.frame_sigma_factor = 0.0;
   options.tracking.motion_prior_sigma_m = 0.002;
   options.tracking.motion_prior_sigma_deg = 1.0;
   options.geometry.photo_release_ncc = 0.6;
@@ -1171,16 +1070,13 @@ TEST(SlamSystemGeometry, PhotometricReleaseHoldsUnderAVerdictThatFlagsTheRoom) {
   EXPECT_LT(run[1].errors.max_translation, run[0].errors.max_translation);
 }
 
-// geometry.evidence_ratio and exclude_known_movers: ambiguous projection
-// matches are not judged (every reported non-anchor feature passed the ratio),
-// the board's clusters are kept out of the initial pose while it moves, and it
-// is still found.
+// geometry.evidence_ratio: ambiguous projection matches are not judged (every
+// reported non-anchor feature passed the ratio), and the board is still found.
 TEST(SlamSystemGeometry, RatioTestedEvidenceKeepsTheBoardFlagged) {
   const MovingBoardSequence data = movingBoardSequence(45);
   const Sequence& seq = data.seq;
   SlamOptions options = sequentialOptions();
   options.geometry.evidence_ratio = 0.9;
-  options.geometry.exclude_known_movers = true;
   auto system = makeSystem(seq.camera, options);
   ASSERT_TRUE(system);
   BoardScore score;

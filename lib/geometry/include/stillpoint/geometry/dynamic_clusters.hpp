@@ -19,11 +19,6 @@ struct DynamicClusterOptions {
   // Cauchy rho on three generated sequences it gives higher precision at
   // every recall (README, geometry module).
   double rho_cap = 7.815;  // chi-square 95 % at 3 DoF (u, v, depth)
-  // A cluster's score: the median of its features' rho (default), or their
-  // mean. Window-free matches on repetitive texture are 15-40 % gross
-  // mismatches; the mean then lifts static clusters to 0.4 x rho_cap, the
-  // median stays at the static level while a mover still scores rho_cap.
-  bool median = false;
   // Clusters with fewer matched features are not judged (stay static).
   int min_features = 4;
   // Dynamic when mean rho > clamp(relative_factor * reference, absolute_floor,

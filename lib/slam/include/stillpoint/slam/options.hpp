@@ -60,17 +60,11 @@ struct KeyframeOptions {
 
 struct MappingOptions {
   bool local_ba = true;
-  // Merge duplicate points between a new keyframe and its neighbours. Off by
-  // default: on tum_fr3_teddy_200 it raises the mean ATE of a 6-run sweep from
-  // 0.0111 m to 0.0131 m (0.0144 m before merges had to agree in 3D;
-  // daemon/scripts/ate-sweep.sh). To be fixed, not hidden.
-  bool fuse = false;
   int ba_iterations = 10;
   int ba_max_keyframes = 20;          // optimised window (best covisible)
   double redundant_ratio = 0.9;       // keyframe culling
   int redundant_min_observers = 3;
   double point_found_ratio = 0.25;    // recent point culling
-  int fuse_neighbours = 10;
   // Culled keyframes are freed (at the next keyframe); true keeps them for
   // inspection (SlamSystem::keyframes(), stillpoint-replay --keyframes-out),
   // and memory then grows with every keyframe ever made.
@@ -128,15 +122,6 @@ struct GeometryOptions {
   // out dynamic under the anchor evidence, the initial pose is taken to be
   // wrong and the frame is judged by its stage-1 matches instead.
   double max_dynamic_fraction = 0.6;
-  // Depth part of the evidence error: sigma(z) = depth_sigma_at_1m * z^2.
-  // 0 = the virtual-stereo coordinate of pose optimisation instead.
-  double depth_sigma_at_1m = 0.0;
-  // Judge the frame a second time under the pose refitted without the
-  // clusters found dynamic: the initial pose still holds the movers' pull, so
-  // static clusters show its error and movers hide part of theirs. Off: on
-  // 6-run sweeps it lifts `mix` recall 0.72 -> 0.75 but leaves `poster-walk`
-  // as it was and the clean excerpt's ATE 0.0083 -> 0.0092 m (README).
-  bool rejudge = false;
   // Consensus pose (session 24): before the verdict, consensusPose
   // (optimizer.hpp) searches the pose that explains the anchor matches best
   // under the truncated cost sum min(chi2, rho_cap); the frame is judged
@@ -151,21 +136,6 @@ struct GeometryOptions {
   // (README).
   double consensus_ratio = 0.9;
   int consensus_samples = 48;  // three-match hypotheses per frame
-  // Per-frame evidence sigma (an experiment, off: README "Results" and
-  // lib/geometry/README.md). Static evidence misses by about the same number
-  // of pixels at every pyramid level on real images, so with few levels the
-  // level sigma under-states the noise and static clusters get flagged. When
-  // frame_sigma_factor > 0 each feature's error is normalised by
-  // sigma^2 = max(frame_sigma_min_scale x level sigma^2, frame_sigma_factor x
-  // q), q = the frame_sigma_quantile of the per-coordinate squared pixel
-  // errors of the frame's evidence, over all of it ("all") or only over the
-  // features of the clusters scoring at or below the reference under the
-  // level sigma ("reference": a mover cannot inflate it). min_scale < 1 lets
-  // sigma fall below the level sigma on clean images.
-  double frame_sigma_factor = 0.0;
-  std::string frame_sigma_from = "reference";
-  double frame_sigma_quantile = 0.5;
-  double frame_sigma_min_scale = 1.0;
   // Uniqueness of the evidence matches that come from the motion model's
   // projection search (stage-1 matches to the last frame's points, and
   // matches carried from its dynamic features): such a match is judged only
@@ -178,11 +148,6 @@ struct GeometryOptions {
   // issue 4's bar, recall 0.012 lower on rpy / halfsphere; ATE sweeps within
   // noise (lib/geometry/README.md). 0.7 trades recall on the rooms.
   double evidence_ratio = 0.8;
-  // A feature of a dynamic cluster whose anchor match (fixed baseline, the
-  // most reliable evidence) agrees with the initial pose below this chi2
-  // stays static: it keeps its map point in the pose and is not carried as
-  // moving. 0 = off (every feature of a dynamic cluster is dropped).
-  double anchor_release_chi2 = 0.0;
   // Evidence of features at or beyond this depth (m) is image-only (0: no
   // limit). The real excerpt's far background (5 m) disagrees with itself
   // by about 1 m of depth over the anchor baseline (the depth term at 1.7
@@ -311,13 +276,6 @@ struct GeometryOptions {
   // chi2 stays moving (a part of the mover the growth did not reach), as
   // does one without evidence.
   double freespace_split_protect_chi2 = 7.815;
-  // The same test on the motion model's matches for the pose too (0 = off;
-  // 0.9 lost the poster-walk overlay, ATE 0.146 m: README).
-  double projection_ratio = 0.0;
-  // Keep the motion model's matches in clusters mostly matched to the last
-  // frame's dynamic features out of the initial pose (they are still judged).
-  // No effect beyond noise on the poster-walk overlay (README): off.
-  bool exclude_known_movers = false;
   // Probation for new map points (0 = off): a point made by a keyframe stays
   // out of the frame pose fits until it has been matched this many frames
   // consistently with a pose fitted without it (chi2 inlier, not in a dynamic
@@ -348,12 +306,6 @@ struct SemanticOptions {
   std::vector<std::string> model_dirs;
   bool movable_furniture = false;  // chairs, couches, ... count as movable too
   int mask_dilation_px = 5;        // instance masks grow by this much before features are dropped
-  // A keyframe's masks also grow over its features: a feature with at least
-  // two masked ones within this radius (pixels) at its depth (10 cm + 5 %)
-  // joins their mask, repeated up to mask_grow_passes times (a
-  // depth-connected region). 0: off.
-  float mask_grow_px = 0.0f;
-  int mask_grow_passes = 3;
   // Keyframes waiting for the segmentation thread; when full the oldest
   // waiting keyframe is left unsegmented (drop-oldest: tracking never waits).
   // Default 1: the segmenter always takes the newest keyframe. When it cannot
@@ -418,26 +370,6 @@ struct SemanticOptions {
   // descriptor, mutual nearest neighbours) before growing: a moving object's
   // features change less from frame to frame than since the keyframe.
   bool propagate_from_last = true;
-  // When the newest segmented keyframe found no movable object of its own (a
-  // detector's miss while the object is still in view), the newest one that
-  // did, at most this many keyframes older, is looked up too. 0: off.
-  int propagate_mask_window = 0;
-  // ...and carries the keyframe's whole mask along with the matches: a
-  // similarity (RANSAC) fitted to the matches moves every masked feature of
-  // the keyframe to where the object is now, and a feature within this
-  // radius (pixels) of one at its depth (10 cm + 5 %, after the matches'
-  // median depth change) is kept out too. 0 (default): off. At 16 semantic
-  // only on a cut-out walking person 0.0183 -> 0.0140 m, but both modules on
-  // the real excerpt 0.0089 -> 0.0098 m without the motion gate below, 0.0089 m
-  // with it (6-run sweep means; lib/slam/README.md).
-  float propagate_warp_px = 0.0f;
-  // Motion gate of the warp: the pose of the frame (motion model, refined on
-  // the keyframe's other matches) reprojects the mask matches that agree with
-  // the similarity; the mask is warped only when they miss by more than this
-  // many pixels (median) and by more than twice the other matches. A masked
-  // object that stands still (a person who stopped, a false positive) is not
-  // warped. 0: no gate. Acts only with propagate_warp_px > 0.
-  float propagate_motion_px = 2.0f;
   // The last frame's features lend tracking temporary points from depth;
   // one with at least two semantically flagged features within this radius
   // (pixels) at its depth (10 cm + 5 %) lends none: the unflagged rest of a

@@ -57,7 +57,7 @@ struct JudgedFeature {
   float u = 0, v = 0;
   bool dynamic = false;
   int cluster = -1;
-  float chi2 = 0;  // squared reprojection error / level sigma^2 (or geometry.frame_sigma_*) under the initial pose
+  float chi2 = 0;  // squared reprojection error / level sigma^2 under the pose it was judged under
   // What chi2 was measured against: the anchor frame's match, a stage-1 map
   // point, or a match carried from the last frame's dynamic features / the
   // reference keyframe.
@@ -89,7 +89,6 @@ struct GeometryOutput {
   int dynamic_clusters = 0;
   int dynamic_features = 0;      // features excluded from pose and mapping
   bool anchor_fallback = false;  // judged by stage-1 matches: the anchor evidence disagreed with most of the view
-  bool rejudged = false;         // the second judgement (under the refitted pose) changed the verdict
   bool consensus_pose = false;   // judged under the consensus pose of the anchor matches (geometry.consensus_ratio)
   bool freespace_vetoed = false; // free space would have flagged most of the view: the pose is off, nothing added
   double threshold = 0;          // score above which a cluster was dynamic

@@ -5,9 +5,9 @@
 
 #include <initializer_list>
 
-#include "tracking.hpp"
+#include "stillpoint/geometry/photometric.hpp"
 
-namespace stillpoint::slam {
+namespace stillpoint::geometry {
 namespace {
 
 struct Outcome {
@@ -17,7 +17,7 @@ struct Outcome {
 
 // Adds the frames' NCC in order, as the tracker does, stopping at the first
 // failure.
-Outcome vote(const GeometryOptions& g, std::initializer_list<double> ncc) {
+Outcome vote(const PhotoVoteRule& g, std::initializer_list<double> ncc) {
   PhotoVote v(g);
   for (double x : ncc) {
     v.add(x);
@@ -27,8 +27,8 @@ Outcome vote(const GeometryOptions& g, std::initializer_list<double> ncc) {
 }
 
 TEST(PhotoVote, EveryFrameAboveTheLimitPasses) {
-  GeometryOptions g;
-  g.photo_one_ncc = 0;  // the strict rule alone
+  PhotoVoteRule g;
+  g.one_ncc = 0;  // the strict rule alone
   EXPECT_TRUE(vote(g, {0.9, 0.7, 0.61}).passed);
   EXPECT_TRUE(vote(g, {0.8}).passed);
   EXPECT_TRUE(vote(g, {0.9, 0.59, 0.9}).failed);
@@ -36,8 +36,8 @@ TEST(PhotoVote, EveryFrameAboveTheLimitPasses) {
 }
 
 TEST(PhotoVote, OneFrameOfThreeMayComeNear) {
-  GeometryOptions g;  // defaults: 0.6 all, or one above 0.3 with the others above 0.65
-  ASSERT_GT(g.photo_one_ncc, 0);
+  const PhotoVoteRule g;  // defaults: 0.6 all, or one above 0.3 with the others above 0.65
+  ASSERT_GT(g.one_ncc, 0);
   // A static patch blurred in one frame.
   Outcome o = vote(g, {0.9, 0.45, 0.8});
   EXPECT_FALSE(o.failed);
@@ -48,7 +48,7 @@ TEST(PhotoVote, OneFrameOfThreeMayComeNear) {
   EXPECT_TRUE(vote(g, {0.9, 0.25}).failed);
   EXPECT_TRUE(vote(g, {0.5, 0.55}).failed);
   EXPECT_TRUE(vote(g, {0.9, -1}).failed);
-  // The other frames must be above photo_one_others, not only the limit.
+  // The other frames must be above one_others, not only the limit.
   EXPECT_TRUE(vote(g, {0.4, 0.62}).failed);
   // Fewer than three frames tested (a short history): all must pass.
   o = vote(g, {0.9, 0.45});
@@ -58,16 +58,14 @@ TEST(PhotoVote, OneFrameOfThreeMayComeNear) {
 }
 
 TEST(PhotoDetects, NeedsEnoughTestedPatchesMostOfThemFailing) {
-  GeometryOptions g;  // defaults: 4 tested, more than 0.8 failing
-  ASSERT_GT(g.photo_detect_share, 0);
-  EXPECT_TRUE(photoDetects(4, 4, g));
-  EXPECT_TRUE(photoDetects(10, 9, g));
-  EXPECT_FALSE(photoDetects(10, 8, g));  // not more than 0.8
-  EXPECT_FALSE(photoDetects(3, 3, g));   // too few tested
-  EXPECT_FALSE(photoDetects(0, 0, g));
-  g.photo_detect_share = 0;  // off
-  EXPECT_FALSE(photoDetects(10, 10, g));
+  // 4 tested at least, more than 0.8 of them failing.
+  EXPECT_TRUE(photoDetects(4, 4, 0.8, 4));
+  EXPECT_TRUE(photoDetects(10, 9, 0.8, 4));
+  EXPECT_FALSE(photoDetects(10, 8, 0.8, 4));  // not more than 0.8
+  EXPECT_FALSE(photoDetects(3, 3, 0.8, 4));   // too few tested
+  EXPECT_FALSE(photoDetects(0, 0, 0.8, 4));
+  EXPECT_FALSE(photoDetects(10, 10, 0.0, 4));  // off
 }
 
 }  // namespace
-}  // namespace stillpoint::slam
+}  // namespace stillpoint::geometry

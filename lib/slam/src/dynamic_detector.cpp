@@ -1,0 +1,798 @@
+#include "dynamic_detector.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "matcher.hpp"
+#include "optimizer.hpp"
+#include "stillpoint/features/descriptor.hpp"
+#include "stillpoint/geometry/rules.hpp"
+
+namespace stillpoint::slam {
+
+// What one feature of the current frame says about its own motion.
+struct FeatureEvidence {
+  // Its stage-1 map point, else a carried or reference-keyframe match (null:
+  // none, or an ambiguous projection match).
+  std::shared_ptr<MapPoint> point;
+  bool from_map = false;   // `point` is its stage-1 map point
+  bool ambiguous = false;  // its projection match had a close second
+  int links = 1;           // carried chain: links to its oldest position
+  // Its match to an anchor frame (fixed baseline, the strongest evidence).
+  bool has_anchor = false;
+  Vec3 anchor_point = Vec3::Zero();
+  int anchor_distance = 0;  // Hamming distance of that match
+  const std::uint8_t* anchor_descriptor = nullptr;
+  int anchor_baseline = 0;  // frames back
+  // Matched to a feature that was moving before (carried, an anchor's
+  // dynamic feature, or a semantic mask's): its cluster's memory.
+  bool inherited = false;
+  Vec3 residual = Vec3::Zero();  // of its last judgement, over the level sigma
+  double carried_chi2 = 0;       // judged by carried evidence: its chi2 (lone_moving_chi2)
+  bool released = false;         // in a dynamic cluster but static (moved-surface split, photometric test)
+};
+
+// A feature that took part in the verdict.
+struct JudgedEvidence {
+  int feature;
+  JudgedFeature::Evidence kind;
+};
+
+// A feature whose evidence disagreed but which the static hypothesis explains
+// as well (another copy of a repeating pattern): out of the verdict, reported.
+struct ExplainedEvidence {
+  int feature;
+  double chi2;
+  JudgedFeature::Evidence kind;
+};
+
+struct DynamicDetector::FrameJudgement {
+  Frame& frame;
+  const StageOneMatches& stage_one;
+  std::shared_ptr<const geometry::DepthClusters> clusters;
+  GeometryOutput out;
+  std::vector<FeatureEvidence> ev;
+  // Map points of ambiguous matches: they still learn their cluster's verdict.
+  std::vector<std::pair<int, std::shared_ptr<MapPoint>>> ambiguous_points;
+  std::vector<int> anchored_in_cluster;  // anchor matches per cluster
+  bool anchored = false;                 // judged by the anchor evidence (else stage-1 matches)
+  // The latest judgement: residuals (lib/geometry's input) and, per entry, who.
+  std::vector<geometry::FeatureResidual> residuals;
+  std::vector<JudgedEvidence> judged;
+  std::vector<ExplainedEvidence> explained;
+  geometry::FreeSpace free;
+  geometry::ClusterVerdict verdict;
+  // Stage 1's matches, restored for features the photometric test frees.
+  std::vector<std::shared_ptr<MapPoint>> stage_one_points;
+  bool refitted = false;  // the pose is fitted without the dropped features
+  // Frame indices into seen_ per photometric try, nearest baseline last.
+  std::vector<std::vector<std::size_t>> photo_tries;
+};
+
+namespace {
+
+// Squared error of feature i of `frame` against world point p_w under the
+// frame's pose, over its level sigma: image error plus the virtual-stereo
+// coordinate of pose optimisation (a depth error dz counts bf dz / z^2
+// pixels: 1 px ~ 5 cm at 1.5 m). Depth at or beyond far_m (> 0) is no
+// evidence: far depth on real sensors is off by decimetres between frames.
+struct EvidenceError {
+  double chi2 = 0;
+  Vec3 residual = Vec3::Zero();  // u, v and depth terms over the level sigma, predicted minus measured
+};
+
+EvidenceError evidenceError(const Frame& frame, const CameraModel& camera, const LevelInfo& levels, int i,
+                            const Vec3& p_w, double far_m) {
+  EvidenceError e;
+  const double inv_level_sigma2 = levels.inv_sigma2[frame.keys[i].octave];
+  const Vec3 p = frame.T_c_w * p_w;
+  if (p.z() <= 1e-6) {
+    e.chi2 = 1e6;
+    e.residual = Vec3(1e3, 0, 0);
+    return e;
+  }
+  const double u = camera.fx * p.x() / p.z() + camera.cx, v = camera.fy * p.y() / p.z() + camera.cy;
+  const double du = u - frame.un[i].x, dv = v - frame.un[i].y;
+  const double inv_sigma = std::sqrt(inv_level_sigma2);
+  e.residual = Vec3(du * inv_sigma, dv * inv_sigma, 0);
+  e.chi2 = (du * du + dv * dv) * inv_level_sigma2;
+  const double z = frame.depth[i];
+  if (far_m > 0 && (z >= far_m || p.z() >= far_m)) return e;
+  if (frame.u_right[i] >= 0) {
+    const double ur = u - camera.bf() / p.z() - frame.u_right[i];
+    e.residual.z() = ur * inv_sigma;
+    e.chi2 += ur * ur * inv_level_sigma2;
+  }
+  return e;
+}
+
+JudgedFeature::Evidence evidenceKind(const FeatureEvidence& e, bool by_anchor) {
+  return by_anchor ? JudgedFeature::Evidence::kAnchor
+         : e.from_map ? JudgedFeature::Evidence::kMapPoint
+                      : JudgedFeature::Evidence::kCarried;
+}
+
+}  // namespace
+
+int countMapInliers(const Frame& frame) {
+  int n = 0;
+  for (int i = 0; i < frame.size(); ++i) {
+    const auto& p = frame.points[i];
+    n += p && !frame.outlier[i] && !p->isTemporary() && !p->observations.empty();
+  }
+  return n;
+}
+
+DynamicDetector::DynamicDetector(const CameraModel& camera, const LevelInfo& levels, const SlamOptions& options,
+                                 geometry::ClusteringWorker* clustering, bool threaded)
+    : camera_(camera), levels_(levels), options_(options.geometry), clustering_(clustering) {
+  if (threaded) helper_ = std::make_unique<TaskThread>();
+}
+
+void DynamicDetector::startFrame(const Frame& frame, bool clusters_pending, bool match_now) {
+  frame_id_ = frame.id;
+  clusters_pending_ = clusters_pending;
+  clusters_fetched_ = false;
+  clusters_.reset();
+  photo_released_.assign(frame.size(), 0);
+  // Reads only the frame's keypoints and descriptors, which stage 1 leaves
+  // alone, and the anchor, which stays until the frame is done.
+  if (match_now && clusters_pending_ && !anchors_.empty() && helper_)
+    anchor_matches_ = helper_->run([this, &frame] { return matchAnchor(frame); });
+}
+
+std::unordered_map<const MapPoint*, int> carryMovingFeatures(Frame* last, const std::vector<char>& freed) {
+  std::unordered_map<const MapPoint*, int> from;
+  for (int i = 0; i < last->size(); ++i) {
+    const bool moving = last->dynamic[i] || (i < static_cast<int>(freed.size()) && freed[i]);
+    if (last->depth[i] <= 0 || !moving) continue;
+    auto p = std::make_shared<MapPoint>(-1, last->unprojectToWorld(i), nullptr);
+    std::copy(last->descriptor(i), last->descriptor(i) + 32, p->descriptor.begin());
+    p->moving = true;
+    from[p.get()] = i;
+    last->points[i] = std::move(p);
+    last->outlier[i] = 0;
+  }
+  return from;
+}
+
+void DynamicDetector::carryMovers(Frame* last) { carried_from_ = carryMovingFeatures(last, last_photo_released_); }
+
+std::shared_ptr<const geometry::DepthClusters> DynamicDetector::fetchClusters(GeometryOutput* out) {
+  if (clusters_fetched_ || !clusters_pending_) return clusters_;
+  clusters_fetched_ = true;
+  const auto deadline = std::chrono::microseconds(static_cast<std::int64_t>(options_.deadline_ms * 1000));
+  clusters_ = clustering_->result(frame_id_, deadline);
+  if (!clusters_) out->deadline_missed = true;
+  return clusters_;
+}
+
+std::vector<std::pair<int, int>> DynamicDetector::matchAnchor(const Frame& frame) const {
+  // No search window (a mover's match is its whole displacement), mutual.
+  return matchByDescriptor(frame, anchors_.front(), 0.7f, false, true);
+}
+
+GeometryOutput DynamicDetector::judge(Frame* frame, const StageOneMatches& stage_one, const PoseRefit& refit) {
+  FrameJudgement j{*frame, stage_one};
+  j.clusters = fetchClusters(&j.out);
+  if (!j.clusters) return std::move(j.out);
+  j.out.clustering_ms = clustering_->lastClusteringMs();
+  j.out.clusters = j.clusters->clusters;
+  j.out.labels = j.clusters;
+  if (j.clusters->clusters == 0) return std::move(j.out);
+
+  gatherEvidence(j);
+  labelFeatures(j);
+  // Nearer anchors read only the frame's keypoints and labels: the helper
+  // matches while the free-space test runs.
+  std::future<std::vector<NearerAnchor>> nearer;
+  if (helper_ && options_.near_anchor_frames > 0)
+    nearer = helper_->run([this, &j] { return nearerAnchors(j.frame, j.anchored_in_cluster); });
+  j.free = freeSpace(*frame, *j.clusters);
+  j.out.freespace = j.free.share;
+  takeNearerAnchors(j, nearer.valid() ? nearer.get() : nearerAnchors(j.frame, j.anchored_in_cluster));
+
+  j.verdict = verdictUnderBestPose(j);
+  addFreeSpace(j, &j.verdict);
+  dropDynamic(j, refit);
+  detectPhotometrically(j, refit);
+  releasePhotometrically(j, refit);
+  report(j);
+  return std::move(j.out);
+}
+
+geometry::FreeSpace DynamicDetector::freeSpace(const Frame& frame, const geometry::DepthClusters& clusters) const {
+  // Against the depth image freespace_frames back (or the oldest kept).
+  const geometry::DepthTolerance tolerance{options_.freespace_tolerance_m, options_.freespace_tolerance_z2};
+  if (seen_.empty()) return geometry::freeSpaceViolations(clusters, cv::Mat(), SE3::Identity(), camera_, tolerance);
+  const auto back = static_cast<std::size_t>(options_.freespace_frames);
+  const SeenFrame& seen = seen_[seen_.size() >= back ? seen_.size() - back : 0];
+  return geometry::freeSpaceViolations(clusters, seen.depth, seen.T_c_w * frame.T_c_w.inverse(), camera_, tolerance);
+}
+
+void DynamicDetector::gatherEvidence(FrameJudgement& j) {
+  Frame& frame = j.frame;
+  const int n = frame.size();
+  j.ev.assign(n, {});
+  const std::vector<std::shared_ptr<MapPoint>> no_carried;
+  const auto& carried = j.stage_one.carried ? *j.stage_one.carried : no_carried;
+  // Evidence per feature: its stage-1 match (last frame or local map: the
+  // motion since then), else its carried match. Carried evidence (a match
+  // to a feature found moving in the last frame) is the oldest position of
+  // its chain of such matches, at most geometry.carried_frames back: a mover
+  // that slows down or turns keeps the error of several frames of its motion,
+  // not of one. Each link is a projection-search match that may have hopped
+  // to a look-alike neighbour (floor planks), so a chain of n links is
+  // judged at n times the noise of one: its chi2 is divided by n.
+  for (int i = 0; i < n; ++i) j.ev[i].point = frame.points[i];
+  const auto max_links = static_cast<std::size_t>(options_.carried_frames);
+  chain_.assign(n, {});
+  for (std::size_t i = 0; i < carried.size(); ++i) {
+    if (!carried[i]) continue;
+    std::vector<Vec3>& chain = chain_[i];
+    chain.push_back(carried[i]->position);
+    const auto from = carried_from_.find(carried[i].get());
+    if (from != carried_from_.end() && from->second < static_cast<int>(last_chain_.size()))
+      for (const Vec3& p : last_chain_[from->second]) {
+        if (chain.size() >= max_links) break;
+        chain.push_back(p);
+      }
+    if (j.ev[i].point) continue;
+    j.ev[i].point = carried[i];
+    j.ev[i].links = static_cast<int>(chain.size());
+  }
+  // Projection matches with a close second in the window are mostly
+  // mismatches on repetitive texture: not evidence. Their map points still
+  // learn their cluster's verdict (the culling of mapped movers needs them).
+  const std::vector<float>* ratio = j.stage_one.match_ratio;
+  if (options_.evidence_ratio > 0 && ratio)
+    for (int i = 0; i < n; ++i) {
+      FeatureEvidence& e = j.ev[i];
+      if (!e.point || (*ratio)[i] <= options_.evidence_ratio) continue;
+      if (e.point == frame.points[i] && !e.point->isTemporary()) j.ambiguous_points.emplace_back(i, e.point);
+      e.point = nullptr;
+      e.ambiguous = true;
+    }
+  // Without anchors, the reference keyframe's match by descriptor alone (no
+  // search window: an object that moved since still matches), only where
+  // stage 1 has no map point: a map-point match already measures the motion
+  // since mapping, and window-free matching has more mismatches.
+  const KeyFrame* reference = j.stage_one.reference;
+  if (anchors_.empty() && reference && !reference->bad)
+    for (const auto& [f, k] : matchByDescriptor(frame, *reference, 0.7f))
+      if (!j.ev[f].point || j.ev[f].point->isTemporary()) j.ev[f].point = reference->frame.points[k];
+  for (int i = 0; i < n; ++i) {
+    FeatureEvidence& e = j.ev[i];
+    e.from_map = e.point && e.point == frame.points[i];
+    e.inherited = i < static_cast<int>(carried.size()) && carried[i] != nullptr && !e.ambiguous;
+    // Features following a semantic mask count as moving before too: they
+    // keep their anchor evidence and hold their cluster like the module's own.
+    e.inherited = e.inherited || frame.dynamic[i] == kSemanticDynamic;
+  }
+  // The anchor frame's depth point wins over all of these: its baseline is
+  // fixed, so a slow mover's error is not one frame's motion.
+  if (anchors_.empty()) return;
+  const auto matches = anchor_matches_.valid() ? anchor_matches_.get() : matchAnchor(frame);
+  const Frame& anchor = anchors_.front();
+  for (const auto& [f, k] : matches) {
+    FeatureEvidence& e = j.ev[f];
+    e.anchor_baseline = static_cast<int>(anchors_.size());
+    e.anchor_point = anchor.unprojectToWorld(k);
+    e.has_anchor = true;
+    e.anchor_distance = features::hammingDistance(anchor.descriptor(k), frame.descriptor(f));
+    e.anchor_descriptor = anchor.descriptor(k);
+    e.inherited = e.inherited || anchor.dynamic[k];
+  }
+}
+
+void DynamicDetector::labelFeatures(FrameJudgement& j) const {
+  Frame& frame = j.frame;
+  j.anchored_in_cluster.assign(j.clusters->clusters, 0);
+  for (int i = 0; i < frame.size(); ++i) {
+    const cv::Point2f& px = frame.keys[i].pt;
+    frame.cluster[i] = static_cast<std::int16_t>(j.clusters->labelAt(camera_, px.x, px.y, frame.depth[i]));
+    if (frame.cluster[i] >= 0 && j.ev[i].has_anchor) ++j.anchored_in_cluster[frame.cluster[i]];
+  }
+}
+
+std::vector<DynamicDetector::NearerAnchor> DynamicDetector::nearerAnchors(const Frame& frame,
+                                                                          std::vector<int> anchored) const {
+  // The features of clusters with too few anchor matches are matched to the
+  // frames k = N, N - 1, ..., 2 back, while their cluster still has too few.
+  // A cluster with enough matches at k is judged by them: a fixed baseline
+  // shorter than the anchor's, where its look changed less (a surface turning
+  // edge-on), but longer and surer than a map point's or a carried match's.
+  const int min_features = options_.verdict.min_features;
+  const int n = static_cast<int>(anchored.size());
+  std::vector<NearerAnchor> out;
+  for (int k = std::min(options_.near_anchor_frames, static_cast<int>(anchors_.size()) - 1); k >= 2; --k) {
+    std::vector<int> features;
+    for (int i = 0; i < frame.size(); ++i)
+      if (frame.cluster[i] >= 0 && anchored[frame.cluster[i]] < min_features) features.push_back(i);
+    if (features.empty()) break;
+    const auto matches = matchSomeByDescriptor(frame, anchors_[anchors_.size() - k], 0.7f, features);
+    std::vector<int> found(n, 0);
+    for (const auto& [f, a] : matches) ++found[frame.cluster[f]];
+    for (const auto& [f, a] : matches)
+      if (found[frame.cluster[f]] >= min_features) out.push_back({f, a, k});
+    for (int c = 0; c < n; ++c)
+      if (found[c] >= min_features) anchored[c] = min_features;  // judged at this baseline: not tried nearer
+  }
+  return out;
+}
+
+void DynamicDetector::takeNearerAnchors(FrameJudgement& j, const std::vector<NearerAnchor>& nearer) const {
+  for (const NearerAnchor& a : nearer) {
+    FeatureEvidence& e = j.ev[a.feature];
+    if (e.has_anchor) continue;  // keeps its match at the longer baseline
+    const Frame& anchor = anchors_[anchors_.size() - a.frames_back];
+    e.anchor_baseline = a.frames_back;
+    e.anchor_point = anchor.unprojectToWorld(a.keypoint);
+    e.has_anchor = true;
+    e.anchor_distance = features::hammingDistance(anchor.descriptor(a.keypoint), j.frame.descriptor(a.feature));
+    e.anchor_descriptor = anchor.descriptor(a.keypoint);
+    e.inherited = e.inherited || anchor.dynamic[a.keypoint];
+    ++j.anchored_in_cluster[j.frame.cluster[a.feature]];
+  }
+}
+
+bool DynamicDetector::staticExplains(const FrameJudgement& j, int i, const Vec3& p_w, const std::uint8_t* descriptor,
+                                     int distance) const {
+  // Motion evidence needs the static hypothesis to be worse. Where the
+  // evidence point projects under the pose, a keypoint whose descriptor is
+  // within geometry.static_match_margin bits of the matched one's explains the
+  // feature as static just as well: the match took another copy of a
+  // repeating pattern (floor planks, a stripe), and it is no evidence.
+  const int margin = options_.static_match_margin;
+  if (margin < 0 || !descriptor) return false;
+  const Frame& frame = j.frame;
+  const Vec3 p = frame.T_c_w * p_w;
+  if (p.z() <= camera_.min_depth) return false;
+  const double u = camera_.fx * p.x() / p.z() + camera_.cx, v = camera_.fy * p.y() / p.z() + camera_.cy;
+  const int level = frame.keys[i].octave;
+  const float radius = 3.0f * static_cast<float>(levels_.scales[level]);
+  for (int k : frame.grid.query(frame.keys, frame.un, static_cast<float>(u), static_cast<float>(v), radius,
+                                std::max(0, level - 1), std::min(levels_.levels - 1, level + 1)))
+    if (k != i && features::hammingDistance(descriptor, frame.descriptor(k)) <= distance + margin) return true;
+  return false;
+}
+
+geometry::ClusterVerdict DynamicDetector::judgeClusters(FrameJudgement& j, bool anchored) const {
+  // A cluster with enough anchor matches is judged by them alone (fixed
+  // baseline); the others by whatever evidence their features have.
+  const Frame& frame = j.frame;
+  const int min_features = options_.verdict.min_features;
+  j.explained.clear();
+  j.residuals.clear();
+  j.judged.clear();
+  for (FeatureEvidence& e : j.ev) e.carried_chi2 = 0;
+  for (int i = 0; i < frame.size(); ++i) {
+    const int c = frame.cluster[i];
+    if (c < 0) continue;
+    FeatureEvidence& e = j.ev[i];
+    const auto& p = e.point;
+    const bool by_anchor = anchored && e.has_anchor;
+    if (!by_anchor && ((anchored && j.anchored_in_cluster[c] >= min_features) || !p || p->bad)) continue;
+    // A carried chain is long-baseline evidence like the anchor's: when the
+    // frame falls back to its stage-1 matches (the pose is in doubt), the
+    // carried match counts only for its last frame's point.
+    const bool chained = !by_anchor && e.links > 1;  // p is the carried point
+    const Vec3& point = by_anchor ? e.anchor_point : chained && anchored ? chain_[i].back() : p->position;
+    EvidenceError error = evidenceError(frame, camera_, levels_, i, point, options_.evidence_depth_max_m);
+    if (chained && anchored) error.chi2 /= e.links;
+    e.residual = error.residual;
+    const JudgedFeature::Evidence kind = evidenceKind(e, by_anchor);
+    // Only disagreeing evidence needs the test (chi2 above the cap).
+    if (error.chi2 > options_.verdict.rho_cap) {
+      const std::uint8_t* d = by_anchor ? e.anchor_descriptor : p->descriptor.data();
+      const int distance = by_anchor ? e.anchor_distance : features::hammingDistance(d, frame.descriptor(i));
+      if (staticExplains(j, i, point, d, distance)) {
+        j.explained.push_back({i, error.chi2, kind});
+        continue;
+      }
+    }
+    j.residuals.push_back({c, error.chi2, e.inherited});
+    j.judged.push_back({i, kind});
+    if (kind == JudgedFeature::Evidence::kCarried) e.carried_chi2 = error.chi2;
+  }
+  return geometry::classifyClusters(j.residuals, j.clusters->clusters, options_.verdict);
+}
+
+bool DynamicDetector::adoptConsensusPose(FrameJudgement& j) const {
+  // Features matched to ones found moving before do not vote for the static
+  // world: where a known mover holds most of the anchor matches (a poster
+  // filling the view), the consensus would be its motion.
+  Frame& frame = j.frame;
+  const double far = options_.evidence_depth_max_m;
+  ConsensusProblem problem;
+  problem.pose.camera = &camera_;
+  problem.cap = options_.verdict.rho_cap;
+  problem.samples = options_.consensus_samples;
+  problem.seed = static_cast<std::uint32_t>(frame.id);
+  for (int i = 0; i < frame.size(); ++i) {
+    const FeatureEvidence& e = j.ev[i];
+    if (!e.has_anchor || frame.cluster[i] < 0 || e.inherited) continue;
+    Observation o = observationOf(frame, i);
+    const double z = frame.depth[i];
+    // As in the evidence error: depth beyond evidence_depth_max_m is no
+    // evidence, nor a point to sample.
+    const bool measured = z > 0 && (far <= 0 || z < far);
+    if (!measured) o.u_right = -1;
+    problem.pose.points_w.push_back(e.anchor_point);
+    problem.pose.observations.push_back(o);
+    problem.seen.push_back(measured ? camera_.unproject(Vec2(frame.un[i].x, frame.un[i].y), z) : Vec3::Zero());
+    problem.sampleable.push_back(measured);
+    problem.group.push_back(frame.cluster[i]);
+  }
+  if (problem.pose.points_w.size() < 12) return false;
+  // A consensus corrects a compromise that most of the view still passes.
+  // When most of it already fails the initial pose, the pose is what is
+  // wrong (stage 1 had too few map points): the fallback to the stage-1
+  // matches decides, as without the consensus.
+  const double voters = static_cast<double>(problem.pose.points_w.size());
+  problem.min_initial_inliers = static_cast<int>(std::ceil((1 - options_.max_dynamic_fraction) * voters));
+  const ConsensusResult consensus = consensusPose(problem, frame.T_c_w);
+  if (!(consensus.cost < options_.consensus_ratio * consensus.initial_cost)) return false;
+  frame.T_c_w = consensus.T_c_w;
+  return true;
+}
+
+geometry::ClusterVerdict DynamicDetector::verdictUnderBestPose(FrameJudgement& j) const {
+  // The anchor evidence is measured under the pose that explains it best,
+  // when that is clearly better than the initial pose (which a slowly
+  // starting mover may have pulled into a compromise that both it and the
+  // room pass). Only the verdict: the pose is refitted on the stage-1
+  // matches, without the dynamic clusters, from the initial pose.
+  j.anchored = !anchors_.empty();
+  const SE3 initial_pose = j.frame.T_c_w;
+  const bool consensus = j.anchored && options_.consensus_ratio > 0 && adoptConsensusPose(j);
+  j.out.consensus_pose = consensus;
+  geometry::ClusterVerdict verdict = judgeClusters(j, j.anchored);
+  // Anchor matches measure the initial pose independently of stage 1: when
+  // most of the view disagrees with it, the pose is what is wrong (stage 1
+  // had few map points), not the world; the frame is judged by its stage-1
+  // matches instead, which are consistent with the pose they produced.
+  if (j.anchored) {
+    int judged = 0, dynamic = 0;
+    for (const geometry::ClusterScore& c : verdict.clusters)
+      if (c.judged) judged += c.features, dynamic += c.dynamic ? c.features : 0;
+    if (geometry::mostOfViewDynamic(dynamic, judged, options_.max_dynamic_fraction)) {
+      j.anchored = false;
+      j.frame.T_c_w = initial_pose;
+      j.out.consensus_pose = false;
+      verdict = judgeClusters(j, false);
+      j.out.anchor_fallback = true;
+    }
+  }
+  if (consensus) j.frame.T_c_w = initial_pose;
+  return verdict;
+}
+
+void DynamicDetector::addFreeSpace(FrameJudgement& j, geometry::ClusterVerdict* verdict) const {
+  // Dense evidence: a cluster a good share of whose depth samples lie in
+  // space the anchor frame saw empty has moved, whatever its features say;
+  // unless that would make most of the view dynamic (then the pose is wrong).
+  const double share = options_.freespace_flag;
+  if (share <= 0) return;
+  std::vector<std::size_t> added;
+  int samples = 0, dynamic_samples = 0;
+  for (std::size_t c = 0; c < verdict->clusters.size(); ++c) {
+    samples += j.clusters->sizes[c];
+    if (!verdict->clusters[c].dynamic && j.out.freespace[c] >= share) added.push_back(c);
+    if (verdict->clusters[c].dynamic || j.out.freespace[c] >= share) dynamic_samples += j.clusters->sizes[c];
+  }
+  if (geometry::mostOfViewDynamic(dynamic_samples, samples, options_.max_dynamic_fraction)) {
+    j.out.freespace_vetoed = !added.empty();
+    return;
+  }
+  for (std::size_t c : added) verdict->clusters[c].dynamic = true;
+  verdict->dynamic_clusters += static_cast<int>(added.size());
+}
+
+void DynamicDetector::splitByMovedSurface(FrameJudgement& j, const geometry::ClusterVerdict& verdict) const {
+  // The moved surface grown from the free-space violations: in a dynamic
+  // cluster that holds violations but whose features mostly lie off that
+  // surface (a walker's legs and the floor they stand on), the features off
+  // it whose own evidence agrees with the pose are static.
+  for (FeatureEvidence& e : j.ev) e.released = false;
+  const double keep = options_.freespace_split_keep;
+  if (keep <= 0) return;
+  const cv::Mat moved =
+      geometry::growMovedSurface(*j.clusters, j.free, {options_.freespace_grow_plane_m, options_.freespace_grow_angle_deg});
+  if (moved.empty()) return;
+  const Frame& frame = j.frame;
+  const auto onMoved = [&](int i) {
+    const int step = j.clusters->step;
+    const int c0 = static_cast<int>(frame.keys[i].pt.x) / step, r0 = static_cast<int>(frame.keys[i].pt.y) / step;
+    const double radius2 = options_.freespace_split_radius_m * options_.freespace_split_radius_m;
+    const float z = frame.depth[i];
+    const Vec3 p = z > 0 ? camera_.unproject(Vec2(frame.un[i].x, frame.un[i].y), z) : Vec3::Zero();
+    for (int r = std::max(0, r0 - 3); r <= std::min(moved.rows - 1, r0 + 3); ++r)
+      for (int c = std::max(0, c0 - 3); c <= std::min(moved.cols - 1, c0 + 3); ++c) {
+        if (!moved.at<std::uint8_t>(r, c)) continue;
+        if (std::abs(r - r0) + std::abs(c - c0) <= 1) return true;  // its own cell or a 4-neighbour
+        const cv::Vec3f& q = j.free.points.at<cv::Vec3f>(r, c);
+        if (z > 0 && (Vec3(q[0], q[1], q[2]) - p).squaredNorm() < radius2) return true;
+      }
+    return false;
+  };
+  const int n_clusters = j.clusters->clusters;
+  std::vector<int> on(n_clusters, 0), off(n_clusters, 0);
+  std::vector<char> off_moved(frame.size(), 0);
+  for (int i = 0; i < frame.size(); ++i) {
+    const int c = frame.cluster[i];
+    if (c < 0 || !verdict.clusters[c].dynamic || j.free.violations[c] < options_.freespace_split_min_samples) continue;
+    off_moved[i] = !onMoved(i);
+    ++(off_moved[i] ? off : on)[c];
+  }
+  // Only a feature whose own evidence agrees with the pose goes back into
+  // it: one that disagrees is a part of the mover the growth did not reach,
+  // and one without evidence keeps its cluster's verdict.
+  std::vector<char> agrees(frame.size(), 0);
+  for (std::size_t k = 0; k < j.judged.size(); ++k)
+    agrees[j.judged[k].feature] = j.residuals[k].chi2 <= options_.freespace_split_protect_chi2;
+  for (int i = 0; i < frame.size(); ++i) {
+    const int c = frame.cluster[i];
+    if (off_moved[i] && agrees[i] && on[c] < keep * (on[c] + off[c])) j.ev[i].released = true;
+  }
+}
+
+bool DynamicDetector::dropped(const FrameJudgement& j, int i, const geometry::ClusterVerdict& verdict) const {
+  // A feature leaves the pose and counts as moving: in a dynamic cluster, not
+  // released; or in a cluster too small to judge, still moving along its own
+  // track (geometry.lone_moving_chi2).
+  const int cluster = j.frame.cluster[i];
+  const FeatureEvidence& e = j.ev[i];
+  if (cluster < 0 || e.released) return false;
+  const geometry::ClusterScore& c = verdict.clusters[cluster];
+  const double lone_chi2 = options_.lone_moving_chi2;
+  return c.dynamic || (lone_chi2 > 0 && !c.judged && e.inherited && e.carried_chi2 > lone_chi2);
+}
+
+void DynamicDetector::dropDynamic(FrameJudgement& j, const PoseRefit& refit) const {
+  // Drops the features of dynamic clusters from the pose and refits it.
+  Frame& frame = j.frame;
+  j.stage_one_points = frame.points;
+  splitByMovedSurface(j, j.verdict);
+  int removed = 0;
+  for (int i = 0; i < frame.size(); ++i) {
+    if (!dropped(j, i, j.verdict)) continue;
+    frame.points[i] = nullptr;
+    frame.outlier[i] = 0;
+    ++removed;
+  }
+  j.refitted = removed > 0 && countMapInliers(frame) >= 10;
+  if (j.refitted) refit();
+}
+
+int DynamicDetector::photoVerdict(const FrameJudgement& j, int i) const {
+  // 1: the static hypothesis explains the patch; 0: its depth agrees but its
+  // pixels do not match; -1: no verdict on its pixels (untestable, or its
+  // depth disagrees in a frame).
+  const Frame& frame = j.frame;
+  if (frame.depth[i] <= 0) return -1;
+  const geometry::PhotoVoteRule rule{options_.photo_release_ncc, options_.photo_one_ncc, options_.photo_one_others};
+  const geometry::PatchTest test{options_.photo_patch_radius, options_.photo_depth_share,
+                                 {options_.freespace_tolerance_m, options_.freespace_tolerance_z2}};
+  const geometry::PatchSite site{frame.keys[i].pt, frame.depth[i]};
+  for (const std::vector<std::size_t>& frames : j.photo_tries) {
+    geometry::PhotoVote vote(rule);
+    bool testable = true;
+    for (std::size_t f : frames) {
+      geometry::PhotoAgreement a;
+      testable = f < seen_.size();
+      if (testable) {
+        const SeenFrame& s = seen_[f];
+        const geometry::SeenView view{&s.gray, &s.depth, s.T_c_w * frame.T_c_w.inverse()};
+        testable = geometry::photoAgreement(site, frame.gray, j.clusters->depth, view, camera_, test, &a);
+      }
+      if (!testable) break;
+      // Failed (or depth disagrees): the other frames cannot change the
+      // verdict. Most dropped features are movers and stop here.
+      if (a.depth_share < options_.photo_depth_share) return -1;
+      vote.add(a.ncc);
+      if (vote.failed()) break;
+    }
+    if (testable) return vote.passed() ? 1 : 0;
+  }
+  return -1;
+}
+
+void DynamicDetector::detectPhotometrically(FrameJudgement& j, const PoseRefit& refit) const {
+  // The photometric test, from the frame photo_frames_back back and, with
+  // photo_frames 2 or 3, half as far each time (10, 5, 3), all of which must
+  // pass (or all but one, which must still come near: PhotoVote): a mover
+  // whose texture matches by chance in one frame seldom does in all. A patch
+  // that cannot be tested that far back (it leaves the image there, or the
+  // history is shorter) is tested at half the distance instead, once
+  // (geometry.photo_fallback).
+  const std::size_t seen = seen_.size();
+  j.photo_tries.clear();
+  for (int far = options_.photo_frames_back, tries = options_.photo_fallback ? 2 : 1; tries > 0 && far >= 2;
+       far /= 2, --tries) {
+    std::vector<std::size_t>& frames = j.photo_tries.emplace_back();
+    // Too short a history: out of range, the patch cannot be tested there.
+    for (int k = far; static_cast<int>(frames.size()) < options_.photo_frames; k = (k + 1) / 2) {
+      frames.push_back(seen >= static_cast<std::size_t>(k) ? seen - k : seen);
+      if (k <= 2) break;
+    }
+  }
+  // Photometric detection: a cluster with too few anchor matches is judged
+  // by short-baseline evidence (map points mapped a frame or two before,
+  // carried matches), which a slow mover passes. Its features' patches are
+  // tested under the pose fitted without the dynamic clusters; a cluster most
+  // of whose depth-agreeing patches do not match (the texture moved along
+  // the surface) is dynamic. Clusters that scored at or below
+  // photo_detect_gate x the frame's reference are not tested (clearly
+  // static), and nothing is added when most of the view would be dynamic.
+  if (options_.photo_detect_share <= 0 || options_.photo_release_ncc <= 0) return;
+  Frame& frame = j.frame;
+  geometry::ClusterVerdict& verdict = j.verdict;
+  const int min_features = options_.verdict.min_features;
+  const int n_clusters = j.clusters->clusters;
+  std::vector<int> tested(n_clusters, 0), failed(n_clusters, 0);
+  for (int i = 0; i < frame.size(); ++i) {
+    const int c = frame.cluster[i];
+    if (c < 0 || j.anchored_in_cluster[c] >= min_features) continue;
+    const geometry::ClusterScore& score = verdict.clusters[c];
+    if (score.dynamic || (score.judged && score.mean_rho <= options_.photo_detect_gate * verdict.reference)) continue;
+    const int r = photoVerdict(j, i);
+    if (r < 0) continue;
+    ++tested[c];
+    failed[c] += r == 0;
+  }
+  std::vector<int> added;
+  int samples = 0, dynamic_samples = 0;
+  for (int c = 0; c < n_clusters; ++c) {
+    const bool detected =
+        geometry::photoDetects(tested[c], failed[c], options_.photo_detect_share, options_.photo_detect_min);
+    samples += j.clusters->sizes[c];
+    if (detected) added.push_back(c);
+    if (detected || verdict.clusters[c].dynamic) dynamic_samples += j.clusters->sizes[c];
+  }
+  if (added.empty() || geometry::mostOfViewDynamic(dynamic_samples, samples, options_.max_dynamic_fraction)) return;
+  for (int c : added) verdict.clusters[c].dynamic = true;
+  verdict.dynamic_clusters += static_cast<int>(added.size());
+  // Not dropDynamic(): that would also split the new clusters by the
+  // free-space surface, whose violations did not flag them (12 runs:
+  // poster-walk ATE 0.0080 against 0.0070 m).
+  int removed = 0;
+  for (int i = 0; i < frame.size(); ++i) {
+    if (!dropped(j, i, verdict) || !frame.points[i]) continue;
+    frame.points[i] = nullptr;
+    frame.outlier[i] = 0;
+    ++removed;
+  }
+  if (removed > 0 && countMapInliers(frame) >= 10) {
+    refit();
+    j.refitted = true;
+  }
+}
+
+void DynamicDetector::releasePhotometrically(FrameJudgement& j, const PoseRefit& refit) {
+  // The photometric test of the static hypothesis frees dropped features,
+  // under the pose fitted without the dynamic clusters: judged under the
+  // initial pose, it would confirm a mover that stage 1 followed. A freed
+  // feature goes back into the pose with its stage-1 match. The pose is
+  // refitted here only when the freed features add a quarter or more to the
+  // matches it rests on (then the pose fitted without them may sit on a
+  // mover); stage 2 refits it anyway. The pose it is judged under must rest
+  // on most of the view: when the dropped features are more than
+  // geometry.max_dynamic_fraction of the clustered ones, the test is skipped.
+  Frame& frame = j.frame;
+  int clustered = 0, dropped_count = 0;
+  if (options_.photo_release_ncc > 0 && j.refitted)
+    for (int i = 0; i < frame.size(); ++i)
+      if (frame.cluster[i] >= 0) ++clustered, dropped_count += dropped(j, i, j.verdict);
+  if (clustered == 0 || geometry::mostOfViewDynamic(dropped_count, clustered, options_.max_dynamic_fraction)) return;
+  const int support = countMapInliers(frame);
+  int freed = 0;
+  for (int i = 0; i < frame.size(); ++i) {
+    if (!dropped(j, i, j.verdict) || (j.ev[i].has_anchor && !options_.photo_release_anchored) ||
+        photoVerdict(j, i) != 1)
+      continue;
+    j.ev[i].released = true;
+    photo_released_[i] = options_.photo_release_memory;
+    frame.points[i] = j.stage_one_points[i];
+    frame.outlier[i] = 0;
+    freed += j.stage_one_points[i] != nullptr;
+  }
+  if (freed > 0 && 4 * freed >= support && countMapInliers(frame) >= 10) refit();
+}
+
+void DynamicDetector::report(FrameJudgement& j) {
+  // Every feature whose evidence was measured is reported with its outcome,
+  // those set aside from the verdict too; map points learn the verdict.
+  Frame& frame = j.frame;
+  const geometry::ClusterVerdict& verdict = j.verdict;
+  GeometryOutput& out = j.out;
+  out.ran = true;
+  out.scores = verdict.clusters;
+  out.threshold = verdict.threshold;
+  out.dynamic_clusters = verdict.dynamic_clusters;
+  const auto add = [&](int i, double chi2, JudgedFeature::Evidence kind, bool set_aside) {
+    const FeatureEvidence& e = j.ev[i];
+    const bool by_anchor = kind == JudgedFeature::Evidence::kAnchor;
+    const int distance =
+        by_anchor ? e.anchor_distance : features::hammingDistance(e.point->descriptor.data(), frame.descriptor(i));
+    JudgedFeature f{frame.keys[i].pt.x, frame.keys[i].pt.y, dropped(j, i, verdict), frame.cluster[i],
+                    static_cast<float>(chi2), kind, e.inherited, frame.depth[i], distance,
+                    by_anchor || !j.stage_one.match_ratio ? 0.0f : (*j.stage_one.match_ratio)[i],
+                    e.residual.cast<float>(), out.freespace[frame.cluster[i]]};
+    f.explained = set_aside;
+    f.baseline = by_anchor ? e.anchor_baseline : 0;
+    out.judged.push_back(f);
+  };
+  const float w = static_cast<float>(options_.point_dynamic_weight);
+  const auto learn = [&](const std::shared_ptr<MapPoint>& p, bool dynamic) {
+    const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
+    p->dynamic_score.store(score, std::memory_order_relaxed);
+    if (dynamic && suspects_.size() < 20000) suspects_.push_back(p);
+  };
+  for (std::size_t k = 0; k < j.judged.size(); ++k) {
+    const int i = j.judged[k].feature;
+    add(i, j.residuals[k].chi2, j.judged[k].kind, false);
+    const auto& p = j.ev[i].point;
+    if (!p || p->bad || p->isTemporary()) continue;
+    learn(p, dropped(j, i, verdict));
+  }
+  for (const ExplainedEvidence& x : j.explained) add(x.feature, x.chi2, x.kind, true);
+  for (const auto& [i, p] : j.ambiguous_points) {
+    const int c = frame.cluster[i];
+    if (c < 0 || p->bad) continue;
+    learn(p, verdict.clusters[c].dynamic);
+  }
+  for (int i = 0; i < frame.size(); ++i) {
+    if (!dropped(j, i, verdict)) continue;
+    frame.dynamic[i] = 1;
+    ++out.dynamic_features;
+  }
+}
+
+void DynamicDetector::endFrame(const Frame& frame, bool tracked) {
+  if (anchor_matches_.valid()) anchor_matches_.wait();  // not used: stage 1 failed
+  anchor_matches_ = {};
+  if (tracked) {
+    rememberFrame(frame);
+  } else {
+    anchors_.clear();
+    seen_.clear();
+  }
+  last_photo_released_ = std::move(photo_released_);
+  last_chain_ = std::move(chain_);
+  chain_.clear();
+}
+
+void DynamicDetector::rememberFrame(const Frame& frame) {
+  const GeometryOptions& g = options_;
+  const auto keep_seen =
+      static_cast<std::size_t>(std::max(g.freespace_frames, g.photo_release_ncc > 0 ? g.photo_frames_back : 0));
+  seen_.push_back({clusters_ ? clusters_->depth : cv::Mat(), frame.gray, frame.T_c_w});
+  while (seen_.size() > keep_seen) seen_.pop_front();
+  const auto keep = static_cast<std::size_t>(g.anchor_frames);
+  if (keep == 0) return;
+  Frame a;
+  a.id = frame.id;
+  a.stamp = frame.stamp;
+  a.camera = frame.camera;
+  a.levels = frame.levels;
+  a.keys = frame.keys;
+  a.un = frame.un;
+  a.depth = frame.depth;
+  a.descriptors = frame.descriptors;  // shared, never written after extraction
+  a.dynamic = frame.dynamic;
+  for (std::size_t i = 0; i < photo_released_.size(); ++i)
+    if (photo_released_[i]) a.dynamic[i] = 1;  // memory only: anchors are evidence, never in a pose
+  a.T_c_w = frame.T_c_w;
+  anchors_.push_back(std::move(a));
+  while (anchors_.size() > keep) anchors_.pop_front();
+}
+
+std::vector<std::shared_ptr<MapPoint>> DynamicDetector::takeSuspects() {
+  std::vector<std::shared_ptr<MapPoint>> out = std::move(suspects_);
+  suspects_.clear();
+  return out;
+}
+
+}  // namespace stillpoint::slam
