@@ -50,24 +50,24 @@ struct ExplainedEvidence {
 struct DynamicDetector::FrameJudgement {
   Frame& frame;
   const StageOneMatches& stage_one;
-  std::shared_ptr<const geometry::DepthClusters> clusters;
-  GeometryOutput out;
-  std::vector<FeatureEvidence> ev;
+  std::shared_ptr<const geometry::DepthClusters> clusters{};
+  GeometryOutput out{};
+  std::vector<FeatureEvidence> ev{};
   // Map points of ambiguous matches: they still learn their cluster's verdict.
-  std::vector<std::pair<int, std::shared_ptr<MapPoint>>> ambiguous_points;
-  std::vector<int> anchored_in_cluster;  // anchor matches per cluster
+  std::vector<std::pair<int, std::shared_ptr<MapPoint>>> ambiguous_points{};
+  std::vector<int> anchored_in_cluster{};  // anchor matches per cluster
   bool anchored = false;                 // judged by the anchor evidence (else stage-1 matches)
   // The latest judgement: residuals (lib/geometry's input) and, per entry, who.
-  std::vector<geometry::FeatureResidual> residuals;
-  std::vector<JudgedEvidence> judged;
-  std::vector<ExplainedEvidence> explained;
-  geometry::FreeSpace free;
-  geometry::ClusterVerdict verdict;
+  std::vector<geometry::FeatureResidual> residuals{};
+  std::vector<JudgedEvidence> judged{};
+  std::vector<ExplainedEvidence> explained{};
+  geometry::FreeSpace free{};
+  geometry::ClusterVerdict verdict{};
   // Stage 1's matches, restored for features the photometric test frees.
-  std::vector<std::shared_ptr<MapPoint>> stage_one_points;
+  std::vector<std::shared_ptr<MapPoint>> stage_one_points{};
   bool refitted = false;  // the pose is fitted without the dropped features
   // Frame indices into seen_ per photometric try, nearest baseline last.
-  std::vector<std::vector<std::size_t>> photo_tries;
+  std::vector<std::vector<std::size_t>> photo_tries{};
 };
 
 namespace {

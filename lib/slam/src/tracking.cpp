@@ -1,5 +1,7 @@
 #include "tracking.hpp"
 
+#include <opencv2/imgproc.hpp>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
