@@ -34,12 +34,13 @@ constexpr const char* kUsage =
     "                         [--modules none|geometry,semantic] [--features-out FEATURES.txt]\n"
     "                         [--keyframes-out KEYFRAMES.txt] [--keyframe-trajectory KF_TRAJ.txt]\n"
     "                         [--known-movers] [--max-frames N] [--log-level debug|info|warn|error]\n"
-    "       stillpoint-replay --help | --version\n"
+    "       stillpoint-replay --help | --version | --options-reference\n"
     "\n"
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
     "as it can (--paced: at the recorded rate), writes the camera trajectory in TUM format and\n"
     "prints a summary. When the folder has groundtruth.txt, ATE/RPE are printed too.\n"
     "--sequential runs local mapping inline on one thread (deterministic).\n"
+    "--options-reference prints the SLAM options' YAML keys as a Markdown table.\n"
     "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
     "(default: as the config enables them; listed modules are on, the others off).\n"
     "--features-out writes every feature the geometry module judged, one line\n"
@@ -158,6 +159,10 @@ int main(int argc, char** argv) {
     }
     if (!std::strcmp(argv[i], "--version")) {
       std::puts("stillpoint-replay " STILLPOINT_VERSION " (" STILLPOINT_ARCH ")");
+      return 0;
+    }
+    if (!std::strcmp(argv[i], "--options-reference")) {  // docs/configuration.md's table
+      std::fputs(slam::optionsReference().c_str(), stdout);
       return 0;
     }
   }

@@ -1,6 +1,6 @@
 // stillpointd: the long-running SLAM service. Reads one YAML config, opens the
 // camera, tracks and publishes poses until SIGTERM/SIGINT (or the end of a
-// recording). See README.md "stillpointd".
+// recording). See docs/daemon.md.
 #include <signal.h>
 #include <unistd.h>
 

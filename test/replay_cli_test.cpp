@@ -206,10 +206,10 @@ TEST_F(ReplayCli, ConfigWrongTypeIsNamedWithLine) {
 }
 
 TEST_F(ReplayCli, ConfigOutOfRangeValueIsNamed) {
-  const std::string config = writeScratch("range.yaml", "mapping:\n  ba_iterations: 0\n");
+  const std::string config = writeScratch("range.yaml", "mapping:\n  ba_max_keyframes: 0\n");
   const RunResult r = replaySequence({"--config", config});
   EXPECT_EQ(r.exit_code, 1) << describe(r);
-  EXPECT_TRUE(contains(r.err, "mapping.ba_iterations"));
+  EXPECT_TRUE(contains(r.err, "mapping.ba_max_keyframes"));
 }
 
 TEST_F(ReplayCli, ConfigSyntaxErrorNamesLine) {

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Measurements of stillpointd for issue 7 (numbers in README "stillpointd"):
+# Measurements of stillpointd (numbers in docs/results.md):
 #   latency  - paced 30 Hz replay of the real excerpt as a live camera (drop-oldest
 #              queue of capacity $QUEUE, default 2): dropped frames, pose latency (frame
 #              in -> pose handed to the publisher) median / p99 / max, from the status file.

@@ -343,7 +343,7 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
                  frames_lost.load(), frames_bad.load(), queue->dropped(), queue->discarded(), keyframes.load(),
                  reconnects.load(), latency.quantile(0.5), latency.quantile(0.99), latency.max(), ps.sent, ps.dropped,
                  wall_s, shutdown_ms, track_time.quantile(0.5), track_time.quantile(0.99));
-    // What the process holds (issue 7: bounded memory over long runs).
+    // What the process holds (bounded memory over long runs).
     const slam::MapStats map = system->mapStats();
     std::fprintf(f,
                  "map_keyframes=%zu\nmap_points=%zu\nkeyframes_in_memory=%zu\npoints_in_memory=%zu\n"

@@ -225,7 +225,7 @@ TEST(PersonModel, LabelsTheAstronautFromTheInTreeCopy) {
 
 // The person model's known weakness, measured and reported: it labels a
 // large part of coffee.png (a cup, no person) as person. If this starts
-// failing the model changed; update the README numbers.
+// failing the model changed; update the numbers in docs/dynamic-objects.md.
 TEST(PersonModel, ReportsItsHallucinationOnCoffee) {
   REQUIRE_SHARED("testdata/coffee.png");
   auto seg = createSegmenter(kProjectModels / "person_selfie_256.yaml");
@@ -351,7 +351,7 @@ TEST_F(CocoModel, TeddyBearCalledPersonTooIsDroppedAsTheSameObject) {
   const Instance* person = nullptr;
   for (const Instance& inst : r->instances)
     if (inst.class_name == "person") person = &inst;
-  ASSERT_NE(person, nullptr) << "the model no longer confuses the bear: update this test and the README";
+  ASSERT_NE(person, nullptr) << "the model no longer confuses the bear: update this test and docs/dynamic-objects.md";
   std::printf("[ coco_yolov5s_seg_320 ] teddy frame 59: 'person' %.2f on %.1f %% of the image, %s\n", person->score,
               100.0 * person->area / r->labels.total(), person->kept ? "KEPT" : person->drop_reason.c_str());
   EXPECT_FALSE(person->kept);

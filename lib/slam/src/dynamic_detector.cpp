@@ -147,9 +147,7 @@ std::unordered_map<const MapPoint*, int> carryMovingFeatures(Frame* last, const 
   for (int i = 0; i < last->size(); ++i) {
     const bool moving = last->dynamic[i] || (i < static_cast<int>(freed.size()) && freed[i]);
     if (last->depth[i] <= 0 || !moving) continue;
-    auto p = std::make_shared<MapPoint>(-1, last->unprojectToWorld(i), nullptr);
-    std::copy(last->descriptor(i), last->descriptor(i) + 32, p->descriptor.begin());
-    p->moving = true;
+    auto p = MapPoint::temporary(*last, i, true);
     from[p.get()] = i;
     last->points[i] = std::move(p);
     last->outlier[i] = 0;
@@ -726,8 +724,8 @@ void DynamicDetector::report(FrameJudgement& j) {
   };
   const float w = static_cast<float>(options_.point_dynamic_weight);
   const auto learn = [&](const std::shared_ptr<MapPoint>& p, bool dynamic) {
-    const float score = (1 - w) * p->dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
-    p->dynamic_score.store(score, std::memory_order_relaxed);
+    const float score = (1 - w) * p->geometry.dynamic_score.load(std::memory_order_relaxed) + (dynamic ? w : 0.0f);
+    p->geometry.dynamic_score.store(score, std::memory_order_relaxed);
     if (dynamic && suspects_.size() < 20000) suspects_.push_back(p);
   };
   for (std::size_t k = 0; k < j.judged.size(); ++k) {
@@ -745,7 +743,7 @@ void DynamicDetector::report(FrameJudgement& j) {
   }
   for (int i = 0; i < frame.size(); ++i) {
     if (!dropped(j, i, verdict)) continue;
-    frame.dynamic[i] = 1;
+    frame.dynamic[i] = kGeometryDynamic;
     ++out.dynamic_features;
   }
 }
@@ -783,7 +781,7 @@ void DynamicDetector::rememberFrame(const Frame& frame) {
   a.descriptors = frame.descriptors;  // shared, never written after extraction
   a.dynamic = frame.dynamic;
   for (std::size_t i = 0; i < photo_released_.size(); ++i)
-    if (photo_released_[i]) a.dynamic[i] = 1;  // memory only: anchors are evidence, never in a pose
+    if (photo_released_[i]) a.dynamic[i] = kGeometryDynamic;  // memory only: anchors are evidence, never in a pose
   a.T_c_w = frame.T_c_w;
   anchors_.push_back(std::move(a));
   while (anchors_.size() > keep) anchors_.pop_front();

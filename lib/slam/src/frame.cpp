@@ -100,7 +100,7 @@ void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, featu
   }
   frame->grid.build(frame->un, cam.width, cam.height);
   frame->clearMatches();
-  frame->dynamic.assign(n, 0);
+  frame->dynamic.assign(n, kNotDynamic);
   frame->cluster.assign(n, -1);
 }
 

@@ -11,9 +11,12 @@
 
 namespace stillpoint::slam {
 
-// Frame::dynamic value of a feature inside a movable semantic mask (1: the
-// geometry module's verdict).
-inline constexpr char kSemanticDynamic = 2;
+// Why a feature is kept out of the pose and the map (Frame::dynamic).
+enum DynamicCause : char {
+  kNotDynamic = 0,
+  kGeometryDynamic = 1,  // the geometry module's verdict (in anchor frames also the photometric test's memory)
+  kSemanticDynamic = 2,  // inside a movable semantic mask, followed from one, or a known mover
+};
 
 class MapPoint;
 
@@ -56,9 +59,9 @@ struct Frame {
 
   std::vector<std::shared_ptr<MapPoint>> points;  // matched map point or null
   std::vector<char> outlier;
-  // Set by the geometry module: the feature lies on a moving surface and is
-  // kept out of pose estimation and mapping.
-  std::vector<char> dynamic;
+  // The feature lies on a moving surface and is kept out of pose estimation
+  // and mapping, and why (kNotDynamic: static).
+  std::vector<DynamicCause> dynamic;
   std::vector<std::int16_t> cluster;  // depth cluster, -1 when unknown
 
   SE3 T_c_w = SE3::Identity();

@@ -71,7 +71,7 @@ KeyFrame* Tracker::createKeyFrame() {
   // noise grows as z^2, so a far point's depth is as good there as a near
   // one's; far structure is what pins the rotation. 100 (ORB-SLAM2's) left
   // the background mostly unmapped: ATE on the real excerpt 0.0082 -> 0.0049 m
-  // (README, Results).
+  // (docs/decisions.md).
   std::vector<std::pair<float, int>> by_depth;
   for (int i = 0; i < kf->frame.size(); ++i)
     if (kf->frame.depth[i] > 0 && !kf->frame.points[i] && !kf->frame.dynamic[i])
@@ -81,7 +81,7 @@ KeyFrame* Tracker::createKeyFrame() {
   for (const auto& [z, i] : by_depth) {
     if (z > close_depth_ && created >= options_.keyframes.min_new_points) break;
     auto p = map_->createPoint(kf->frame.unprojectToWorld(i), kf);
-    if (detector_) p->probation = options_.geometry.probation_frames;
+    if (detector_) p->geometry.probation = options_.geometry.probation_frames;
     kf->addObservation(p, i);
     p->updateFromObservations();
     current_.points[i] = p;

@@ -68,7 +68,7 @@ void LocalMapper::cullDynamicPoints(KeyFrame* kf) {
   // that was static when mapped must not anchor the pose once it moves.
   int culled = 0;
   for (const auto& p : kf->dynamic_suspects) {
-    if (p->bad || p->dynamic_score.load(std::memory_order_relaxed) <= 0.5f) continue;
+    if (p->bad || p->geometry.dynamic_score.load(std::memory_order_relaxed) <= 0.5f) continue;
     map_->erasePoint(p);
     ++culled;
   }
@@ -139,113 +139,6 @@ void LocalMapper::applySemanticResults() {
   if (results.empty()) return;
   std::unique_lock lock(map_->mutex());
   for (const SemanticResult& r : results) applySemantic(r);
-}
-
-void LocalMapper::applySemantic(const SemanticResult& r) {
-  SemanticStats& st = semantic_stats_;
-  st.segment_ms.add(r.segment_ms);
-  if (!r.ok) {
-    ++st.failures;
-    SP_WARN(logger, "keyframe " << r.keyframe_id << ": segmentation failed: " << r.error);
-    return;
-  }
-  KeyFrame* kf = map_->keyFrame(r.keyframe_id);
-  // Culled meanwhile (freed, or bad and about to be): nothing to apply. A bad
-  // keyframe must not be touched: updateConnections() would link it back into
-  // its neighbours, which then hold it after it is freed.
-  if (!kf || kf->bad || kf->segmented) return;
-  Frame& f = kf->frame;
-  const int n_regions = static_cast<int>(r.regions.size());
-
-  // Per region: its features, how many carry a live map point, and what the
-  // geometry module said about them in this keyframe (before we touch `dynamic`).
-  std::vector<std::vector<int>> members(n_regions);
-  std::vector<int> with_point(n_regions, 0), flagged(n_regions, 0), judged(n_regions, 0);
-  std::vector<int> region_of(f.size(), 0);
-  int points_before = 0;
-  for (int i = 0; i < f.size(); ++i) {
-    const bool live = f.points[i] && !f.points[i]->bad;
-    points_before += live;
-    const cv::Point2f& px = f.keys[i].pt;
-    const int x = std::clamp(cvRound(px.x), 0, r.labels.cols - 1), y = std::clamp(cvRound(px.y), 0, r.labels.rows - 1);
-    const int label = r.labels.at<std::uint8_t>(y, x);
-    if (label == 0 || label > n_regions) continue;
-    const int k = label - 1;
-    region_of[i] = label;
-    members[k].push_back(i);
-    with_point[k] += live;
-    flagged[k] += f.dynamic[i] != 0;
-    judged[k] += f.cluster[i] >= 0;
-  }
-  const SemanticOptions& o = options_.semantic;
-  std::vector<char> confirmed(n_regions, 0);
-  std::vector<int> order(n_regions);
-  for (int k = 0; k < n_regions; ++k) {
-    order[k] = n_regions - 1 - k;  // regions come in ascending score
-    confirmed[k] = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
-  }
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return confirmed[a] > confirmed[b]; });
-
-  // Semantic evidence alone may remove at most this many of the keyframe's points.
-  const double budget = o.max_removed_fraction * points_before;
-  int unconfirmed_removed = 0;
-  std::vector<char> applied(n_regions + 1, 0);
-  for (int k : order) {
-    if (semantic_confirm_ && !confirmed[k]) {
-      ++st.instances_unconfirmed;
-      continue;
-    }
-    if (!confirmed[k]) {
-      if (unconfirmed_removed + with_point[k] > budget) {
-        ++st.instances_capped;
-        SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' would remove "
-                                     << with_point[k] << " of " << points_before << " points: left alone");
-        continue;
-      }
-      unconfirmed_removed += with_point[k];
-    }
-    applied[k + 1] = 1;
-    ++st.instances_applied;
-    if (r.regions[k].continued) ++st.instances_continued;
-  }
-
-  int features_removed = 0, points_removed = 0, points_culled = 0;
-  for (int i = 0; i < f.size(); ++i) {
-    const std::shared_ptr<MapPoint> p = f.points[i] && !f.points[i]->bad ? f.points[i] : nullptr;
-    if (!applied[region_of[i]]) {
-      if (p) ++p->semantic_checks;
-      continue;
-    }
-    f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
-    ++features_removed;
-    if (!p) continue;
-    if (p->first_keyframe_id == kf->id) {
-      map_->erasePoint(p);  // made from a movable object by this keyframe
-      ++points_removed;
-      continue;
-    }
-    ++p->semantic_checks;
-    ++p->semantic_hits;
-    const bool was_reference = p->reference == kf;
-    kf->eraseObservation(i);
-    if (p->semantic_hits > o.point_masked_ratio * p->semantic_checks || p->observations.empty()) {
-      map_->erasePoint(p);
-      ++points_culled;
-    } else if (was_reference) {
-      p->reference = p->observations.begin()->first;
-    }
-  }
-  if (features_removed > 0) kf->updateConnections();
-  kf->segmented = true;
-  ++st.segmented;
-  st.features_removed += features_removed;
-  st.points_removed += points_removed;
-  st.points_culled += points_culled;
-  st.latency_ms.add(
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - r.created).count());
-  SP_DEBUG(logger, "keyframe " << kf->id << ": " << n_regions << " movable regions, " << features_removed
-                               << " features dropped, " << points_removed << " points removed, " << points_culled
-                               << " culled");
 }
 
 std::size_t LocalMapper::pending() const {

@@ -10,6 +10,13 @@ namespace stillpoint::slam {
 
 bool KeyFrameIdLess::operator()(const KeyFrame* a, const KeyFrame* b) const { return a->id < b->id; }
 
+std::shared_ptr<MapPoint> MapPoint::temporary(const Frame& frame, int i, bool mover_evidence) {
+  auto p = std::make_shared<MapPoint>(-1, frame.unprojectToWorld(i), nullptr);
+  std::copy(frame.descriptor(i), frame.descriptor(i) + 32, p->descriptor.begin());
+  p->mover_evidence_ = mover_evidence;
+  return p;
+}
+
 int MapPoint::predictLevel(double distance, const LevelInfo& levels) const {
   if (distance <= 0 || max_distance <= 0) return 0;
   const int level = static_cast<int>(std::ceil(std::log(max_distance / distance) / levels.log_scale_factor));

@@ -1,6 +1,21 @@
 #pragma once
-// Keyframes, map points and the covisibility graph. All mutation happens with
-// Map::mutex() held exclusively; tracking reads under a shared lock.
+// Keyframes, map points and the covisibility graph.
+//
+// Locking rule (Map::mutex()):
+// - The map's structure (keyframes, points, observations, covisibility, the
+//   spanning tree, positions and poses) changes only under the exclusive
+//   lock: local mapping (culling, bundle adjustment's write-back, semantic
+//   masks) and tracking when it makes a map, inserts a keyframe or frees the
+//   culled ones.
+// - Under the shared lock, tracking reads the structure and writes only its
+//   own bookkeeping (MapPoint::visible, found, local_for_frame and
+//   geometry.probation; KeyFrame::local_for_frame), which other threads read
+//   only under the exclusive lock;
+//   MapPoint::geometry.dynamic_score is atomic (written by tracking, read by
+//   local mapping and the matcher). Tracking is the only thread that takes
+//   the shared lock to write, so its writes never race with one another.
+// - Temporary points (MapPoint::temporary) belong to one frame of the
+//   tracking thread and are never in the map.
 #include <array>
 #include <atomic>
 #include <cstdint>
@@ -54,31 +69,41 @@ class MapPoint {
   KeyFrameIndexMap observations;  // keyframe -> keypoint index
   KeyFrame* reference;
   std::int64_t first_keyframe_id = 0;
-  int visible = 1;  // times it was inside a tracked frame's view
-  int found = 1;    // times it was matched there
+  int visible = 1;  // times it was inside a tracked frame's view (tracking; see the locking rule)
+  int found = 1;    // times it was matched there (tracking)
   bool bad = false;
-  // Exponentially weighted share of recent observations that fell in dynamic
-  // depth clusters; written by tracking only, read by local mapping.
-  std::atomic<float> dynamic_score{0.0f};
-  // Semantic module (local mapping only): segmented keyframes that observed
-  // this point, and how many of them saw it inside a movable mask.
-  int semantic_checks = 0;
-  int semantic_hits = 0;
+  // The geometry module's state of the point.
+  struct Geometry {
+    // Exponentially weighted share of recent observations that fell in
+    // dynamic depth clusters (written by tracking, read by local mapping).
+    std::atomic<float> dynamic_score{0.0f};
+    // Frames it must still be matched consistently with a pose estimated
+    // without it before it may enter the pose (geometry.probation_frames; 0:
+    // trusted). Tracking only.
+    int probation = 0;
+  } geometry;
+  // The semantic module's state (local mapping only): segmented keyframes
+  // that observed this point, and how many of them saw it in a movable mask.
+  struct Semantic {
+    int checks = 0;
+    int hits = 0;
+  } semantic;
   std::int64_t local_for_frame = -1;  // tracking's local-map bookkeeping
   bool isTemporary() const { return id < 0; }
-  // Temporary point of a feature the geometry module found moving in the
-  // previous frame: matched for evidence only, never used for the pose.
-  bool moving = false;
-  // Geometry module, tracking thread only: frames this point must still be
-  // matched consistently with a pose estimated without it before it may
-  // enter the pose (geometry.probation_frames; 0 = trusted).
-  int probation = 0;
+  // A temporary point of a frame's feature i (from its depth): the motion
+  // model's odometry, or with `mover_evidence` evidence of a feature found
+  // moving, which stage 1 matches but never puts in a pose.
+  static std::shared_ptr<MapPoint> temporary(const Frame& frame, int i, bool mover_evidence);
+  bool moverEvidence() const { return mover_evidence_; }
 
   double foundRatio() const { return static_cast<double>(found) / visible; }
   // Level at which a feature of this point is expected at distance d.
   int predictLevel(double distance, const LevelInfo& levels) const;
   // Recomputes descriptor, normal and distance range from the observations.
   void updateFromObservations();
+
+ private:
+  bool mover_evidence_ = false;
 };
 
 class KeyFrame {

@@ -148,7 +148,7 @@ TEST_F(CulledKeyFrames, ChildrenMoveToTheParentAndReferencesToTheRemainingObserv
 // connections afterwards (a late segmentation result, applied to a keyframe
 // culled while it waited) must not link it back into its neighbours, which
 // would hold it after it is freed (a crash in sequential runs with
-// semantic.sequential_latency_frames, found in session 11).
+// semantic.sequential_latency_frames).
 TEST_F(CulledKeyFrames, StayUnlinkedWhenTheirConnectionsAreUpdatedLate) {
   map_.setKeyFrameBad(kf1_);
   kf1_->updateConnections();

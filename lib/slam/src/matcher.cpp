@@ -198,7 +198,7 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
     const auto& point = points[k];
     if (point->bad) continue;
     // Points that the geometry module keeps seeing on moving surfaces.
-    if (point->dynamic_score.load(std::memory_order_relaxed) > 0.5f) continue;
+    if (point->geometry.dynamic_score.load(std::memory_order_relaxed) > 0.5f) continue;
     Vec3 p_c;
     Vec2 uv;
     if (!projectIntoFrame(*current, point->position, &p_c, &uv)) continue;

@@ -35,7 +35,7 @@ Frame randomFrame(std::mt19937* rng) {
     for (int b = 0; b < features::kDescriptorBytes; ++b) f.descriptors.at<std::uint8_t>(i, b) = byte(*rng);
   }
   f.depth.assign(kFeatures, 2.0f);
-  f.dynamic.assign(kFeatures, 0);
+  f.dynamic.assign(kFeatures, kNotDynamic);
   f.clearMatches();
   return f;
 }

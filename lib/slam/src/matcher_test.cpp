@@ -54,7 +54,7 @@ Frame frameWith(const std::vector<cv::Point2f>& pixels, const std::vector<int>& 
   for (std::size_t i = 0; i < ones.size(); ++i)
     for (int b = 0; b < ones[i]; ++b) f.descriptors.at<std::uint8_t>(static_cast<int>(i), b / 8) |= 1 << (b % 8);
   f.grid.build(f.un, camera().width, camera().height);
-  f.dynamic.assign(pixels.size(), 0);
+  f.dynamic.assign(pixels.size(), kNotDynamic);
   f.clearMatches();
   return f;
 }

@@ -139,180 +139,119 @@ Status SlamOptions::validate() const {
 
 namespace {
 
-// One table drives both reading and writing, so the two cannot drift apart.
+// The YAML keys: one table drives reading, writing and the reference, so
+// they cannot drift apart. Tuned constants are not in it (options.hpp).
 template <typename Visitor>
 void visitFields(SlamOptions& o, Visitor&& v) {
-  v("orb", "num_features", o.orb.num_features);
-  v("orb", "num_levels", o.orb.num_levels);
-  v("orb", "scale_factor", o.orb.scale_factor);
-  v("orb", "fast_threshold", o.orb.fast_threshold);
-  v("orb", "min_fast_threshold", o.orb.min_fast_threshold);
-  v("orb", "cell_size", o.orb.cell_size);
-  v("tracking", "min_init_features", o.tracking.min_init_features);
-  v("tracking", "min_inliers_local_map", o.tracking.min_inliers_local_map);
-  v("tracking", "min_inliers_after_reloc", o.tracking.min_inliers_after_reloc);
-  v("tracking", "close_depth_baselines", o.tracking.close_depth_baselines);
-  v("tracking", "local_keyframes_max", o.tracking.local_keyframes_max);
-  v("tracking", "relocalisation_candidates", o.tracking.relocalisation_candidates);
-  v("tracking", "trajectory_records", o.tracking.trajectory_records);
-  v("tracking", "motion_prior_sigma_m", o.tracking.motion_prior_sigma_m);
-  v("tracking", "motion_prior_sigma_deg", o.tracking.motion_prior_sigma_deg);
-  v("tracking", "mover_cells_every", o.tracking.mover_cells_every);
-  v("tracking", "mover_cells_min_share", o.tracking.mover_cells_min_share);
-  v("tracking", "mover_cells_radius_px", o.tracking.mover_cells_radius_px);
-  v("keyframes", "max_interval_s", o.keyframes.max_interval_s);
-  v("keyframes", "min_interval_frames", o.keyframes.min_interval_frames);
-  v("keyframes", "tracked_ratio", o.keyframes.tracked_ratio);
-  v("keyframes", "close_tracked_min", o.keyframes.close_tracked_min);
-  v("keyframes", "close_untracked_min", o.keyframes.close_untracked_min);
-  v("keyframes", "min_new_points", o.keyframes.min_new_points);
-  v("mapping", "local_ba", o.mapping.local_ba);
-  v("mapping", "ba_iterations", o.mapping.ba_iterations);
-  v("mapping", "ba_max_keyframes", o.mapping.ba_max_keyframes);
-  v("mapping", "redundant_ratio", o.mapping.redundant_ratio);
-  v("mapping", "redundant_min_observers", o.mapping.redundant_min_observers);
-  v("mapping", "point_found_ratio", o.mapping.point_found_ratio);
-  v("mapping", "keep_culled_keyframes", o.mapping.keep_culled_keyframes);
-  v("geometry", "enabled", o.geometry.enabled);
-  v("geometry", "clusters", o.geometry.clustering.clusters_at_vga);
-  v("geometry", "sample_step", o.geometry.clustering.sample_step_at_vga);
-  v("geometry", "kmeans_iterations", o.geometry.clustering.max_iterations);
-  v("geometry", "kmeans_converged_fraction", o.geometry.clustering.converged_fraction);
-  v("geometry", "warm_start", o.geometry.clustering.warm_start);
-  v("geometry", "freespace_tolerance_m", o.geometry.freespace_tolerance_m);
-  v("geometry", "freespace_tolerance_z2", o.geometry.freespace_tolerance_z2);
-  v("geometry", "freespace_frames", o.geometry.freespace_frames);
-  v("geometry", "freespace_flag", o.geometry.freespace_flag);
-  v("geometry", "freespace_split_keep", o.geometry.freespace_split_keep);
-  v("geometry", "freespace_grow_plane_m", o.geometry.freespace_grow_plane_m);
-  v("geometry", "freespace_grow_angle_deg", o.geometry.freespace_grow_angle_deg);
-  v("geometry", "freespace_split_radius_m", o.geometry.freespace_split_radius_m);
-  v("geometry", "freespace_split_min_samples", o.geometry.freespace_split_min_samples);
-  v("geometry", "freespace_split_protect_chi2", o.geometry.freespace_split_protect_chi2);
-  v("geometry", "rho_cap", o.geometry.verdict.rho_cap);
-  v("geometry", "min_features", o.geometry.verdict.min_features);
-  v("geometry", "reference_quantile", o.geometry.verdict.reference_quantile);
-  v("geometry", "relative_factor", o.geometry.verdict.relative_factor);
-  v("geometry", "absolute_floor", o.geometry.verdict.absolute_floor);
-  v("geometry", "ceiling_fraction", o.geometry.verdict.ceiling_fraction);
-  v("geometry", "hold_fraction", o.geometry.verdict.hold_fraction);
-  v("geometry", "hold_factor", o.geometry.verdict.hold_factor);
-  v("geometry", "hold_floor", o.geometry.verdict.hold_floor);
-  v("geometry", "deadline_ms", o.geometry.deadline_ms);
-  v("geometry", "point_dynamic_weight", o.geometry.point_dynamic_weight);
-  v("geometry", "anchor_frames", o.geometry.anchor_frames);
-  v("geometry", "carried_frames", o.geometry.carried_frames);
-  v("geometry", "near_anchor_frames", o.geometry.near_anchor_frames);
-  v("geometry", "lone_moving_chi2", o.geometry.lone_moving_chi2);
-  v("geometry", "max_dynamic_fraction", o.geometry.max_dynamic_fraction);
-  v("geometry", "consensus_ratio", o.geometry.consensus_ratio);
-  v("geometry", "consensus_samples", o.geometry.consensus_samples);
-  v("geometry", "evidence_ratio", o.geometry.evidence_ratio);
-  v("geometry", "evidence_depth_max_m", o.geometry.evidence_depth_max_m);
-  v("geometry", "static_match_margin", o.geometry.static_match_margin);
-  v("geometry", "photo_release_ncc", o.geometry.photo_release_ncc);
-  v("geometry", "photo_depth_share", o.geometry.photo_depth_share);
-  v("geometry", "photo_patch_radius", o.geometry.photo_patch_radius);
-  v("geometry", "photo_frames", o.geometry.photo_frames);
-  v("geometry", "photo_one_ncc", o.geometry.photo_one_ncc);
-  v("geometry", "photo_one_others", o.geometry.photo_one_others);
-  v("geometry", "photo_detect_share", o.geometry.photo_detect_share);
-  v("geometry", "photo_detect_min", o.geometry.photo_detect_min);
-  v("geometry", "photo_detect_gate", o.geometry.photo_detect_gate);
-  v("geometry", "photo_release_memory", o.geometry.photo_release_memory);
-  v("geometry", "photo_release_anchored", o.geometry.photo_release_anchored);
-  v("geometry", "photo_frames_back", o.geometry.photo_frames_back);
-  v("geometry", "photo_fallback", o.geometry.photo_fallback);
-  v("geometry", "probation_frames", o.geometry.probation_frames);
-  v("geometry", "probation_min_trusted", o.geometry.probation_min_trusted);
-  v("semantic", "enabled", o.semantic.enabled);
-  v("semantic", "model_card", o.semantic.model_card);
-  v("semantic", "model_dirs", o.semantic.model_dirs);
-  v("semantic", "movable_furniture", o.semantic.movable_furniture);
-  v("semantic", "mask_dilation_px", o.semantic.mask_dilation_px);
-  v("semantic", "queue_capacity", o.semantic.queue_capacity);
-  v("semantic", "sequential_latency_frames", o.semantic.sequential_latency_frames);
-  v("semantic", "threads", o.semantic.threads);
-  v("semantic", "min_region_fraction", o.semantic.min_region_fraction);
-  v("semantic", "min_region_confidence", o.semantic.min_region_confidence);
-  v("semantic", "static_overlap_iou", o.semantic.static_overlap_iou);
-  v("semantic", "depth_agreement", o.semantic.depth_agreement);
-  v("semantic", "confirm_with_geometry", o.semantic.confirm_with_geometry);
-  v("semantic", "confirm_min_flagged", o.semantic.confirm_min_flagged);
-  v("semantic", "confirm_ratio", o.semantic.confirm_ratio);
-  v("semantic", "max_removed_fraction", o.semantic.max_removed_fraction);
-  v("semantic", "point_masked_ratio", o.semantic.point_masked_ratio);
-  v("semantic", "propagate_masks", o.semantic.propagate_masks);
-  v("semantic", "propagate_grow_px", o.semantic.propagate_grow_px);
-  v("semantic", "propagate_grow_passes", o.semantic.propagate_grow_passes);
-  v("semantic", "propagate_from_last", o.semantic.propagate_from_last);
-  v("semantic", "temp_exclusion_px", o.semantic.temp_exclusion_px);
-  v("semantic", "track_score_ratio", o.semantic.track_score_ratio);
-  v("semantic", "track_iou", o.semantic.track_iou);
-  v("semantic", "track_max_keyframes", o.semantic.track_max_keyframes);
-  v("semantic", "track_min_hits", o.semantic.track_min_hits);
-  v("semantic", "track_any_class", o.semantic.track_any_class);
-  v("", "sequential", o.sequential);
+  v("orb", "num_features", o.orb.num_features, "keypoints per frame over all pyramid levels, 50..20000");
+  v("orb", "num_levels", o.orb.num_levels, "scale pyramid levels, 1..16");
+  v("orb", "scale_factor", o.orb.scale_factor, "scale between pyramid levels, (1, 2]");
+  v("tracking", "min_inliers_local_map", o.tracking.min_inliers_local_map, "map inliers to accept a tracked pose, >= 6");
+  v("tracking", "relocalisation_candidates", o.tracking.relocalisation_candidates,
+    "keyframes tried per lost frame: the newest N, then N older ones in turn");
+  v("tracking", "trajectory_records", o.tracking.trajectory_records,
+    "tracked frames kept for the trajectory: -1 all, 0 none, N the last N");
+  v("keyframes", "max_interval_s", o.keyframes.max_interval_s, "insert a keyframe at least this often (s) while tracking degrades");
+  v("mapping", "local_ba", o.mapping.local_ba, "local bundle adjustment after each keyframe");
+  v("mapping", "ba_max_keyframes", o.mapping.ba_max_keyframes, "keyframes in the bundle adjustment window, >= 2");
+  v("mapping", "keep_culled_keyframes", o.mapping.keep_culled_keyframes,
+    "keep culled keyframes in memory for inspection (memory grows); false frees them");
+  v("geometry", "enabled", o.geometry.enabled, "the geometry module (depth clusters, moving features out of the pose)");
+  v("geometry", "clusters", o.geometry.clustering.clusters_at_vga, "K-Means clusters at 640x480, scaled by pixel count, 2..255");
+  v("geometry", "deadline_ms", o.geometry.deadline_ms,
+    "longest tracking waits for a frame's clusters; a miss tracks the frame without the module");
+  v("semantic", "enabled", o.semantic.enabled, "the semantic module (keyframe segmentation, movable objects out of the map)");
+  v("semantic", "model_card", o.semantic.model_card, "model card YAML; empty: COCO if its ONNX file is found, else the person model");
+  v("semantic", "model_dirs", o.semantic.model_dirs, "folders searched first for the model file (then $STILLPOINT_MODEL_DIR)");
+  v("semantic", "movable_furniture", o.semantic.movable_furniture, "chairs, couches, beds, tables, benches count as movable too");
+  v("semantic", "mask_dilation_px", o.semantic.mask_dilation_px, "instance masks grow by this many pixels, 0..100");
+  v("semantic", "queue_capacity", o.semantic.queue_capacity,
+    "keyframes waiting for segmentation; when full the oldest is left unsegmented");
+  v("semantic", "sequential_latency_frames", o.semantic.sequential_latency_frames,
+    "sequential mode only: apply each segmentation this many frames late (a live run's delay)");
+  v("semantic", "threads", o.semantic.threads, "OpenCV inference threads (0: leave OpenCV's setting)");
+  v("semantic", "confirm_with_geometry", o.semantic.confirm_with_geometry,
+    "card, always or never: whether masks need the geometry module's agreement (card: as the model card says)");
+  v("", "sequential", o.sequential, "one thread, deterministic (tests, evaluation)");
+}
+
+std::string lineOf(const YAML::Node& node) { return "line " + std::to_string(node.Mark().line + 1); }
+
+// Every key of a mapping must be a scalar and appear once: yaml-cpp keeps the
+// first of duplicates silently, and a typo'd second value would be ignored.
+// `known` maps each key to whether it is a section (a mapping of keys).
+std::string checkKeys(const YAML::Node& map, const std::string& prefix, const std::map<std::string, bool>& known) {
+  std::map<std::string, bool> seen;
+  for (const auto& entry : map) {
+    if (!entry.first.IsScalar()) return lineOf(entry.first) + ": keys must be plain names";
+    const std::string name = prefix + entry.first.Scalar();
+    if (!seen.emplace(name, true).second) return lineOf(entry.first) + ": duplicate field '" + name + "'";
+    const auto k = known.find(name);
+    if (k == known.end()) return lineOf(entry.first) + ": unknown field '" + name + "'";
+    if (!k->second || entry.second.IsNull()) continue;
+    if (!entry.second.IsMap()) return lineOf(entry.second) + ": '" + name + "' must be a mapping of keys";
+    if (std::string e = checkKeys(entry.second, name + ".", known); !e.empty()) return e;
+  }
+  return {};
+}
+
+template <typename T>
+std::string yamlText(const T& value) {
+  YAML::Emitter out;
+  out.SetDoublePrecision(10);
+  out << YAML::Flow << YAML::Node(value);
+  const std::string text = out.c_str();
+  return text.empty() ? "\"\"" : text;
 }
 
 }  // namespace
 
 Result<SlamOptions> loadSlamOptions(const std::string& path) {
-  YAML::Node root;
   try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    return Error{"config '" + path + "': cannot be opened"};
-  } catch (const YAML::Exception& e) {
-    return Error{"config '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
-  }
-  SlamOptions options;
-  if (root.IsNull()) return options;
-  if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};
-  std::map<std::string, bool> known;
-  std::string error;
-  visitFields(options, [&](const std::string& section, const std::string& key, auto& field) {
-    known[section.empty() ? key : section + "." + key] = true;
-    if (!error.empty()) return;
-    const YAML::Node& croot = root;
-    auto lookup = [&]() -> YAML::Node {
-      if (section.empty()) return croot[key];
-      const YAML::Node sub = croot[section];
-      if (!sub.IsDefined() || !sub.IsMap()) return YAML::Node(YAML::NodeType::Undefined);
-      return sub[key];
-    };
-    const YAML::Node node = lookup();
-    if (!node.IsDefined() || node.IsNull()) return;
+    YAML::Node root;
     try {
-      field = node.as<std::decay_t<decltype(field)>>();
-    } catch (const YAML::Exception&) {
-      error = "config '" + path + "': line " + std::to_string(node.Mark().line + 1) + ": field '" +
-              (section.empty() ? key : section + "." + key) + "' has the wrong type";
+      root = YAML::LoadFile(path);
+    } catch (const YAML::BadFile&) {
+      return Error{"config '" + path + "': cannot be opened"};
+    } catch (const YAML::Exception& e) {
+      return Error{"config '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
     }
-  });
-  if (!error.empty()) return Error{error};
-  for (const auto& top : root) {
-    const std::string name = top.first.as<std::string>();
-    if (top.second.IsMap()) {
-      for (const auto& sub : top.second) {
-        const std::string full = name + "." + sub.first.as<std::string>();
-        if (!known.count(full))
-          return Error{"config '" + path + "': line " + std::to_string(sub.first.Mark().line + 1) +
-                       ": unknown field '" + full + "'"};
+    SlamOptions options;
+    if (root.IsNull()) return options;
+    if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};
+    std::map<std::string, bool> known;  // key -> is a section
+    visitFields(options, [&](const std::string& section, const std::string& key, auto&, const char*) {
+      if (!section.empty()) known[section] = true;
+      known[section.empty() ? key : section + "." + key] = false;
+    });
+    if (std::string e = checkKeys(root, "", known); !e.empty()) return Error{"config '" + path + "': " + e};
+    std::string error;
+    const YAML::Node& croot = root;
+    visitFields(options, [&](const std::string& section, const std::string& key, auto& field, const char*) {
+      if (!error.empty()) return;
+      const YAML::Node sub = section.empty() ? croot : croot[section];
+      if (!sub.IsDefined() || !sub.IsMap()) return;  // no such section (checked above)
+      const YAML::Node node = sub[key];
+      if (!node.IsDefined() || node.IsNull()) return;
+      try {
+        field = node.as<std::decay_t<decltype(field)>>();
+      } catch (const YAML::Exception&) {
+        error = "config '" + path + "': " + lineOf(node) + ": field '" + (section.empty() ? key : section + "." + key) +
+                "' has the wrong type";
       }
-    } else if (!known.count(name)) {
-      return Error{"config '" + path + "': line " + std::to_string(top.first.Mark().line + 1) +
-                   ": unknown field '" + name + "'"};
-    }
+    });
+    if (!error.empty()) return Error{error};
+    if (Status s = options.validate(); !s) return Error{"config '" + path + "': " + s.error()};
+    return options;
+  } catch (const std::exception& e) {  // yaml-cpp on input it does not expect: still a bad file, never a crash
+    return Error{"config '" + path + "': " + e.what()};
   }
-  if (Status s = options.validate(); !s) return Error{"config '" + path + "': " + s.error()};
-  return options;
 }
 
 std::string toYaml(const SlamOptions& options) {
   SlamOptions copy = options;
   YAML::Node root;
-  visitFields(copy, [&](const std::string& section, const std::string& key, auto& field) {
+  visitFields(copy, [&](const std::string& section, const std::string& key, auto& field, const char*) {
     if (section.empty())
       root[key] = field;
     else
@@ -322,6 +261,17 @@ std::string toYaml(const SlamOptions& options) {
   out.SetDoublePrecision(10);
   out << root;
   return std::string(out.c_str()) + "\n";
+}
+
+std::string optionsReference() {
+  SlamOptions defaults;
+  std::ostringstream out;
+  out << "| key | default | meaning |\n|---|---|---|\n";
+  visitFields(defaults, [&](const std::string& section, const std::string& key, auto& field, const char* meaning) {
+    out << "| `" << (section.empty() ? key : section + "." + key) << "` | `" << yamlText(field) << "` | " << meaning
+        << " |\n";
+  });
+  return out.str();
 }
 
 }  // namespace stillpoint::slam

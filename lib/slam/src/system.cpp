@@ -13,6 +13,7 @@
 #include "frame.hpp"
 #include "local_mapping.hpp"
 #include "map.hpp"
+#include "segmentation_latency.hpp"
 #include "semantic_worker.hpp"
 #include "stillpoint/core/log.hpp"
 #include "stillpoint/semantic/segmenter.hpp"
@@ -94,38 +95,11 @@ struct SlamSystem::Impl {
   log::RateLimiter no_colour_warning{std::chrono::seconds(10)};
   bool finished = false;
 
-  // Sequential mode with semantic.sequential_latency_frames: the keyframe
-  // being segmented (its result applied at frame seg_due) and those waiting.
-  std::optional<SemanticJob> seg_running;
-  std::int64_t seg_due = 0;
-  std::deque<SemanticJob> seg_waiting;
-  int seg_dropped = 0;
-
-  // Applies the modelled segmentation once frame_id reaches its due frame and
-  // starts the next waiting keyframe's then.
-  void advanceSegmentation(std::int64_t frame_id) {
-    while (seg_running && frame_id >= seg_due) {
-      mapper.postSemantic(semantic->process(*seg_running));
-      mapper.applySemanticResults();
-      seg_running.reset();
-      if (!seg_waiting.empty()) {
-        seg_running = std::move(seg_waiting.front());
-        seg_waiting.pop_front();
-        seg_due += options.semantic.sequential_latency_frames;
-      }
-    }
-  }
-  void submitDelayed(SemanticJob job, std::int64_t frame_id) {
-    if (!seg_running) {
-      seg_running = std::move(job);
-      seg_due = frame_id + options.semantic.sequential_latency_frames;
-      return;
-    }
-    while (static_cast<int>(seg_waiting.size()) >= options.semantic.queue_capacity) {
-      seg_waiting.pop_front();
-      ++seg_dropped;
-    }
-    seg_waiting.push_back(std::move(job));
+  // Sequential mode with semantic.sequential_latency_frames (evaluation).
+  ModelledSegmentationLatency latency{options.semantic.sequential_latency_frames, options.semantic.queue_capacity};
+  void applySegmentation(const SemanticJob& job) {
+    mapper.postSemantic(semantic->process(job));
+    mapper.applySemanticResults();
   }
 };
 
@@ -238,7 +212,7 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
   if (clusters_pending && s.options.geometry.photo_release_ncc > 0) frame.gray = input.gray.clone();
   const auto t1 = std::chrono::steady_clock::now();
 
-  if (s.seg_running) s.advanceSegmentation(frame.id);
+  if (s.latency.busy()) s.latency.advance(frame.id, [&s](const SemanticJob& job) { s.applySegmentation(job); });
   TrackOutput out;
   const bool idle = s.options.sequential || s.mapper.idle();
   KeyFrame* kf = s.tracker.track(std::move(frame), idle, clusters_pending, &out);
@@ -259,7 +233,7 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
       SemanticJob job{kf->id, inline_now ? input.bgr : input.bgr.clone(),
                       inline_now ? input.depth_m : input.depth_m.clone(), t2};
       if (delayed) {
-        s.submitDelayed(std::move(job), kf->frame.id);
+        s.latency.submit(std::move(job), kf->frame.id);
       } else if (inline_now) {
         s.mapper.postSemantic(s.semantic->process(job));  // applied at the start of process(kf)
       } else {
@@ -282,14 +256,8 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
 
 void SlamSystem::finish(bool discard_pending_segmentation) {
   Impl& s = *impl_;
-  if (s.seg_running) {  // modelled latency: what is under way or waiting is segmented now (or dropped)
-    if (discard_pending_segmentation) {
-      s.seg_dropped += 1 + static_cast<int>(s.seg_waiting.size());
-      s.seg_running.reset();
-      s.seg_waiting.clear();
-    }
-    while (s.seg_running) s.advanceSegmentation(s.seg_due);
-  }
+  // Modelled latency: what is under way or waiting is segmented now (or dropped).
+  s.latency.finish(discard_pending_segmentation, [&s](const SemanticJob& job) { s.applySegmentation(job); });
   if (impl_->semantic) impl_->semantic->finish(discard_pending_segmentation);  // segments what is queued
   impl_->mapper.finish();                          // then applies it
   impl_->finished = true;
@@ -338,7 +306,7 @@ MapStats SlamSystem::mapStats() const {
     const SemanticStats& st = impl_->mapper.semanticStats();
     stats.semantic_keyframes_segmented = st.segmented;
     stats.semantic_keyframes_no_colour = impl_->semantic_no_colour.load();
-    stats.semantic_keyframes_dropped = impl_->semantic->dropped() + impl_->seg_dropped;
+    stats.semantic_keyframes_dropped = impl_->semantic->dropped() + impl_->latency.dropped();
     stats.semantic_failures = st.failures;
     stats.semantic_features_removed = st.features_removed;
     stats.semantic_points_removed = st.points_removed;

@@ -866,7 +866,7 @@ TEST(SlamSystemGeometry, FreeSpaceSplitKeepsTheBoardAndItsDisagreeingFeatures) {
   EXPECT_GE(score.precision(), 0.9);
 }
 
-// geometry.near_anchor_frames and geometry.lone_moving_chi2 (session 22), on
+// geometry.near_anchor_frames and geometry.lone_moving_chi2, on
 // by default, each only where it belongs: a feature judged by a nearer anchor
 // lies in a cluster with fewer than min_features matches to the frame's
 // anchor itself, and a feature flagged outside a dynamic cluster lies in a
@@ -1049,7 +1049,7 @@ TEST(SlamSystemGeometry, PhotometricReleaseFreesTheWallBehindABoard) {
 // features (geometry.lone_moving_chi2) are off in both runs, so that the
 // release is the only difference: with them on, the release-off run is
 // already near the board's truth (recall 0.948, rms 55 mm, max 116 mm), and
-// the release lowers the rms to 32 mm but not the max (126 mm; session 22).
+// the release lowers the rms to 32 mm but not the max (126 mm).
 TEST(SlamSystemGeometry, PhotometricReleaseHoldsUnderAVerdictThatFlagsTheRoom) {
   const MovingBoardSequence data = movingBoardSequence(45);
   BoardRun run[2];
@@ -1156,7 +1156,7 @@ TEST(SlamSystemGeometry, FarDepthNoiseIsNoEvidence) {
 // A board that appears in front of the wall at frame 10 (before it is hidden
 // behind the wall) and starts to move at once, eased: slower than the
 // evidence noise at first, so keyframes map it as new ground before it is
-// flagged (the poster-walk overlay's failure, lib/geometry/README.md).
+// flagged (the poster-walk overlay's failure, docs/dynamic-objects.md).
 MovingBoardSequence appearingBoardSequence(int n_frames) {
   return boardSequence(n_frames, [](int k) {
     const double t = std::clamp((k - 10) / 40.0, 0.0, 1.0);  // 0.4 m over 40 frames

@@ -4,7 +4,7 @@
 // 2-core host a new thread waits about 0.65 ms for a core (the scheduler
 // places a new thread behind the running ones), most of the ~0.8 ms it was
 // meant to overlap; a sleeping thread woken for the job got one after 0.3 ms
-// on average there (README "Session 21"). The thread is started by the
+// on average there (docs/decisions.md). The thread is started by the
 // constructor and inherits the constructing thread's placement (cores,
 // priority): SlamSystem builds its tracker on the thread that stillpointd
 // places as "mapping".

@@ -174,9 +174,7 @@ void Tracker::refreshLastFrame() {
   for (const auto& [z, i] : by_depth) {
     const bool has_point = last_.points[i] && !last_.points[i]->bad;
     if (!has_point) {
-      auto p = std::make_shared<MapPoint>(-1, last_.unprojectToWorld(i), nullptr);
-      std::copy(last_.descriptor(i), last_.descriptor(i) + 32, p->descriptor.begin());
-      last_.points[i] = std::move(p);
+      last_.points[i] = MapPoint::temporary(last_, i, false);
       last_.outlier[i] = 0;
       ++added;
     }
@@ -190,7 +188,7 @@ int Tracker::setAsideCarried() {
   int carried = 0;
   carried_.assign(current_.size(), nullptr);
   for (int i = 0; i < current_.size(); ++i) {
-    if (!current_.points[i] || !current_.points[i]->moving) continue;
+    if (!current_.points[i] || !current_.points[i]->moverEvidence()) continue;
     carried_[i] = std::move(current_.points[i]);
     current_.points[i] = nullptr;
     ++carried;
@@ -354,7 +352,7 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
     if (!p || p->bad) continue;
-    if (!p->isTemporary() && p->probation > 0)
+    if (!p->isTemporary() && p->geometry.probation > 0)
       held.push_back(i);
     else
       ++trusted;
@@ -396,8 +394,8 @@ void Tracker::updateProbation() {
   // did not influence), outside any dynamic cluster, has one frame less to go.
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
-    if (!p || p->bad || p->isTemporary() || p->probation <= 0 || current_.outlier[i] || current_.dynamic[i]) continue;
-    --p->probation;
+    if (!p || p->bad || p->isTemporary() || p->geometry.probation <= 0 || current_.outlier[i] || current_.dynamic[i]) continue;
+    --p->geometry.probation;
   }
 }
 

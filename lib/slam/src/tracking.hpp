@@ -8,7 +8,7 @@
 //   4. the keyframe decision (keyframe_policy.cpp);
 //   5. trajectory bookkeeping (trajectory.hpp).
 // Semantic masks reach the frames between keyframes before stage 1
-// (mask_propagation.cpp).
+// (semantic_masks.cpp).
 #include <memory>
 #include <optional>
 #include <vector>
@@ -71,7 +71,7 @@ class Tracker {
   // Frees the keyframes local mapping culled, after dropping our own pointers
   // to them (map lock held exclusively).
   void releaseCulledKeyFrames();
-  // Semantic masks between keyframes (mask_propagation.cpp).
+  // Semantic masks between keyframes (semantic_masks.cpp).
   void markSemanticMovers();
 
   const CameraModel& camera_;

@@ -17,7 +17,7 @@ struct DynamicClusterOptions {
   // scores near rho_cap, while mismatches (7-10 % of stage-1 matches on
   // repetitive texture) cannot lift a static cluster. Measured against a
   // Cauchy rho on three generated sequences it gives higher precision at
-  // every recall (README, geometry module).
+  // every recall (docs/dynamic-objects.md).
   double rho_cap = 7.815;  // chi-square 95 % at 3 DoF (u, v, depth)
   // Clusters with fewer matched features are not judged (stay static).
   int min_features = 4;

@@ -62,7 +62,7 @@ struct SequenceScore {
   // Per-frame values averaged over the frames where they are defined.
   double precision_mean = 0, recall_mean = 0;
   int precision_frames = 0, recall_frames = 0;
-  // Issue 4's criterion: frames with at least one mover carrying
+  // The criterion of the detection bars: frames with at least one mover carrying
   // >= min_mover_features features; recall over those movers' features,
   // precision over all flags of those frames.
   double eligible_recall_mean = 0, eligible_precision_mean = 0;

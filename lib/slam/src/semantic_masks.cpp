@@ -1,0 +1,176 @@
+// The semantic module's masks, in one place: how a segmented keyframe's
+// masks change the map (local mapping's thread, LocalMapper::applySemantic),
+// and how they follow their objects into the frames between keyframes
+// (tracking's thread, Tracker::markSemanticMovers).
+#include <algorithm>
+
+#include "local_mapping.hpp"
+#include "matcher.hpp"
+#include "stillpoint/core/log.hpp"
+#include "tracking.hpp"
+
+namespace stillpoint::slam {
+namespace {
+log::Logger logger("semantic");
+}  // namespace
+
+void LocalMapper::applySemantic(const SemanticResult& r) {
+  SemanticStats& st = semantic_stats_;
+  st.segment_ms.add(r.segment_ms);
+  if (!r.ok) {
+    ++st.failures;
+    SP_WARN(logger, "keyframe " << r.keyframe_id << ": segmentation failed: " << r.error);
+    return;
+  }
+  KeyFrame* kf = map_->keyFrame(r.keyframe_id);
+  // Culled meanwhile (freed, or bad and about to be): nothing to apply. A bad
+  // keyframe must not be touched: updateConnections() would link it back into
+  // its neighbours, which then hold it after it is freed.
+  if (!kf || kf->bad || kf->segmented) return;
+  Frame& f = kf->frame;
+  const int n_regions = static_cast<int>(r.regions.size());
+
+  // Per region: its features, how many carry a live map point, and what the
+  // geometry module said about them in this keyframe (before we touch `dynamic`).
+  std::vector<std::vector<int>> members(n_regions);
+  std::vector<int> with_point(n_regions, 0), flagged(n_regions, 0), judged(n_regions, 0);
+  std::vector<int> region_of(f.size(), 0);
+  int points_before = 0;
+  for (int i = 0; i < f.size(); ++i) {
+    const bool live = f.points[i] && !f.points[i]->bad;
+    points_before += live;
+    const cv::Point2f& px = f.keys[i].pt;
+    const int x = std::clamp(cvRound(px.x), 0, r.labels.cols - 1), y = std::clamp(cvRound(px.y), 0, r.labels.rows - 1);
+    const int label = r.labels.at<std::uint8_t>(y, x);
+    if (label == 0 || label > n_regions) continue;
+    const int k = label - 1;
+    region_of[i] = label;
+    members[k].push_back(i);
+    with_point[k] += live;
+    flagged[k] += f.dynamic[i] != 0;
+    judged[k] += f.cluster[i] >= 0;
+  }
+  const SemanticOptions& o = options_.semantic;
+  std::vector<char> confirmed(n_regions, 0);
+  std::vector<int> order(n_regions);
+  for (int k = 0; k < n_regions; ++k) {
+    order[k] = n_regions - 1 - k;  // regions come in ascending score
+    confirmed[k] = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
+  }
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return confirmed[a] > confirmed[b]; });
+
+  // Semantic evidence alone may remove at most this many of the keyframe's points.
+  const double budget = o.max_removed_fraction * points_before;
+  int unconfirmed_removed = 0;
+  std::vector<char> applied(n_regions + 1, 0);
+  for (int k : order) {
+    if (semantic_confirm_ && !confirmed[k]) {
+      ++st.instances_unconfirmed;
+      continue;
+    }
+    if (!confirmed[k]) {
+      if (unconfirmed_removed + with_point[k] > budget) {
+        ++st.instances_capped;
+        SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' would remove "
+                                     << with_point[k] << " of " << points_before << " points: left alone");
+        continue;
+      }
+      unconfirmed_removed += with_point[k];
+    }
+    applied[k + 1] = 1;
+    ++st.instances_applied;
+    if (r.regions[k].continued) ++st.instances_continued;
+  }
+
+  int features_removed = 0, points_removed = 0, points_culled = 0;
+  for (int i = 0; i < f.size(); ++i) {
+    const std::shared_ptr<MapPoint> p = f.points[i] && !f.points[i]->bad ? f.points[i] : nullptr;
+    if (!applied[region_of[i]]) {
+      if (p) ++p->semantic.checks;
+      continue;
+    }
+    f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
+    ++features_removed;
+    if (!p) continue;
+    if (p->first_keyframe_id == kf->id) {
+      map_->erasePoint(p);  // made from a movable object by this keyframe
+      ++points_removed;
+      continue;
+    }
+    ++p->semantic.checks;
+    ++p->semantic.hits;
+    const bool was_reference = p->reference == kf;
+    kf->eraseObservation(i);
+    if (p->semantic.hits > o.point_masked_ratio * p->semantic.checks || p->observations.empty()) {
+      map_->erasePoint(p);
+      ++points_culled;
+    } else if (was_reference) {
+      p->reference = p->observations.begin()->first;
+    }
+  }
+  if (features_removed > 0) kf->updateConnections();
+  kf->segmented = true;
+  ++st.segmented;
+  st.features_removed += features_removed;
+  st.points_removed += points_removed;
+  st.points_culled += points_culled;
+  st.latency_ms.add(
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - r.created).count());
+  SP_DEBUG(logger, "keyframe " << kf->id << ": " << n_regions << " movable regions, " << features_removed
+                               << " features dropped, " << points_removed << " points removed, " << points_culled
+                               << " culled");
+}
+
+
+void Tracker::markSemanticMovers() {
+  // The newest segmented keyframe near the camera: features inside its
+  // movable masks are looked up in this frame by descriptor alone (the
+  // object may have moved anywhere since) and kept out of the pose, so a
+  // masked object does not pull the pose between keyframes.
+  const KeyFrame* source = nullptr;
+  const auto consider = [&](const KeyFrame* kf) {
+    if (kf && !kf->bad && kf->segmented && (!source || kf->id > source->id)) source = kf;
+  };
+  consider(reference_);
+  for (const KeyFrame* kf : local_keyframes_) consider(kf);
+  if (!source) return;
+  const auto has_flags = [](const Frame& other) {
+    return std::find(other.dynamic.begin(), other.dynamic.end(), kSemanticDynamic) != other.dynamic.end();
+  };
+  // Most keyframes mask nothing: skip the brute-force pass then.
+  if (!has_flags(source->frame)) return;
+  const Frame& f = source->frame;
+  // Mutual nearest neighbours over all the keyframe's features, ratio 0.7 and
+  // rotation consistency: window-free matching on repetitive texture
+  // mismatches, and a static feature marked here is lost to the pose.
+  for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true)) {
+    if (f.dynamic[i] != kSemanticDynamic) continue;
+    current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
+  }
+  if (options_.semantic.propagate_from_last && has_last_ && has_flags(last_)) {
+    // The last frame's flagged features, looked up here: from frame to frame
+    // an object changes less than since its keyframe. (Features the geometry
+    // module flagged carry its flag instead and are not followed.)
+    int chained = 0;
+    for (const auto& [j, i] : matchByDescriptor(current_, last_, 0.7f, false, true))
+      if (last_.dynamic[i] == kSemanticDynamic && !current_.dynamic[j]) current_.dynamic[j] = kSemanticDynamic, ++chained;
+    semantic_marked_ += chained;
+    SP_DEBUG(logger, "frame " << current_.id << ": " << chained << " flagged from the last frame");
+  }
+  const float grow = options_.semantic.propagate_grow_px;
+  for (int pass = 0; grow > 0 && semantic_marked_ >= 5 && pass < options_.semantic.propagate_grow_passes; ++pass) {
+    // Region growing from the matches, then (more passes) from what it added.
+    std::vector<int> grown;
+    for (int j = 0; j < current_.size(); ++j) {
+      const float z = current_.depth[j];
+      if (current_.dynamic[j] || z <= 0) continue;
+      if (maskedNeighbours(current_, current_.un[j], z, grow) >= 2) grown.push_back(j);
+    }
+    for (int j : grown) current_.dynamic[j] = kSemanticDynamic;
+    semantic_marked_ += static_cast<int>(grown.size());
+    if (grown.empty()) break;
+  }
+  SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of keyframe " << source->id);
+}
+
+}  // namespace stillpoint::slam
