@@ -1,0 +1,57 @@
+#pragma once
+// Test doubles of the semantic module: a Segmenter that paints a known
+// rectangle, so a test knows which features a mask must take.
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "stillpoint/semantic/segmenter.hpp"
+
+namespace stillpoint::slam {
+
+// Labels one fixed rectangle as a "person" in every image.
+class RectangleSegmenter : public semantic::Segmenter {
+ public:
+  RectangleSegmenter(cv::Rect rect, bool confirm_with_geometry) : rect_(rect) {
+    card_.name = "rectangle";
+    card_.classes = {"person"};
+    card_.movable = {"person"};
+    card_.confirm_with_geometry = confirm_with_geometry;
+  }
+  Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
+    if (bgr.empty() || bgr.type() != CV_8UC3) return Error{"not a BGR image"};
+    while (gate && !*gate) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    ++*calls;
+    semantic::Segmentation seg;
+    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
+    seg.movable_mask = cv::Mat(bgr.size(), CV_8U, cv::Scalar(0));
+    const cv::Rect r = rect_ & cv::Rect(cv::Point(0, 0), bgr.size());
+    seg.labels(r).setTo(0);
+    seg.movable_mask(r).setTo(255);
+    semantic::Instance inst;
+    inst.class_id = 0;
+    inst.class_name = "person";
+    inst.score = 0.9f;
+    inst.box = r;
+    inst.mask = cv::Mat(r.size(), CV_8U, cv::Scalar(255));
+    inst.area = r.area();
+    inst.movable = true;
+    seg.instances.push_back(inst);
+    seg.movable_pixels = r.area();
+    return seg;
+  }
+  const semantic::ModelCard& card() const override { return card_; }
+  const std::vector<int>& movableClassIds() const override { return ids_; }
+  std::shared_ptr<int> calls = std::make_shared<int>(0);  // outlives the segmenter (owned by the system)
+  std::shared_ptr<std::atomic<bool>> gate;                 // when set, segment() waits until it is true
+
+ private:
+  cv::Rect rect_;
+  semantic::ModelCard card_;
+  std::vector<int> ids_{0};
+};
+
+inline const cv::Rect kRect(40, 100, 200, 280);  // x 40..239, y 100..379
+
+}  // namespace stillpoint::slam
