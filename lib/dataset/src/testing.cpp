@@ -1,3 +1,4 @@
+#include "stillpoint/core/files.hpp"
 #include "stillpoint/dataset/testing.hpp"
 
 #include <algorithm>
@@ -58,14 +59,6 @@ cv::Mat makeTexture(int width, int height, int block, cv::RNG& rng) {
              cv::INTER_NEAREST);
   cv::GaussianBlur(fine, fine, cv::Size(3, 3), 0.8);
   return fine(cv::Rect(0, 0, width, height)).clone();
-}
-
-Status writeText(const fs::path& path, const std::string& text) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out << text;
-  out.close();
-  if (!out) return Error{"cannot write " + path.string()};
-  return Status::success();
 }
 
 Status writePng(const fs::path& path, const cv::Mat& image) {
@@ -158,10 +151,10 @@ Result<SyntheticDataset> writeSyntheticTumDataset(const std::string& dir,
                   xy.x() + 0.0, xy.y() + 0.0, 0.0);
     gt_list += line;
   }
-  if (Status s = writeText(root / "rgb.txt", rgb_list); !s) return Error{s.error()};
-  if (Status s = writeText(root / "depth.txt", depth_list); !s) return Error{s.error()};
+  if (Status s = writeTextFile(root / "rgb.txt", rgb_list); !s) return Error{s.error()};
+  if (Status s = writeTextFile(root / "depth.txt", depth_list); !s) return Error{s.error()};
   if (options.write_ground_truth) {
-    if (Status s = writeText(root / "groundtruth.txt", gt_list); !s) return Error{s.error()};
+    if (Status s = writeTextFile(root / "groundtruth.txt", gt_list); !s) return Error{s.error()};
   } else {
     fs::remove(root / "groundtruth.txt", ec);  // don't leave a stale one behind
   }

@@ -66,30 +66,31 @@ cv::Mat makeInputBlob(const cv::Mat& bgr, const InputSpec& spec, const InputGeom
   return cv::Mat(4, shape, CV_32F, f.ptr<float>()).clone();
 }
 
-cv::Mat mapToImage(const cv::Mat& net_map, const InputGeometry& g) {
-  cv::Mat at_net;
-  if (net_map.size() == g.network)
-    at_net = net_map;
-  else
-    cv::resize(net_map, at_net, g.network, 0, 0, cv::INTER_LINEAR);
-  cv::Mat out;
-  cv::resize(at_net(g.content), out, g.image, 0, 0, cv::INTER_LINEAR);
-  return out;
-}
-
 namespace {
 
-// Labels in network coordinates (any resolution) -> image, nearest neighbour.
-cv::Mat labelsToImage(const cv::Mat& net_labels, const InputGeometry& g) {
+// A map in network coordinates (any resolution) -> the image: to the network
+// size, then its content rectangle to the image size.
+cv::Mat networkToImage(const cv::Mat& net, const InputGeometry& g, int interpolation) {
   cv::Mat at_net;
-  if (net_labels.size() == g.network)
-    at_net = net_labels;
+  if (net.size() == g.network)
+    at_net = net;
   else
-    cv::resize(net_labels, at_net, g.network, 0, 0, cv::INTER_NEAREST);
+    cv::resize(net, at_net, g.network, 0, 0, interpolation);
   cv::Mat out;
-  cv::resize(at_net(g.content), out, g.image, 0, 0, cv::INTER_NEAREST);
+  cv::resize(at_net(g.content), out, g.image, 0, 0, interpolation);
   return out;
 }
+
+// Labels: nearest neighbour.
+cv::Mat labelsToImage(const cv::Mat& net_labels, const InputGeometry& g) {
+  return networkToImage(net_labels, g, cv::INTER_NEAREST);
+}
+
+}  // namespace
+
+cv::Mat mapToImage(const cv::Mat& net_map, const InputGeometry& g) { return networkToImage(net_map, g, cv::INTER_LINEAR); }
+
+namespace {
 
 Error shapeError(const char* what, const cv::Mat& m, const std::string& expected) {
   return Error{std::string(what) + " has shape " + shapeString(m) + ", expected " + expected};

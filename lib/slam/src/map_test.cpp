@@ -2,6 +2,7 @@
 // expressed through them (trajectory records) still resolve and still follow
 // the keyframes that remain.
 #include "map.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
@@ -19,23 +20,11 @@ SE3 pose(double tx, double ty, double tz, double yaw) {
   return T;
 }
 
-const LevelInfo& levels() {
-  static const LevelInfo lv = [] {
-    LevelInfo l;
-    l.levels = 1;
-    l.scale_factor = 1.2;
-    l.log_scale_factor = std::log(1.2);
-    l.scales = l.sigma2 = l.inv_sigma2 = {1.0};
-    return l;
-  }();
-  return lv;
-}
-
 // A keyframe with `n` features (their image positions are never looked at here).
 std::unique_ptr<KeyFrame> keyFrame(std::int64_t id, int n, const SE3& T_c_w) {
   Frame f;
   f.id = id;
-  f.levels = &levels();
+  f.levels = &testing::oneLevel();
   f.T_c_w = T_c_w;
   f.keys.resize(n);
   f.un.resize(n);

@@ -2,6 +2,7 @@
 // (best over second-best Hamming distance in the search window), and can
 // reject ambiguous matches.
 #include "matcher.hpp"
+#include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
@@ -14,18 +15,6 @@
 
 namespace stillpoint::slam {
 namespace {
-
-const LevelInfo& oneLevel() {
-  static const LevelInfo lv = [] {
-    LevelInfo l;
-    l.levels = 1;
-    l.scale_factor = 1.2;
-    l.log_scale_factor = std::log(1.2);
-    l.scales = l.sigma2 = l.inv_sigma2 = {1.0};
-    return l;
-  }();
-  return lv;
-}
 
 const CameraModel& camera() {
   static const CameraModel c = [] {
@@ -45,7 +34,7 @@ const CameraModel& camera() {
 Frame frameWith(const std::vector<cv::Point2f>& pixels, const std::vector<int>& ones) {
   Frame f;
   f.camera = &camera();
-  f.levels = &oneLevel();
+  f.levels = &testing::oneLevel();
   for (const cv::Point2f& p : pixels) f.keys.emplace_back(p, 7.0f, 0.0f, 0.0f, 0);
   f.un = pixels;
   f.depth.assign(pixels.size(), -1.0f);

@@ -1,3 +1,4 @@
+#include "stillpoint/core/files.hpp"
 #include "stillpoint/synth/generator.hpp"
 
 #include <algorithm>
@@ -77,14 +78,6 @@ Status writePng(const fs::path& path, const cv::Mat& image, int compression) {
     return Error{"cannot write " + path.string() + ": " + e.what()};
   }
   return Error{"cannot write " + path.string()};
-}
-
-Status writeText(const fs::path& path, const std::string& text) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out << text;
-  out.close();
-  if (!out) return Error{"cannot write " + path.string()};
-  return Status::success();
 }
 
 Status makeDirs(const fs::path& root) {
@@ -229,7 +222,7 @@ Status writeMoversYaml(const fs::path& path, const std::string& mode, const std:
     e << YAML::EndMap;
   }
   e << YAML::EndSeq << YAML::EndMap;
-  return writeText(path, std::string(e.c_str()) + "\n");
+  return writeTextFile(path, std::string(e.c_str()) + "\n");
 }
 
 }  // namespace
@@ -425,10 +418,10 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
   report.skipped_no_pose = static_cast<int>(first + (n - kept.size())) - skipped_bad.load();
   summarise(kept, config, camera.width, camera.height, &report);
   if (options.write_images) {
-    if (Status s = writeText(root / "rgb.txt", rgb_list); !s) return Error{s.error()};
-    if (Status s = writeText(root / "depth.txt", depth_list); !s) return Error{s.error()};
-    if (Status s = writeText(root / "mask.txt", mask_list); !s) return Error{s.error()};
-    if (Status s = writeText(root / "movers.txt", speed_list); !s) return Error{s.error()};
+    if (Status s = writeTextFile(root / "rgb.txt", rgb_list); !s) return Error{s.error()};
+    if (Status s = writeTextFile(root / "depth.txt", depth_list); !s) return Error{s.error()};
+    if (Status s = writeTextFile(root / "mask.txt", mask_list); !s) return Error{s.error()};
+    if (Status s = writeTextFile(root / "movers.txt", speed_list); !s) return Error{s.error()};
     std::error_code ec;
     fs::copy_file(data->groundTruthPath(), root / "groundtruth.txt", fs::copy_options::overwrite_existing, ec);
     if (ec) return Error{"cannot copy " + data->groundTruthPath() + ": " + ec.message()};
@@ -513,7 +506,7 @@ Result<GenerationReport> generateRoom(const std::string& output_dir, const Synth
     for (const auto& [name, text] : {std::pair<const char*, const std::string*>{"rgb.txt", &rgb},
                                      {"depth.txt", &dep}, {"mask.txt", &msk}, {"groundtruth.txt", &gt},
                                      {"movers.txt", &speeds}}) {
-      if (Status s = writeText(root / name, *text); !s) return Error{s.error()};
+      if (Status s = writeTextFile(root / name, *text); !s) return Error{s.error()};
     }
     report.wall_s = std::chrono::duration<double>(Clock::now() - wall_start).count();
     const std::string source = std::string("room/") + toString(ro.motion);
