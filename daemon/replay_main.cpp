@@ -198,6 +198,7 @@ int main(int argc, char** argv) {
   if (args.sequential) options.sequential = true;
   // The keyframe file lists every keyframe made, culled ones included.
   if (!args.keyframes_out.empty()) options.mapping.keep_culled_keyframes = true;
+  options.geometry.report_features = !args.features_out.empty();
   if (!args.modules.empty()) {
     options.geometry.enabled = args.geometry;
     options.semantic.enabled = args.semantic;

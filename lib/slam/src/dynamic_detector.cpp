@@ -440,6 +440,7 @@ void DynamicDetector::report(FrameJudgement& j) {
   out.threshold = verdict.threshold;
   out.dynamic_clusters = verdict.dynamic_clusters;
   const auto add = [&](int i, double chi2, JudgedFeature::Evidence kind, bool set_aside) {
+    if (!options_.report_features) return;
     const FeatureEvidence& e = j.ev[i];
     const bool by_anchor = kind == JudgedFeature::Evidence::kAnchor;
     const int distance =
@@ -465,7 +466,8 @@ void DynamicDetector::report(FrameJudgement& j) {
     if (!p || p->bad || p->isTemporary()) continue;
     learn(p, dropped(j, i, verdict));
   }
-  for (const ExplainedEvidence& x : j.explained) add(x.feature, x.chi2, x.kind, true);
+  if (options_.report_features)
+    for (const ExplainedEvidence& x : j.explained) add(x.feature, x.chi2, x.kind, true);
   for (const auto& [i, p] : j.ambiguous_points) {
     const int c = frame.cluster[i];
     if (c < 0 || p->bad) continue;

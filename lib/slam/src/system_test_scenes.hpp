@@ -180,6 +180,7 @@ inline Sequence roomSequence(int n_frames) {
 inline SlamOptions sequentialOptions() {
   SlamOptions o;
   o.sequential = true;
+  o.geometry.report_features = true;  // the tests score the judged features
   return o;
 }
 

@@ -148,6 +148,9 @@ struct GeometryOptions {
   // other matches remain: a mover mapped unflagged cannot drag the pose (0: off).
   int probation_frames = 3;
   int probation_min_trusted = 30;
+  // Diagnostics, built only when asked for: every judged feature with its
+  // evidence in GeometryOutput::judged (stillpoint-replay --features-out, tests).
+  bool report_features = false;
   Status validate() const;
 };
 
