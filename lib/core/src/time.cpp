@@ -33,8 +33,8 @@ std::optional<Timestamp> Timestamp::parseSeconds(std::string_view text) {
     if (!std::isdigit(static_cast<unsigned char>(c))) return std::nullopt;
     any_digit = true;
     if (!seen_dot) {
-      if (whole > 9'000'000'000LL) return std::nullopt;  // would overflow ns
-      whole = whole * 10 + (c - '0');
+      whole = whole * 10 + (c - '0');  // at most 10 x kMaxSeconds + 9 before the check: no overflow
+      if (whole > static_cast<std::int64_t>(kMaxSeconds)) return std::nullopt;
     } else if (frac_digits < 9) {
       frac = frac * 10 + (c - '0');
       ++frac_digits;

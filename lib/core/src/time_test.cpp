@@ -19,6 +19,22 @@ TEST(Timestamp, RejectsMalformed) {
   EXPECT_FALSE(Timestamp::parseSeconds(".").has_value());
 }
 
+// Stamps beyond kMaxSeconds would overflow int64 nanoseconds (they used to
+// wrap around: 9341841873 s came back as a negative stamp).
+TEST(Timestamp, RejectsStampsBeyondTheRange) {
+  const auto last = Timestamp::parseSeconds("9000000000.999999999");
+  ASSERT_TRUE(last.has_value());
+  EXPECT_EQ(last->nanoseconds(), 9'000'000'000'999'999'999LL);
+  EXPECT_FALSE(Timestamp::parseSeconds("9000000001").has_value());
+  EXPECT_FALSE(Timestamp::parseSeconds("9341841873.273798").has_value());
+  EXPECT_FALSE(Timestamp::parseSeconds("9999999999.0").has_value());
+  EXPECT_FALSE(Timestamp::parseSeconds("-9341841873.2").has_value());
+  EXPECT_FALSE(Timestamp::parseSeconds("99999999999999999999999999").has_value());
+  const auto negative = Timestamp::parseSeconds("-9000000000");
+  ASSERT_TRUE(negative.has_value());
+  EXPECT_LT(negative->nanoseconds(), 0);
+}
+
 TEST(Timestamp, OrdersAndSubtracts) {
   const auto a = Timestamp::fromNanoseconds(1'000'000'000);
   const auto b = Timestamp::fromSeconds(1.5);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstdint>
 #include <exception>
 #include <filesystem>
@@ -77,7 +78,14 @@ Result<std::vector<ListEntry>> readList(const fs::path& path) {
                    " field(s) in " + quoted(view)};
     }
     const auto stamp = Timestamp::parseSeconds(fields[0]);
-    if (!stamp) return Error{where + "bad timestamp " + quoted(fields[0])};
+    if (!stamp) {
+      const std::string text(fields[0]);
+      char* end = nullptr;
+      const double value = std::strtod(text.c_str(), &end);
+      if (end && *end == '\0' && std::isfinite(value) && std::abs(value) > Timestamp::kMaxSeconds)
+        return Error{where + "timestamp " + quoted(fields[0]) + " is out of range (at most 9e9 s)"};
+      return Error{where + "bad timestamp " + quoted(fields[0])};
+    }
     if (!entries.empty() && *stamp <= entries.back().stamp) {
       return Error{where + "timestamp " + std::string(fields[0]) +
                    " is not after the previous one (" + entries.back().stamp.toSecondsString() +

@@ -286,6 +286,8 @@ TEST_F(TumDatasetTest, MalformedLinesNameFileAndLine) {
   expectOpenFails("rgb.txt:1:", "bad timestamp '1e9'");
   writeFile(dir_ / "rgb.txt", std::string("1.0\0 rgb/x.png\n", 15));
   expectOpenFails("rgb.txt:1:", "bad timestamp");
+  writeFile(dir_ / "rgb.txt", "9999999999.0 rgb/x.png\n");
+  expectOpenFails("rgb.txt:1:", "timestamp '9999999999.0' is out of range");
 
   // Tabs, CRLF line ends, blank lines and comments are fine.
   writeFile(dir_ / "rgb.txt",

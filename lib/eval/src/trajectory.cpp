@@ -47,7 +47,7 @@ bool parseFiniteDouble(std::string_view text, double* out) {
 std::optional<Timestamp> parseStamp(std::string_view text) {
   if (auto exact = Timestamp::parseSeconds(text)) return exact;
   double seconds = 0.0;
-  if (parseFiniteDouble(text, &seconds) && std::abs(seconds) < 9e9) {
+  if (parseFiniteDouble(text, &seconds) && std::abs(seconds) <= Timestamp::kMaxSeconds) {
     return Timestamp::fromSeconds(seconds);
   }
   return std::nullopt;
@@ -92,6 +92,11 @@ Result<Trajectory> readTumTrajectory(const std::string& path) {
                              std::string(fields[k + 1]) + "'");
       }
     }
+    // Positions beyond 1000 km are corrupt (their squares overflow the errors).
+    for (std::size_t k = 0; k < 3; ++k)
+      if (std::abs(v[k]) > 1e6)
+        return lineError(path, line_number, "position field " + std::to_string(k + 2) + " is out of range: '" +
+                                                std::string(fields[k + 1]) + "' (at most 1e6 m)");
     // Eigen's constructor order is (w, x, y, z); the file order is x y z w.
     Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
     const double norm = q.norm();

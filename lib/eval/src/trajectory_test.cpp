@@ -61,6 +61,14 @@ TEST_F(TrajectoryIoTest, ReadsCommentsBlankLinesAndExactStamps) {
   EXPECT_TRUE((*trajectory)[1].T_w_c.linear().isApprox(yaw90, 1e-6));
 }
 
+// A stamp that would overflow, and a position whose square would (the ATE
+// came out as inf with exit 0).
+TEST_F(TrajectoryIoTest, OutOfRangeStampsAndPositionsAreErrors) {
+  expectLineError("9341841873.2 0 0 0 0 0 0 1\n", 1, "bad timestamp");
+  expectLineError("1.0 0 0 0 0 0 0 1\n2.0 1e300 0 0 0 0 0 1\n", 2, "position field 2 is out of range");
+  expectLineError("1.0 0 0 -2e6 0 0 0 1\n", 1, "position field 4 is out of range");
+}
+
 TEST_F(TrajectoryIoTest, NormalisesNearlyUnitQuaternion) {
   const std::string path = writeFile("t.txt", "1.0 0 0 0 0 0 0 1.005\n");
   const auto trajectory = readTumTrajectory(path);

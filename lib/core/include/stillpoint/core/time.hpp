@@ -14,8 +14,12 @@ class Timestamp {
   constexpr Timestamp() = default;
   static constexpr Timestamp fromNanoseconds(std::int64_t ns) { return Timestamp(ns); }
   static Timestamp fromSeconds(double s);
+  // Stamps are at most this many seconds from the epoch either way (year
+  // 2255): in nanoseconds they stay far inside int64.
+  static constexpr double kMaxSeconds = 9e9;
   // Parses a decimal seconds string ("1341841873.273798") without going through
-  // double, so TUM timestamps survive exactly. Returns nullopt when malformed.
+  // double, so TUM timestamps survive exactly. Returns nullopt when malformed
+  // or beyond kMaxSeconds.
   static std::optional<Timestamp> parseSeconds(std::string_view text);
 
   constexpr std::int64_t nanoseconds() const { return ns_; }
