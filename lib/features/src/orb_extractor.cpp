@@ -109,6 +109,19 @@ Status OrbOptions::validate() const {
   return Status::success();
 }
 
+Status OrbOptions::validateFor(int width, int height) const {
+  // The extractor's border (OrbExtractor::kEdgeThreshold) on both sides, and
+  // a little room for corners between them.
+  constexpr int kMinLevelSize = 2 * OrbExtractor::kEdgeThreshold + 2;
+  const double top = std::pow(scale_factor, num_levels - 1);
+  const int w = cvRound(width / top), h = cvRound(height / top);
+  if (w >= kMinLevelSize && h >= kMinLevelSize) return Status::success();
+  return Error{"orb.num_levels " + std::to_string(num_levels) + " with orb.scale_factor " + std::to_string(scale_factor) +
+               " shrinks a " + std::to_string(width) + "x" + std::to_string(height) + " image to " + std::to_string(w) +
+               "x" + std::to_string(h) + " at the top pyramid level; it needs at least " + std::to_string(kMinLevelSize) +
+               "x" + std::to_string(kMinLevelSize) + ": use fewer levels or a smaller scale factor"};
+}
+
 OrbExtractor::OrbExtractor(const OrbOptions& options) : options_(options) {
   const int levels = options_.num_levels;
   scales_.resize(levels);

@@ -26,6 +26,20 @@ cv::Mat texturedImage(int width, int height, unsigned seed) {
   return image;
 }
 
+TEST(OrbOptions, PyramidMustFitTheImage) {
+  OrbOptions o;  // 8 levels of 1.2: 640x480 -> 179x134 at the top
+  EXPECT_TRUE(o.validateFor(640, 480).ok());
+  EXPECT_FALSE(o.validateFor(100, 100).ok());
+  EXPECT_FALSE(o.validateFor(1, 480).ok());
+  o.num_levels = 11;
+  o.scale_factor = 2.0;  // each in range, together 1024x smaller
+  const Status s = o.validateFor(640, 480);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().find("orb.num_levels 11"), std::string::npos) << s.error();
+  o.num_levels = 4;  // 80x60 at the top
+  EXPECT_TRUE(o.validateFor(640, 480).ok());
+}
+
 TEST(OrbExtractor, FillsTheBudgetSpreadOverImageAndLevels) {
   OrbOptions options;
   OrbExtractor orb(options);

@@ -151,6 +151,7 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
                                                        const SlamThreadHooks& hooks) {
   if (Status s = camera.validate(); !s) return Error{s.error()};
   if (Status s = options.validate(); !s) return Error{s.error()};
+  if (Status s = options.orb.validateFor(camera.width, camera.height); !s) return Error{s.error()};
   if (segmenter && !options.semantic.enabled) return Error{"a segmenter was given but semantic.enabled is false"};
   if (!segmenter && options.semantic.enabled) return Error{"semantic.enabled is set but no segmenter was given"};
   auto system = std::unique_ptr<SlamSystem>(new SlamSystem(std::make_unique<Impl>(camera, options)));
@@ -173,6 +174,16 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
 }
 
 Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
+  // Bad input is checked up front; what a library call still throws on
+  // input it did not foresee becomes an error, never a crash.
+  try {
+    return trackChecked(input);
+  } catch (const std::exception& e) {
+    return Error{std::string("tracking failed: ") + e.what()};
+  }
+}
+
+Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   Impl& s = *impl_;
   if (s.finished) return Error{"track() called after finish()"};
   const cv::Size expected(s.camera.width, s.camera.height);

@@ -36,6 +36,25 @@ TEST(SlamSystemCreate, RejectsInvalidOptionsNamingTheField) {
   EXPECT_TRUE(SlamSystem::create(RoomScene::camera(), sequentialOptions()).ok());
 }
 
+// Options that are each in range but leave no image at the top of the
+// pyramid (OpenCV aborted on the first frame): an error at create(), naming
+// the fields.
+TEST(SlamSystemCreate, RejectsAPyramidTooDeepForTheImage) {
+  SlamOptions options = sequentialOptions();
+  options.orb.num_levels = 11;
+  options.orb.scale_factor = 2.0;
+  const auto deep = SlamSystem::create(RoomScene::camera(), options);
+  ASSERT_FALSE(deep.ok());
+  EXPECT_TRUE(contains(deep.error(), "orb.num_levels"));
+  EXPECT_TRUE(contains(deep.error(), "orb.scale_factor"));
+  CameraModel narrow = RoomScene::camera();
+  narrow.width = 1;
+  narrow.cx = 0.5;
+  const auto thin = SlamSystem::create(narrow, sequentialOptions());
+  ASSERT_FALSE(thin.ok());
+  EXPECT_TRUE(contains(thin.error(), "1x"));
+}
+
 // --- input validation and state -------------------------------------------
 
 // The room seen from a few poses along a short path (rendered once).

@@ -19,6 +19,10 @@ struct OrbOptions {
   int cell_size = 32;           // grid cell edge (pixels at each level)
 
   Status validate() const;
+  // Whether images of this size fit the pyramid: its smallest level must
+  // keep room for keypoints inside the border (num_levels and scale_factor
+  // are named in the error).
+  Status validateFor(int width, int height) const;
 };
 
 class OrbExtractor {

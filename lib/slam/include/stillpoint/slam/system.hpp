@@ -221,6 +221,7 @@ class SlamSystem {
   std::vector<KeyFrameView> keyframes() const;
 
  private:
+  Result<TrackOutput> trackChecked(const RgbdInput& input);
   struct Impl;
   explicit SlamSystem(std::unique_ptr<Impl> impl);
   std::unique_ptr<Impl> impl_;
