@@ -50,10 +50,22 @@ class Section {
     if (error_->empty()) *error_ = "line " + std::to_string(at.Mark().line + 1) + ": field '" + field(key) + "' " + what;
   }
   // Call after every read: names the first key nobody asked for.
+  // Keys that are not plain names and keys given twice are errors too
+  // (yaml-cpp would keep the first silently).
   void checkUnknown() {
     if (!error_->empty() || !node_.IsMap()) return;
+    std::set<std::string> seen;
     for (const auto& kv : node_) {
-      const std::string key = kv.first.as<std::string>();
+      const std::string line = "line " + std::to_string(kv.first.Mark().line + 1);
+      if (!kv.first.IsScalar()) {
+        *error_ = line + ": keys must be plain names";
+        return;
+      }
+      const std::string key = kv.first.Scalar();
+      if (!seen.insert(key).second) {
+        *error_ = line + ": duplicate field '" + field(key) + "'";
+        return;
+      }
       if (!known_.count(key)) {
         *error_ = "line " + std::to_string(kv.first.Mark().line + 1) + ": unknown field '" + field(key) + "'";
         return;

@@ -107,6 +107,8 @@ TEST_F(ConfigTest, ErrorsNameTheField) {
   const std::string src = "source: {replay: {path: /d}}\n";
   expectError(src + "bogus: 1\n", {"unknown field 'bogus'", "line 2"});
   expectError("source:\n  replay: {path: /d}\n  typo: 3\n", {"unknown field 'source.typo'", "line 3"});
+  expectError(src + "camera: fr1\ncamera: fr3\n", {"duplicate field 'camera'", "line 3"});
+  expectError(src + "? [a, b]\n: 1\n", {"plain names", "line 2"});
   expectError("source: {replay: {path: /d, paced: maybe}}\n", {"'source.replay.paced'", "wrong type"});
   expectError("source: {type: kinect, replay: {path: /d}}\n", {"'source.type'", "kinect"});
   expectError("source: {queue_capacity: 0, replay: {path: /d}}\n", {"'source.queue_capacity'"});

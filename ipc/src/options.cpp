@@ -46,10 +46,22 @@ struct Reader {
     }
   }
   // Unknown keys are errors: a typo must not silently fall back to a default.
+  // So are keys that are not plain names, and keys given twice (yaml-cpp
+  // would keep the first silently).
   void checkUnknown() {
     if (!error.empty()) return;
+    std::set<std::string> seen;
     for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
+      const std::string line = "line " + std::to_string(kv.first.Mark().line + 1);
+      if (!kv.first.IsScalar()) {
+        error = line + ": keys of '" + prefix + "' must be plain names";
+        return;
+      }
+      const std::string key = kv.first.Scalar();
+      if (!seen.insert(key).second) {
+        error = line + ": duplicate field '" + prefix + key + "'";
+        return;
+      }
       if (!known.count(key)) {
         error = "line " + std::to_string(kv.first.Mark().line + 1) + ": unknown field '" + prefix + key + "'";
         return;

@@ -51,6 +51,9 @@ TEST(IpcOptions, ErrorsNameTheField) {
       {"queue_capacity: 0", "ipc.queue_capacity"},
       {"bogus: 1", "ipc.bogus"},
       {"lcm: {pose_channel: X, status_channel: X}", "ipc.lcm.pose_channel"},
+      {"shm: {name: a, name: b}", "duplicate field 'ipc.shm.name'"},
+      {"? [a, b]\n: 1", "plain names"},
+      {"shm: {? [a, b] : 1}", "'ipc.shm.' must be plain names"},
   };
   for (const auto& c : cases) {
     auto o = parseIpcOptions(YAML::Load(c.yaml));

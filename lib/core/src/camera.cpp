@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <set>
 
 namespace stillpoint {
 
@@ -91,6 +92,18 @@ Result<CameraModel> loadCameraYaml(const std::string& path) {
     return Error{"camera file '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
   }
   if (!root.IsMap()) return Error{"camera file '" + path + "': expected a mapping at the top level"};
+  // Unknown keys are typos ("depth_factr: 1000" would keep 5000), keys given
+  // twice would keep the first silently: both are errors.
+  static const std::set<std::string> kKnown = {"width",        "height",   "fx",        "fy",        "cx",   "cy",
+                                               "depth_factor", "baseline", "max_depth", "min_depth", "name", "distortion"};
+  std::set<std::string> seen;
+  for (const auto& kv : root) {
+    const std::string line = "camera file '" + path + "': line " + std::to_string(kv.first.Mark().line + 1);
+    if (!kv.first.IsScalar()) return Error{line + ": keys must be plain names"};
+    const std::string& key = kv.first.Scalar();
+    if (!seen.insert(key).second) return Error{line + ": duplicate field '" + key + "'"};
+    if (!kKnown.count(key)) return Error{line + ": unknown field '" + key + "'"};
+  }
   CameraModel c;
   c.name = std::filesystem::path(path).stem().string();
   auto read = [&](const char* key, auto* out, bool required) -> Status {

@@ -73,6 +73,22 @@ TEST_F(CameraYaml, NamesMissingField) {
   EXPECT_NE(r.error().find("'fy'"), std::string::npos) << r.error();
 }
 
+// "depth_factr: 1000" used to keep the default 5000 silently.
+TEST_F(CameraYaml, UnknownDuplicateAndOddKeysAreErrors) {
+  const std::string base = "width: 640\nheight: 480\nfx: 500\nfy: 500\ncx: 320\ncy: 240\n";
+  auto r = loadCameraYaml(write(base + "depth_factr: 1000\n"));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("unknown field 'depth_factr'"), std::string::npos) << r.error();
+  EXPECT_NE(r.error().find("line 7"), std::string::npos) << r.error();
+  r = loadCameraYaml(write(base + "fx: 600\n"));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("duplicate field 'fx'"), std::string::npos) << r.error();
+  r = loadCameraYaml(write(base + "? [a, b]\n: 1\n"));
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("plain names"), std::string::npos) << r.error();
+  EXPECT_TRUE(loadCameraYaml(write(base + "depth_factor: 1000\n")).ok());
+}
+
 TEST_F(CameraYaml, NamesBadValueAndLine) {
   const auto r = loadCameraYaml(write("width: 640\nheight: 480\nfx: banana\nfy: 1\ncx: 1\ncy: 1\n"));
   ASSERT_FALSE(r.ok());
