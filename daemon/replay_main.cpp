@@ -266,7 +266,8 @@ int main(int argc, char** argv) {
   std::size_t semantic_followed = 0;  // features matched to the last segmented keyframe's masks
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
   const auto start = std::chrono::steady_clock::now();
-  Timestamp first_stamp;
+  auto pace_start = start;
+  Timestamp first_stamp, last_stamp;
   for (std::size_t i = 0; i < n; ++i) {
     auto frame = data->load(i);
     if (!frame) {
@@ -276,9 +277,18 @@ int main(int argc, char** argv) {
     }
     if (frames == 0) first_stamp = frame->stamp;
     if (args.paced) {
-      const auto due = start + std::chrono::nanoseconds(frame->stamp.nanoseconds() - first_stamp.nanoseconds());
+      // A gap over a second in the stamps (a paused recording, a corrupt
+      // stamp) is not slept through: pacing starts again from this frame.
+      if (frames > 0 && secondsBetween(frame->stamp, last_stamp) > 1.0) {
+        std::fprintf(stderr, "stillpoint-replay: a gap of %.1f s before frame %zu is not waited for\n",
+                     secondsBetween(frame->stamp, last_stamp), i);
+        pace_start = std::chrono::steady_clock::now();
+        first_stamp = frame->stamp;
+      }
+      const auto due = pace_start + std::chrono::nanoseconds(frame->stamp.nanoseconds() - first_stamp.nanoseconds());
       std::this_thread::sleep_until(due);
     }
+    last_stamp = frame->stamp;
     cv::Mat movers;
     if (args.known_movers) {
       // Every frame needs its mask: one missing would silently let its movers into the map.

@@ -2,7 +2,12 @@
 
 #include <thread>
 
+#include "stillpoint/core/log.hpp"
+
 namespace stillpoint::platform {
+namespace {
+log::Logger logger("replay");
+}  // namespace
 
 const char* toString(SourceEvent event) {
   switch (event) {
@@ -51,9 +56,10 @@ SourceResult ReplaySource::next(CameraFrame& frame, std::chrono::milliseconds ti
   if (options_.max_frames > 0 && delivered_ >= options_.max_frames) return {SourceEvent::kEnd, ""};
   if (index_ >= data_->size()) {
     if (!options_.loop) return {SourceEvent::kEnd, ""};
-    // Keep stamps increasing across the wrap: one nominal frame period after the last one.
-    auto first = data_->load(0), last = data_->load(data_->size() - 1);
-    const std::int64_t span = (first && last) ? last->stamp.nanoseconds() - first->stamp.nanoseconds() : 0;
+    // Keep stamps increasing across the wrap: one nominal frame period after
+    // the last one. The span comes from the list, so an unreadable first or
+    // last frame does not shrink it (each lap's stamps would jump back).
+    const std::int64_t span = data_->stamp(data_->size() - 1).nanoseconds() - data_->stamp(0).nanoseconds();
     loop_offset_ns_ += span + 33'333'333;
     index_ = 0;
   }
@@ -63,7 +69,10 @@ SourceResult ReplaySource::next(CameraFrame& frame, std::chrono::milliseconds ti
   const std::size_t i = index_++;
   if (!loaded) return {SourceEvent::kBadFrame, "frame " + std::to_string(i) + ": " + loaded.error()};
   const std::int64_t stamp_ns = loaded->stamp.nanoseconds() + loop_offset_ns_;
-  if (!started_) {
+  if (!started_ || (options_.paced && stamp_ns - last_stamp_ns_ > kMaxPacedGapNs)) {
+    if (started_)
+      SP_WARN(logger, "replay " << options_.path << ": a gap of " << (stamp_ns - last_stamp_ns_) / 1e9
+                                << " s in the stamps before frame " << i << " is not waited for");
     started_ = true;
     first_stamp_ns_ = stamp_ns;
     start_ = std::chrono::steady_clock::now();
@@ -79,6 +88,7 @@ SourceResult ReplaySource::next(CameraFrame& frame, std::chrono::milliseconds ti
     }
     std::this_thread::sleep_until(due);
   }
+  last_stamp_ns_ = stamp_ns;
   frame.stamp = Timestamp::fromNanoseconds(stamp_ns);
   frame.gray = std::move(loaded->gray);
   frame.depth_m = std::move(loaded->depth_m);

@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
 
 #include "stillpoint/dataset/testing.hpp"
 
@@ -89,6 +92,49 @@ TEST_F(ReplaySourceTest, MaxFramesAndLoopKeepStampsIncreasing) {
     previous = frame.stamp;
   }
   EXPECT_EQ(source.next(frame, 100ms).event, SourceEvent::kEnd);
+}
+
+// An unreadable first or last frame: each lap still starts one frame period
+// after the last stamp of the list (the lap's stamps used to jump back).
+TEST_F(ReplaySourceTest, LoopKeepsStampsIncreasingPastUnreadableEnds) {
+  std::ofstream(dir_ / "rgb" / (data_.colour_stamps.front().toSecondsString() + ".png")) << "not a png";
+  std::ofstream(dir_ / "rgb" / (data_.colour_stamps.back().toSecondsString() + ".png")) << "not a png";
+  ReplaySource source = make(false, true, 12);
+  ASSERT_TRUE(source.open());
+  CameraFrame frame;
+  std::vector<Timestamp> stamps;
+  for (int calls = 0; calls < 40 && stamps.size() < 12; ++calls) {
+    const SourceResult r = source.next(frame, 100ms);
+    if (r.event == SourceEvent::kBadFrame) continue;
+    ASSERT_EQ(r.event, SourceEvent::kFrame) << r.message;
+    stamps.push_back(frame.stamp);
+  }
+  ASSERT_EQ(stamps.size(), 12u);
+  for (std::size_t k = 1; k < stamps.size(); ++k) EXPECT_GT(stamps[k], stamps[k - 1]) << "frame " << k;
+}
+
+// A gap of 1e6 s in the stamps (11.6 days) is not slept through.
+TEST_F(ReplaySourceTest, PacedDoesNotSleepThroughAStampGap) {
+  for (const char* list : {"rgb.txt", "depth.txt"}) {
+    std::ifstream in(dir_ / list);
+    std::string text, line;
+    int frame = 0;
+    while (std::getline(in, line)) {
+      if (!line.empty() && line[0] != '#' && frame++ >= 3) {
+        const auto space = line.find(' ');
+        line = std::to_string(std::stod(line.substr(0, space)) + 1e6) + line.substr(space);
+      }
+      text += line + "\n";
+    }
+    std::ofstream(dir_ / list) << text;
+  }
+  ReplaySource source = make(true);
+  ASSERT_TRUE(source.open());
+  CameraFrame frame;
+  int delivered = 0;
+  for (int calls = 0; calls < 60 && delivered < 6; ++calls)
+    delivered += source.next(frame, 100ms).event == SourceEvent::kFrame;
+  EXPECT_EQ(delivered, 6) << "paced replay waited for the gap";
 }
 
 TEST_F(ReplaySourceTest, PacedTimesOutBeforeTheNextFrameIsDue) {

@@ -33,6 +33,11 @@ class ReplaySource final : public RgbdSource {
   bool live() const override { return options_.as_live; }
   std::string describe() const override;
 
+  // A gap in the stamps longer than this is not slept through when paced
+  // (a paused recording, a corrupt stamp): pacing starts again at the frame
+  // after it, with a warning.
+  static constexpr std::int64_t kMaxPacedGapNs = 1'000'000'000;
+
  private:
   ReplaySourceOptions options_;
   CameraModel camera_;
@@ -43,6 +48,7 @@ class ReplaySource final : public RgbdSource {
   std::int64_t first_stamp_ns_ = 0;
   bool started_ = false;
   std::chrono::steady_clock::time_point start_;
+  std::int64_t last_stamp_ns_ = 0;  // the last frame delivered
 };
 
 }  // namespace stillpoint::platform

@@ -54,6 +54,9 @@ class TumDataset {
 
   // Number of associated colour/depth pairs.
   std::size_t size() const { return pairs_.size(); }
+  // The colour stamp of pair i (i < size()), from the list: known even when
+  // its images cannot be read.
+  Timestamp stamp(std::size_t i) const { return pairs_.at(i).colour_stamp; }
 
   // Loads pair i. A bad frame gives an Error naming the file and the cause
   // (missing, unreadable/corrupt PNG, wrong size, wrong pixel type, depth all
