@@ -7,6 +7,7 @@
 #include <exception>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <string_view>
 #include <system_error>
 #include <utility>
@@ -151,6 +152,39 @@ Result<cv::Mat> readExisting(const std::string& what, const std::string& path, i
   return image;
 }
 
+// A PNG's size, read from its header (IHDR) before anything is decoded: a
+// small file can decode to gigabytes (1.1 MB -> 20000x20000 RGB). False when
+// the file is no PNG or too short; the decoder then has its say.
+bool pngSize(const std::string& path, std::uint32_t* width, std::uint32_t* height) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char h[24];
+  if (!in.read(reinterpret_cast<char*>(h), sizeof(h))) return false;
+  static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (!std::equal(kSignature, kSignature + 8, h) || !std::equal(h + 12, h + 16, "IHDR")) return false;
+  const auto be32 = [&](int at) {
+    return std::uint32_t(h[at]) << 24 | std::uint32_t(h[at + 1]) << 16 | std::uint32_t(h[at + 2]) << 8 | h[at + 3];
+  };
+  *width = be32(16);
+  *height = be32(20);
+  return true;
+}
+
+// Images no camera of ours produces: refused before decoding.
+constexpr std::uint64_t kMaxPixels = 8192ull * 8192ull;
+
+// The PNG header's size against the expected one (<= 0: any) and the limit.
+std::optional<std::string> headerSizeError(const std::string& what, const std::string& path, int want_w,
+                                           int want_h) {
+  std::uint32_t w = 0, h = 0;
+  if (!pngSize(path, &w, &h)) return std::nullopt;
+  const std::string size = std::to_string(w) + "x" + std::to_string(h);
+  if (std::uint64_t(w) * h > kMaxPixels) return what + " " + path + " is " + size + ": larger than any camera's (not decoded)";
+  if ((want_w > 0 && w != std::uint32_t(want_w)) || (want_h > 0 && h != std::uint32_t(want_h)))
+    return what + " " + path + " is " + size + "; expected " + (want_w > 0 ? std::to_string(want_w) : "any") + "x" +
+           (want_h > 0 ? std::to_string(want_h) : "any");
+  return std::nullopt;
+}
+
 Result<cv::Mat> loadColour(const std::string& path) {
   auto raw = readExisting("colour image", path, cv::IMREAD_UNCHANGED);
   if (!raw) return raw;
@@ -284,13 +318,17 @@ Result<RgbdFrame> TumDataset::load(std::size_t i, SkipReason* reason) const {
   // cvtColor/convertTo only throw on allocation failure here; still never let
   // an exception cross the library boundary.
   try {
+    const int want_w = options_.expected_width;
+    const int want_h = options_.expected_height;
+    if (auto e = headerSizeError("colour image", pair.rgb_path, want_w, want_h))
+      return fail(SkipReason::kWrongSize, *e, reason);
+    if (auto e = headerSizeError("depth image", pair.depth_path, want_w, want_h))
+      return fail(SkipReason::kWrongSize, *e, reason);
     auto bgr = loadColour(pair.rgb_path);
     if (!bgr) return fail(SkipReason::kUnreadableColour, bgr.error(), reason);
     auto raw_depth = loadRawDepth(pair.depth_path);
     if (!raw_depth) return fail(SkipReason::kUnreadableDepth, raw_depth.error(), reason);
 
-    const int want_w = options_.expected_width;
-    const int want_h = options_.expected_height;
     if ((want_w > 0 && bgr->cols != want_w) || (want_h > 0 && bgr->rows != want_h)) {
       return fail(SkipReason::kWrongSize,
                   "colour image " + pair.rgb_path + " is " + sizeText(*bgr) + "; expected " +

@@ -233,6 +233,22 @@ TEST_F(TumDatasetTest, WrongSizeIsRejected) {
   expectLastFrameLoads();
 }
 
+// A PNG whose header promises 20000x20000 pixels (such a file can be 1 MB
+// and decode to 1.2 GB) is refused from its header, before decoding.
+TEST_F(TumDatasetTest, OversizedPngsAreRefusedFromTheirHeader) {
+  std::string bomb("\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR\0\0\x4e\x20\0\0\x4e\x20\x08\x02\0\0\0", 29);
+  bomb += std::string(64, '\0');  // no image data: decoding it would fail with another message
+  writeFile(rgbFile(0), bomb);
+  expectLoadFails(0, rgbFile(0), "is 20000x20000: larger than any camera's", SkipReason::kWrongSize);
+  // Within the limit but not the camera's size: refused from the header too.
+  std::string wrong = bomb;
+  wrong.replace(16, 8, std::string("\0\0\x02\xbc\0\0\x01\xf4", 8));  // 700x500
+  writeFile(depthFile(1), wrong);
+  expectLoadFails(1, depthFile(1), "is 700x500; expected 40x30", SkipReason::kWrongSize,
+                  {.expected_width = kWidth, .expected_height = kHeight});
+  expectLastFrameLoads();
+}
+
 TEST_F(TumDatasetTest, EightBitDepthIsRejected) {
   writePng(depthFile(0), cv::Mat(kHeight, kWidth, CV_8UC1, cv::Scalar(100)));
   expectLoadFails(0, depthFile(0), "expected 16-bit single channel", SkipReason::kUnreadableDepth);
