@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <map>
@@ -203,6 +204,17 @@ int main(int argc, char** argv) {
     options.geometry.enabled = args.geometry;
     options.semantic.enabled = args.semantic;
   }
+  // Every output is opened (created) before the run: an unwritable path is
+  // an error now, not after the whole sequence.
+  for (const std::string* path : {&args.output, &args.keyframe_trajectory, &args.keyframes_out}) {
+    if (path->empty()) continue;
+    std::FILE* f = std::fopen(path->c_str(), "a");
+    if (!f) {
+      std::fprintf(stderr, "stillpoint-replay: cannot write %s: %s\n", path->c_str(), std::strerror(errno));
+      return 1;
+    }
+    std::fclose(f);
+  }
   std::FILE* features_out = nullptr;
   if (!args.features_out.empty()) {
     features_out = std::fopen(args.features_out.c_str(), "w");
@@ -339,7 +351,11 @@ int main(int argc, char** argv) {
     }
   }
   (*system)->finish();
-  if (features_out) std::fclose(features_out);
+  // A full disk (or /dev/full) shows when the buffered writes are flushed.
+  if (features_out && (std::ferror(features_out) | std::fclose(features_out))) {
+    std::fprintf(stderr, "stillpoint-replay: writing %s failed: %s\n", args.features_out.c_str(), std::strerror(errno));
+    return 1;
+  }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   eval::Trajectory trajectory;
@@ -369,7 +385,10 @@ int main(int argc, char** argv) {
       for (const slam::KeyFrameFeature& f : kf.features)
         std::fprintf(kf_out, "%s %.2f %.2f %d\n", kf.stamp.toSecondsString().c_str(), f.u, f.v, f.mapped ? 0 : 1);
     }
-    std::fclose(kf_out);
+    if (std::ferror(kf_out) | std::fclose(kf_out)) {
+      std::fprintf(stderr, "stillpoint-replay: writing %s failed: %s\n", args.keyframes_out.c_str(), std::strerror(errno));
+      return 1;
+    }
   }
   const Stats ex = stats(extract_ms), tr = stats(track_ms);
   std::printf("sequence:     %s (%zu associated frames, %zu colour frames without depth)\n", args.dataset.c_str(),

@@ -212,6 +212,19 @@ TEST_F(ReplayCli, ConfigOutOfRangeValueIsNamed) {
   EXPECT_TRUE(contains(r.err, "mapping.ba_max_keyframes"));
 }
 
+// A full disk for the features file is an error (it used to exit 0), and an
+// unwritable trajectory path is one before the run, not after it.
+TEST_F(ReplayCli, OutputsThatCannotBeWrittenAreErrors) {
+  const RunResult full = replaySequence({"--features-out", "/dev/full"});
+  EXPECT_EQ(full.exit_code, 1) << describe(full);
+  EXPECT_TRUE(contains(full.err, "/dev/full"));
+  const std::string nowhere = (scratch_ / "no_such_dir" / "traj.txt").string();
+  const RunResult r = replay({seq_.directory, "--camera", camera_, "--output", nowhere, "--sequential"});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, nowhere));
+  EXPECT_FALSE(contains(r.out, "frames=")) << "the sequence ran first";
+}
+
 TEST_F(ReplayCli, ConfigSyntaxErrorNamesLine) {
   const std::string config = writeScratch("syntax.yaml", "orb:\n  num_features: 500\n  num_levels: [8\n");
   const RunResult r = replaySequence({"--config", config});

@@ -10,6 +10,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "stillpoint/core/yaml_error.hpp"
 #include "stillpoint/core/log.hpp"
 
 namespace stillpoint::daemon {
@@ -337,7 +338,7 @@ Result<DaemonConfig> loadDaemonConfig(const std::string& path) {
   } catch (const YAML::BadFile&) {
     return Error{path + ": cannot be opened"};
   } catch (const YAML::Exception& e) {
-    return Error{path + ": line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+    return Error{path + ": " + yamlErrorText(e)};
   }
   if (!root.IsMap()) return Error{path + ": expected a mapping at the top level"};
   DaemonConfig config;
@@ -345,7 +346,7 @@ Result<DaemonConfig> loadDaemonConfig(const std::string& path) {
   try {
     if (Status s = parse(root, &config, &error); !s) return Error{path + ": " + s.error()};
   } catch (const YAML::Exception& e) {
-    return Error{path + ": line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+    return Error{path + ": " + yamlErrorText(e)};
   }
   return config;
 }

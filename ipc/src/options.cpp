@@ -5,6 +5,8 @@
 #include <functional>
 #include <set>
 
+#include "stillpoint/core/yaml_error.hpp"
+
 namespace stillpoint::ipc {
 
 Status IpcOptions::validate() const {
@@ -122,7 +124,7 @@ Result<IpcOptions> loadIpcOptions(const std::string& path) {
   } catch (const YAML::BadFile&) {
     return Error{"config '" + path + "': cannot be opened"};
   } catch (const YAML::Exception& e) {
-    return Error{"config '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+    return Error{"config '" + path + "': " + yamlErrorText(e)};
   }
   if (root.IsNull()) return IpcOptions{};
   if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};

@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <set>
 
+#include "stillpoint/core/yaml_error.hpp"
+
 namespace stillpoint {
 
 bool CameraModel::hasDistortion() const {
@@ -89,7 +91,7 @@ Result<CameraModel> loadCameraYaml(const std::string& path) {
   } catch (const YAML::BadFile&) {
     return Error{"camera file '" + path + "': cannot be opened"};
   } catch (const YAML::Exception& e) {
-    return Error{"camera file '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+    return Error{"camera file '" + path + "': " + yamlErrorText(e)};
   }
   if (!root.IsMap()) return Error{"camera file '" + path + "': expected a mapping at the top level"};
   // Unknown keys are typos ("depth_factr: 1000" would keep 5000), keys given

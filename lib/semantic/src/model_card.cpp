@@ -6,6 +6,8 @@
 #include <cmath>
 #include <set>
 
+#include "stillpoint/core/yaml_error.hpp"
+
 namespace stillpoint::semantic {
 namespace {
 
@@ -163,7 +165,7 @@ Result<ModelCard> loadModelCard(const std::filesystem::path& path) {
   } catch (const YAML::BadFile&) {
     return Error{"model card '" + file + "': cannot be opened"};
   } catch (const YAML::Exception& e) {
-    return Error{"model card '" + file + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+    return Error{"model card '" + file + "': " + yamlErrorText(e)};
   }
   if (!root.IsMap()) return Error{"model card '" + file + "': expected a mapping at the top level"};
   CardReader r(file);

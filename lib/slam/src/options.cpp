@@ -7,6 +7,8 @@
 #include <map>
 #include <sstream>
 
+#include "stillpoint/core/yaml_error.hpp"
+
 namespace stillpoint::slam {
 
 Status TrackingOptions::validate() const {
@@ -214,7 +216,7 @@ Result<SlamOptions> loadSlamOptions(const std::string& path) {
     } catch (const YAML::BadFile&) {
       return Error{"config '" + path + "': cannot be opened"};
     } catch (const YAML::Exception& e) {
-      return Error{"config '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+      return Error{"config '" + path + "': " + yamlErrorText(e)};
     }
     SlamOptions options;
     if (root.IsNull()) return options;

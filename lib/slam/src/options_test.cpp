@@ -333,6 +333,10 @@ TEST_F(OptionsFileTest, OddShapesAreErrorsNotCrashes) {
     ASSERT_FALSE(loaded.ok());
     EXPECT_TRUE(contains(loaded.error(), "slam.yaml"));
   }
+  // yaml-cpp calls nesting beyond its limit "bad file".
+  const auto deep = loadSlamOptions(write("orb: " + std::string(600, '[') + std::string(600, ']') + "\n"));
+  ASSERT_FALSE(deep.ok());
+  EXPECT_TRUE(contains(deep.error(), "nested too deeply")) << deep.error();
 }
 
 // The shipped config/slam.yaml holds every key at its default, and

@@ -8,6 +8,8 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "stillpoint/core/yaml_error.hpp"
+
 namespace stillpoint::synth {
 namespace {
 
@@ -230,7 +232,7 @@ Result<SynthConfig> loadSynthConfig(const std::string& path) {
   try {
     root = YAML::LoadFile(path);
   } catch (const YAML::ParserException& e) {
-    return Error{"config '" + path + "': line " + std::to_string(e.mark.line + 1) + ": " + e.msg};
+    return Error{"config '" + path + "': " + yamlErrorText(e)};
   } catch (const std::exception& e) {
     return Error{"config '" + path + "': " + e.what()};
   }
