@@ -339,6 +339,8 @@ Result<DaemonConfig> loadDaemonConfig(const std::string& path) {
     return Error{path + ": cannot be opened"};
   } catch (const YAML::Exception& e) {
     return Error{path + ": " + yamlErrorText(e)};
+  } catch (const std::exception& e) {  // a directory, an I/O error while reading
+    return Error{path + ": " + e.what()};
   }
   if (!root.IsMap()) return Error{path + ": expected a mapping at the top level"};
   DaemonConfig config;

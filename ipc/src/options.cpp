@@ -125,6 +125,8 @@ Result<IpcOptions> loadIpcOptions(const std::string& path) {
     return Error{"config '" + path + "': cannot be opened"};
   } catch (const YAML::Exception& e) {
     return Error{"config '" + path + "': " + yamlErrorText(e)};
+  } catch (const std::exception& e) {  // a directory, an I/O error while reading
+    return Error{"config '" + path + "': " + e.what()};
   }
   if (root.IsNull()) return IpcOptions{};
   if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};

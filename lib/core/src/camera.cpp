@@ -92,6 +92,8 @@ Result<CameraModel> loadCameraYaml(const std::string& path) {
     return Error{"camera file '" + path + "': cannot be opened"};
   } catch (const YAML::Exception& e) {
     return Error{"camera file '" + path + "': " + yamlErrorText(e)};
+  } catch (const std::exception& e) {  // a directory, an I/O error while reading
+    return Error{"camera file '" + path + "': " + e.what()};
   }
   if (!root.IsMap()) return Error{"camera file '" + path + "': expected a mapping at the top level"};
   // Unknown keys are typos ("depth_factr: 1000" would keep 5000), keys given

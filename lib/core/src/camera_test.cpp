@@ -89,6 +89,14 @@ TEST_F(CameraYaml, UnknownDuplicateAndOddKeysAreErrors) {
   EXPECT_TRUE(loadCameraYaml(write(base + "depth_factor: 1000\n")).ok());
 }
 
+// A directory opens as a file on Linux and throws while it is read; found
+// by the parser fuzzer (test/fuzz_parsers.cpp).
+TEST_F(CameraYaml, ADirectoryIsAnErrorNotAnException) {
+  const auto r = loadCameraYaml(std::filesystem::temp_directory_path().string());
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find(std::filesystem::temp_directory_path().string()), std::string::npos) << r.error();
+}
+
 TEST_F(CameraYaml, NamesBadValueAndLine) {
   const auto r = loadCameraYaml(write("width: 640\nheight: 480\nfx: banana\nfy: 1\ncx: 1\ncy: 1\n"));
   ASSERT_FALSE(r.ok());

@@ -166,6 +166,8 @@ Result<ModelCard> loadModelCard(const std::filesystem::path& path) {
     return Error{"model card '" + file + "': cannot be opened"};
   } catch (const YAML::Exception& e) {
     return Error{"model card '" + file + "': " + yamlErrorText(e)};
+  } catch (const std::exception& e) {  // a directory, an I/O error while reading
+    return Error{"model card '" + file + "': " + e.what()};
   }
   if (!root.IsMap()) return Error{"model card '" + file + "': expected a mapping at the top level"};
   CardReader r(file);

@@ -217,6 +217,8 @@ Result<SlamOptions> loadSlamOptions(const std::string& path) {
       return Error{"config '" + path + "': cannot be opened"};
     } catch (const YAML::Exception& e) {
       return Error{"config '" + path + "': " + yamlErrorText(e)};
+    } catch (const std::exception& e) {  // a directory, an I/O error while reading
+      return Error{"config '" + path + "': " + e.what()};
     }
     SlamOptions options;
     if (root.IsNull()) return options;
