@@ -6,6 +6,7 @@
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/un.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -296,6 +297,15 @@ TEST_F(DaemonProcess, SecondSignalForcesExit) {
   EXPECT_EQ(daemon.waitExit(5s), 130) << daemon.err();
   EXPECT_NE(daemon.err().find("second signal"), std::string::npos) << daemon.err();
   EXPECT_FALSE(fs::exists(d / "status.txt"));  // forced: nothing flushed
+}
+
+TEST_F(DaemonProcess, FifoAtTheRingPathFailsStartUpNamingIt) {
+  const auto d = dir("fifo");
+  const std::string r = ring("fifo");
+  ASSERT_EQ(mkfifo(("/dev/shm/" + r).c_str(), 0666), 0);
+  Daemon daemon(d, config(g_fast_seq, d, r, true, true));
+  EXPECT_EQ(daemon.waitExit(60s), 1) << "blocked opening the FIFO? " << daemon.err();
+  EXPECT_NE(daemon.err().find("/dev/shm/" + r + " is a FIFO"), std::string::npos) << daemon.err();
 }
 
 TEST_F(DaemonProcess, SignalDuringStartUpExitsAtOnce) {

@@ -33,6 +33,14 @@
  * `generation` one higher. Readers notice the new file (different inode) while polling
  * and reattach to it; sp_shm_reader_next() then returns SP_SHM_RESTARTED once.
  *
+ * Files: anyone can create files in /dev/shm, so the ring is opened without following a
+ * symbolic link and without blocking on a FIFO, and must be a regular file owned by the
+ * expected user (r.owner_uid: this process's effective uid unless set after
+ * sp_shm_reader_init(); name the writer's user when it runs as another one). Anything
+ * else at the ring's path is refused (SP_SHM_ERR_NOT_REGULAR, SP_SHM_ERR_OWNER) with
+ * r.found_mode and r.found_uid saying what was there. The writer applies the same rules
+ * to its files.
+ *
  * In strict C99 mode (-std=c99) POSIX declarations need _POSIX_C_SOURCE; this header
  * defines it when nothing else has, so include it first or define it yourself.
  */
@@ -51,12 +59,17 @@
 #include <string.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
+#include <sys/types.h>
 #include <unistd.h>
 
 #ifdef O_CLOEXEC
 #define SP_SHM_O_CLOEXEC O_CLOEXEC
 #else /* a system header came first without _POSIX_C_SOURCE >= 200809L */
 #define SP_SHM_O_CLOEXEC 0
+#endif
+
+#ifndef O_NOFOLLOW /* no silent fallback: following a planted link is what it prevents */
+#error "stillpoint_shm.h needs O_NOFOLLOW: include it first, or define _POSIX_C_SOURCE >= 200809L"
 #endif
 
 #if !defined(__GNUC__) && !defined(__clang__)
@@ -139,7 +152,9 @@ enum {
   SP_SHM_ERR_NOT_A_RING = -4,   /* wrong magic, or file too small */
   SP_SHM_ERR_VERSION = -5,      /* schema version this reader does not know */
   SP_SHM_ERR_LAYOUT = -6,       /* header/record/slot size or capacity inconsistent */
-  SP_SHM_ERR_NOT_OPEN = -7      /* reader not attached */
+  SP_SHM_ERR_NOT_OPEN = -7,     /* reader not attached */
+  SP_SHM_ERR_NOT_REGULAR = -8,  /* a FIFO, symbolic link, directory, device or socket is at the ring's path */
+  SP_SHM_ERR_OWNER = -9         /* the file belongs to another user than r.owner_uid */
 };
 
 enum { SP_SHM_START_LATEST = 0, SP_SHM_START_OLDEST = 1 };
@@ -156,6 +171,9 @@ typedef struct sp_shm_reader {
   uint64_t restarts;       /* writer restarts seen */
   uint64_t dev, ino;       /* identity of the attached file */
   uint32_t empty_polls;
+  uint32_t owner_uid;      /* user that must own the ring; sp_shm_reader_init(): the effective uid */
+  uint32_t found_mode;     /* st_mode of the file refused with SP_SHM_ERR_NOT_REGULAR or _OWNER */
+  uint32_t found_uid;      /* its owner */
 } sp_shm_reader;
 
 static inline const char* sp_shm_strerror(int code) {
@@ -170,6 +188,8 @@ static inline const char* sp_shm_strerror(int code) {
     case SP_SHM_ERR_VERSION: return "pose ring has a schema version this reader does not support";
     case SP_SHM_ERR_LAYOUT: return "pose ring header is inconsistent (record size, slot size or capacity)";
     case SP_SHM_ERR_NOT_OPEN: return "reader is not attached to a ring";
+    case SP_SHM_ERR_NOT_REGULAR: return "the ring's path is not a regular file (FIFO, symbolic link, directory, ...); refused";
+    case SP_SHM_ERR_OWNER: return "the ring file belongs to another user than the expected writer; refused";
     default: return "unknown error";
   }
 }
@@ -200,6 +220,57 @@ static inline const sp_shm_slot* sp_shm_reader_slot(const sp_shm_reader* r, uint
                                             (size_t)(n & (uint64_t)(h->capacity - 1u)) * SP_SHM_SLOT_SIZE);
 }
 
+/* What an st_mode is, in words, for error messages. */
+static inline const char* sp_shm_file_kind(uint32_t found_mode) {
+  const mode_t mode = (mode_t)found_mode;
+  if (S_ISREG(mode)) return "regular file";
+  if (S_ISFIFO(mode)) return "FIFO";
+  if (S_ISLNK(mode)) return "symbolic link";
+  if (S_ISDIR(mode)) return "directory";
+  if (S_ISCHR(mode)) return "character device";
+  if (S_ISBLK(mode)) return "block device";
+  if (S_ISSOCK(mode)) return "socket";
+  return "file of unknown type";
+}
+
+/* Opens `path` (flags: O_RDONLY, or O_RDWR with O_CREAT) without following a symbolic
+ * link and without blocking on a FIFO, and keeps it only if it is a regular file owned
+ * by `owner_uid`: anyone can create a FIFO in /dev/shm, on which a plain open() blocks
+ * forever, or plant a file for us to read. Returns the descriptor, or
+ * SP_SHM_ERR_NO_RING (nothing there), SP_SHM_ERR_NOT_REGULAR / SP_SHM_ERR_OWNER with
+ * *st describing what is there, or SP_SHM_ERR_OPEN (errno says why). Shared with the
+ * writer so both apply the same rules. */
+static inline int sp_shm_open_file(const char* path, int flags, unsigned mode, uint32_t owner_uid, struct stat* st) {
+  int fd, err;
+  memset(st, 0, sizeof(*st));
+  fd = open(path, flags | O_NOFOLLOW | O_NONBLOCK | SP_SHM_O_CLOEXEC, mode);
+  if (fd < 0) {
+    err = errno;
+    if (err == ENOENT) return SP_SHM_ERR_NO_RING;
+    /* Say what is there when it is not a regular file (ELOOP: a symbolic link,
+     * EISDIR: a directory opened for writing, EACCES: a device on a nodev mount). */
+    if (lstat(path, st) == 0 && !S_ISREG(st->st_mode)) return SP_SHM_ERR_NOT_REGULAR;
+    memset(st, 0, sizeof(*st));
+    errno = err;
+    return SP_SHM_ERR_OPEN;
+  }
+  if (fstat(fd, st) != 0) {
+    err = errno;
+    close(fd);
+    errno = err;
+    return SP_SHM_ERR_OPEN;
+  }
+  if (!S_ISREG(st->st_mode)) {
+    close(fd);
+    return SP_SHM_ERR_NOT_REGULAR;
+  }
+  if ((uint32_t)st->st_uid != owner_uid) {
+    close(fd);
+    return SP_SHM_ERR_OWNER;
+  }
+  return fd;
+}
+
 /* Checks a mapped header. Kept separate so the writer uses the same rules. */
 static inline int sp_shm_check_header(const sp_shm_header* h, size_t file_size) {
   if (file_size < SP_SHM_HEADER_SIZE) return SP_SHM_ERR_NOT_A_RING;
@@ -216,6 +287,7 @@ static inline int sp_shm_check_header(const sp_shm_header* h, size_t file_size) 
 static inline void sp_shm_reader_init(sp_shm_reader* r) {
   memset(r, 0, sizeof(*r));
   r->fd = -1;
+  r->owner_uid = (uint32_t)geteuid();
 }
 
 static inline void sp_shm_reader_detach(sp_shm_reader* r) {
@@ -233,12 +305,14 @@ static inline int sp_shm_reader_attach(sp_shm_reader* r) {
   int rc;
   const sp_shm_header* h;
   uint64_t newest, capacity;
-  r->fd = open(r->path, O_RDONLY | SP_SHM_O_CLOEXEC);
-  if (r->fd < 0) return errno == ENOENT ? SP_SHM_ERR_NO_RING : SP_SHM_ERR_OPEN;
-  if (fstat(r->fd, &st) != 0) {
-    sp_shm_reader_detach(r);
-    return SP_SHM_ERR_OPEN;
+  r->found_mode = r->found_uid = 0;
+  rc = sp_shm_open_file(r->path, O_RDONLY, 0, r->owner_uid, &st);
+  if (rc < 0) {
+    r->found_mode = (uint32_t)st.st_mode;
+    r->found_uid = (uint32_t)st.st_uid;
+    return rc;
   }
+  r->fd = rc;
   if ((size_t)st.st_size < SP_SHM_HEADER_SIZE) {
     sp_shm_reader_detach(r);
     return SP_SHM_ERR_NOT_A_RING;
@@ -298,7 +372,7 @@ static inline int sp_shm_reader_check_restart(sp_shm_reader* r) {
     rc = sp_shm_reader_attach(r);
     return rc == SP_SHM_OK ? SP_SHM_EMPTY : rc;
   }
-  if (stat(r->path, &st) != 0) return SP_SHM_OK;
+  if (lstat(r->path, &st) != 0) return SP_SHM_OK;
   if ((uint64_t)st.st_ino == r->ino && (uint64_t)st.st_dev == r->dev) return SP_SHM_OK;
   sp_shm_reader_detach(r);
   r->start_mode = SP_SHM_START_OLDEST; /* a new stream: deliver it from its start */

@@ -1,5 +1,7 @@
 // Shared-memory transport: poses go into the ring; status is not carried (the ring
 // holds pose records only; status travels over LCM or DDS).
+#include <cerrno>
+#include <cstring>
 #include <thread>
 
 #include "stillpoint/ipc/shm_writer.hpp"
@@ -58,14 +60,16 @@ class ShmSubscriber final : public Subscriber {
  public:
   ShmSubscriber(std::string name, ShmSubscriberOptions options) : name_(std::move(name)), options_(options) {
     sp_shm_reader_init(&reader_);
+    if (options_.owner_uid >= 0) reader_.owner_uid = static_cast<std::uint32_t>(options_.owner_uid);
   }
   ~ShmSubscriber() override { sp_shm_reader_close(&reader_); }
 
   Status open() {
     const int rc = sp_shm_reader_open(&reader_, name_.c_str(),
                                       options_.from_oldest ? SP_SHM_START_OLDEST : SP_SHM_START_LATEST);
+    const int err = errno;
     if (rc == SP_SHM_OK || (rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring)) return Status::success();
-    return Error{"shm: ring '" + name_ + "': " + sp_shm_strerror(rc)};
+    return Error{describe(rc, err)};
   }
 
   Result<int> poll(std::chrono::milliseconds timeout) override {
@@ -74,6 +78,7 @@ class ShmSubscriber final : public Subscriber {
     sp_pose_record record;
     for (;;) {
       const int rc = sp_shm_reader_next(&reader_, &record);
+      const int err = errno;
       if (rc == SP_SHM_OK) {
         auto pose = fromRecord(record);
         if (!pose) return Error{pose.error()};
@@ -85,8 +90,7 @@ class ShmSubscriber final : public Subscriber {
         if (restart_handler_) restart_handler_();
         continue;
       }
-      if (rc < 0 && !(rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring))
-        return Error{"shm: ring '" + name_ + "': " + sp_shm_strerror(rc)};
+      if (rc < 0 && !(rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring)) return Error{describe(rc, err)};
       if (handled > 0 || std::chrono::steady_clock::now() >= deadline) return handled;
       if (!options_.busy_poll) std::this_thread::sleep_for(std::chrono::microseconds(50));
     }
@@ -95,6 +99,19 @@ class ShmSubscriber final : public Subscriber {
   std::uint64_t lost() const override { return reader_.lost; }
 
  private:
+  // The reader's code as a message naming the file; err: errno right after the call.
+  std::string describe(int rc, int err) const {
+    const std::string where = reader_.path[0] != '\0' ? std::string(reader_.path) : name_;
+    if (rc == SP_SHM_ERR_NOT_REGULAR)
+      return "shm: " + where + " is a " + sp_shm_file_kind(reader_.found_mode) +
+             ", not a regular file; refusing to use it";
+    if (rc == SP_SHM_ERR_OWNER)
+      return "shm: " + where + " is owned by uid " + std::to_string(reader_.found_uid) + ", not by uid " +
+             std::to_string(reader_.owner_uid) + " (the expected writer); refusing to use it";
+    if (rc == SP_SHM_ERR_OPEN) return "shm: ring " + where + ": " + sp_shm_strerror(rc) + ": " + std::strerror(err);
+    return "shm: ring " + where + ": " + sp_shm_strerror(rc);
+  }
+
   std::string name_;
   ShmSubscriberOptions options_;
   sp_shm_reader reader_;

@@ -15,6 +15,19 @@ namespace {
 
 std::string errnoText() { return std::strerror(errno); }
 
+std::uint32_t effectiveUid() { return static_cast<std::uint32_t>(::geteuid()); }
+
+// Why sp_shm_open_file() refused or failed to open `path`, from its code and what it found.
+std::string fileError(const std::string& path, int code, const struct stat& st) {
+  const int err = errno;
+  if (code == SP_SHM_ERR_NOT_REGULAR)
+    return "shm: " + path + " is a " + sp_shm_file_kind(st.st_mode) + ", not a regular file; refusing to use it";
+  if (code == SP_SHM_ERR_OWNER)
+    return "shm: " + path + " is owned by uid " + std::to_string(st.st_uid) + ", not by uid " +
+           std::to_string(effectiveUid()) + " (this process); refusing to use it";
+  return "shm: cannot open " + path + ": " + std::strerror(err);
+}
+
 // Generation and owner of the ring currently at `path`, if it is a valid ring.
 struct Previous {
   std::uint64_t generation = 0;
@@ -22,12 +35,14 @@ struct Previous {
   bool running = false;
 };
 
-Previous inspectPrevious(const std::string& path) {
+// None when nothing is there; an error when anything but a regular file of ours is.
+Result<Previous> inspectPrevious(const std::string& path) {
   Previous prev;
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return prev;
   struct stat st {};
-  if (::fstat(fd, &st) == 0 && static_cast<std::size_t>(st.st_size) >= SP_SHM_HEADER_SIZE) {
+  const int fd = sp_shm_open_file(path.c_str(), O_RDONLY, 0, effectiveUid(), &st);
+  if (fd == SP_SHM_ERR_NO_RING) return prev;
+  if (fd < 0) return Error{fileError(path, fd, st)};
+  if (static_cast<std::size_t>(st.st_size) >= SP_SHM_HEADER_SIZE) {
     void* map = ::mmap(nullptr, static_cast<std::size_t>(st.st_size), PROT_READ, MAP_SHARED, fd, 0);
     if (map != MAP_FAILED) {
       const auto* h = static_cast<const sp_shm_header*>(map);
@@ -59,7 +74,9 @@ Result<std::unique_ptr<ShmPoseWriter>> ShmPoseWriter::create(const std::string& 
     return Error{"shm: capacity " + std::to_string(capacity) + " must be a power of two in [2, " +
                  std::to_string(SP_SHM_MAX_CAPACITY) + "]"};
 
-  const Previous prev = inspectPrevious(path);
+  const auto inspected = inspectPrevious(path);
+  if (!inspected) return Error{inspected.error()};
+  const Previous& prev = *inspected;
   if (prev.running && prev.pid != static_cast<std::uint32_t>(::getpid()) && processAlive(prev.pid))
     return Error{std::string("shm: ring ") + path + " is owned by running process " +
                  std::to_string(prev.pid) + " (one writer per ring)"};
@@ -74,7 +91,7 @@ Result<std::unique_ptr<ShmPoseWriter>> ShmPoseWriter::create(const std::string& 
   // half-initialised ring under the public name.
   const std::string tmp = w->path_ + ".tmp." + std::to_string(::getpid());
   ::unlink(tmp.c_str());
-  const int fd = ::open(tmp.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  const int fd = ::open(tmp.c_str(), O_RDWR | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
   if (fd < 0) return Error{"shm: cannot create " + tmp + ": " + errnoText()};
   if (::ftruncate(fd, static_cast<off_t>(w->size_)) != 0) {
     const std::string err = errnoText();

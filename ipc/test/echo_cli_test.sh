@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# stillpoint-echo: usage errors (exit 2), a missing ring (exit 1, says so), and poses
+# stillpoint-echo: usage errors (exit 2), a missing ring (exit 1, says so), files that
+# are not a ring of ours at the ring's path (exit 1 at once, naming the path), and poses
 # read from a ring that a separate publisher process fills.
 # usage: echo_cli_test.sh BIN_DIR
 set -uo pipefail
@@ -9,12 +10,17 @@ fail() { echo "FAIL: $*"; exit 1; }
 work=$(mktemp -d)
 suffix="_echo$$"
 pub=
-cleanup() { [[ -n $pub ]] && kill "$pub" 2>/dev/null; wait 2>/dev/null; rm -rf "$work"; rm -f "/dev/shm/sp_probe$suffix"; }
+hostile=/dev/shm/sp_hostile$suffix
+cleanup() {
+  [[ -n $pub ]] && kill "$pub" 2>/dev/null; wait 2>/dev/null; rm -rf "$work"
+  rm -f "/dev/shm/sp_probe$suffix" "$hostile"
+}
 trap cleanup EXIT
 
 expect() {  # expected_exit expected_stderr_text args...
   local want=$1 text=$2; shift 2
-  "$echo_" "$@" >"$work/out" 2>"$work/err"; local rc=$?
+  timeout 10 "$echo_" "$@" >"$work/out" 2>"$work/err"; local rc=$?
+  [[ $rc -ne 124 ]] || fail "stillpoint-echo $* still running after 10 s"
   [[ $rc -eq $want ]] || { cat "$work/err"; fail "stillpoint-echo $* exited $rc, expected $want"; }
   grep -qF -- "$text" "$work/err" || { cat "$work/err"; fail "stillpoint-echo $*: stderr lacks '$text'"; }
 }
@@ -28,6 +34,11 @@ expect 1 "no pose ring of that name" --shm --name "sp_missing_$$"
 expect 1 "ipc.shm.name must be" --shm --name "../x"
 expect 1 "cannot be opened" --shm --config "$work/nonexistent.yaml"
 expect 1 "not of the form provider://" --lcm --url "239.255.76.67:7667"
+mkfifo "$hostile"
+expect 1 "$hostile is a FIFO" --shm --name "sp_hostile$suffix"
+rm -f "$hostile"; ln -s /dev/null "$hostile"
+expect 1 "$hostile is a symbolic link" --shm --name "sp_hostile$suffix"
+rm -f "$hostile"
 echo "usage and error cases: ok"
 
 "$bin/ipc_probe" pub --transport shm --suffix "$suffix" --count 2000 --rate 200 --timeout 30 >/dev/null 2>&1 &
@@ -38,4 +49,7 @@ timeout 20 "$echo_" --shm --name "sp_probe$suffix" --count 5 >"$work/out" 2>"$wo
 cat "$work/out"
 [[ $(grep -c '^pose frame=' "$work/out") -ge 5 ]] || fail "expected 5 pose lines"
 grep -q 'map=c0ffee' "$work/out" || fail "pose line lacks the map id"
+expect 1 "is owned by uid $(id -u), not by uid 65534" --shm --name "sp_probe$suffix" --owner 65534
+timeout 20 "$echo_" --shm --name "sp_probe$suffix" --owner "$(id -un)" --count 1 >/dev/null 2>"$work/err" \
+  || { cat "$work/err"; fail "stillpoint-echo --owner $(id -un) failed"; }
 echo "PASS"

@@ -1,4 +1,6 @@
 // stillpoint-echo: subscribe to stillpoint's pose output and print poses and rates.
+#include <pwd.h>
+
 #include <chrono>
 #include <cstdio>
 #include <iomanip>
@@ -18,9 +20,10 @@ namespace {
 constexpr const char* kUsage =
     "usage: stillpoint-echo --shm|--lcm|--dds [--config IPC.yaml] [--name RING] [--url URL]\n"
     "                       [--domain ID] [--dds-config XML|URI] [--count N] [--seconds S]\n"
-    "                       [--rates-only] [--from-oldest]\n"
+    "                       [--rates-only] [--from-oldest] [--owner USER|UID]\n"
     "Prints one line per pose (and status), and a rate line every second.\n"
     "  --shm         read the shared-memory ring /dev/shm/RING (default stillpoint_pose)\n"
+    "  --owner U     the ring must belong to user U (default: the user running this)\n"
     "  --lcm         subscribe on the LCM URL (default udpm://239.255.76.67:7667?ttl=0)\n"
     "  --dds         subscribe on Cyclone DDS domain ID (default 0) with the given config\n"
     "  --config F    take names, URL, domain and DDS config from the ipc: section of F\n"
@@ -32,6 +35,16 @@ int usageError(const std::string& why) {
   return 2;
 }
 
+// A user name or a numeric uid; -1 when neither.
+std::int64_t parseOwner(const std::string& text) {
+  if (!text.empty() && text.find_first_not_of("0123456789") == std::string::npos && text.size() <= 10) {
+    const unsigned long long uid = std::stoull(text);
+    return uid <= 0xFFFFFFFEull ? static_cast<std::int64_t>(uid) : -1;
+  }
+  const struct passwd* pw = ::getpwnam(text.c_str());
+  return pw != nullptr ? static_cast<std::int64_t>(pw->pw_uid) : -1;
+}
+
 double wallNowNs() {
   return static_cast<double>(
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count());
@@ -41,6 +54,7 @@ double wallNowNs() {
 
 int main(int argc, char** argv) {
   std::string transport, config, name, url, dds_config;
+  std::int64_t owner = -1;
   long long domain = -1;
   long count = -1;
   double seconds = -1;
@@ -63,6 +77,10 @@ int main(int argc, char** argv) {
       rates_only = true;
     } else if (k == "--from-oldest") {
       from_oldest = true;
+    } else if (k == "--owner") {
+      if (!val(v)) return usageError(k + " needs a value");
+      owner = parseOwner(v);
+      if (owner < 0) return usageError("no user '" + v + "' for --owner");
     } else if (k == "--config" || k == "--name" || k == "--url" || k == "--dds-config" || k == "--domain" ||
                k == "--count" || k == "--seconds") {
       if (!val(v)) return usageError(k + " needs a value");
@@ -110,6 +128,7 @@ int main(int argc, char** argv) {
   if (transport == "shm") {
     ShmSubscriberOptions so;
     so.from_oldest = from_oldest;
+    so.owner_uid = owner;
     sub = makeShmSubscriber(o.shm, so);
   } else if (transport == "lcm") {
     sub = makeLcmSubscriber(o.lcm);

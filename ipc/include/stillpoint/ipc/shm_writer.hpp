@@ -14,8 +14,9 @@ class ShmPoseWriter {
  public:
   // Builds a new ring file and renames it over /dev/shm/<name>: readers of a previous
   // writer see a restart. generation = previous ring's + 1 (1 if none). Fails when the
-  // name is invalid, capacity is not a power of two in [2, 2^20], or a live process
-  // still owns the ring.
+  // name is invalid, capacity is not a power of two in [2, 2^20], a live process still
+  // owns the ring, or the ring's path holds anything but a regular file of this
+  // process's effective user (a FIFO, a symbolic link, another user's file).
   static Result<std::unique_ptr<ShmPoseWriter>> create(const std::string& name, std::uint32_t capacity);
   // Marks the ring closed; the file stays so late readers still see the last pose.
   ~ShmPoseWriter();

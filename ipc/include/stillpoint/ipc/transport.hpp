@@ -2,6 +2,7 @@
 // One publishing interface, three transports (shared memory, LCM, Cyclone DDS), and
 // the matching subscribers used by stillpoint-echo, the tests and the benchmarks.
 #include <chrono>
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <string_view>
@@ -61,6 +62,7 @@ struct ShmSubscriberOptions {
   bool from_oldest = false;  // start with the oldest record still in the ring
   bool busy_poll = false;    // spin instead of sleeping 50 us between empty polls
   bool wait_for_ring = false;  // a missing ring is not an error: keep trying until it appears
+  std::int64_t owner_uid = -1;  // user that must own the ring; -1: this process's effective uid
 };
 Result<std::unique_ptr<Subscriber>> makeShmSubscriber(const ShmOptions& options,
                                                       const ShmSubscriberOptions& sub = {});
