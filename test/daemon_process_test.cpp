@@ -1,6 +1,6 @@
-// stillpointd as a real process: poses on the shared-memory ring, clean stop on
-// SIGTERM, forced exit on a second signal, bad configs, pinning to an absent
-// core, and the systemd notification protocol through a fake NOTIFY_SOCKET.
+// stillpointd as a real process: poses on the shared-memory ring, one daemon per
+// ring, clean stop on SIGTERM, forced exit on a second signal, bad configs, pinning
+// to an absent core, and the systemd notification protocol through a fake NOTIFY_SOCKET.
 // Time bounds here are generous limits from the spec (stop within
 // shutdown_timeout_s), not performance assertions.
 #include <fcntl.h>
@@ -17,6 +17,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <sstream>
 #include <string>
@@ -102,6 +103,7 @@ class Daemon {
     }
     return false;
   }
+  pid_t pid() const { return pid_; }
   // Exit status, or -1 when the process is still running after `limit`.
   int waitExit(std::chrono::milliseconds limit) {
     const auto until = Clock::now() + limit;
@@ -235,7 +237,10 @@ class DaemonProcess : public ::testing::Test {
  protected:
   fs::path dir(const std::string& name) { return g_root / name; }
   void TearDown() override {
-    for (const auto& r : rings_) unlink(("/dev/shm/" + r).c_str());
+    for (const auto& r : rings_) {
+      unlink(("/dev/shm/" + r).c_str());
+      unlink(("/dev/shm/" + r + SP_SHM_LOCK_SUFFIX).c_str());
+    }
   }
   std::string ring(const std::string& what) {
     rings_.push_back(uniqueRing(what));
@@ -299,6 +304,15 @@ TEST_F(DaemonProcess, SecondSignalForcesExit) {
   EXPECT_FALSE(fs::exists(d / "status.txt"));  // forced: nothing flushed
 }
 
+// The ring's header, copied (zeroed when there is no ring).
+sp_shm_header ringHeader(const std::string& ring) {
+  sp_shm_header h{};
+  const int fd = ::open(("/dev/shm/" + ring).c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
+  if (fd >= 0 && ::pread(fd, &h, sizeof(h), 0) != static_cast<ssize_t>(sizeof(h))) h = sp_shm_header{};
+  if (fd >= 0) ::close(fd);
+  return h;
+}
+
 TEST_F(DaemonProcess, FifoAtTheRingPathFailsStartUpNamingIt) {
   const auto d = dir("fifo");
   const std::string r = ring("fifo");
@@ -306,6 +320,41 @@ TEST_F(DaemonProcess, FifoAtTheRingPathFailsStartUpNamingIt) {
   Daemon daemon(d, config(g_fast_seq, d, r, true, true));
   EXPECT_EQ(daemon.waitExit(60s), 1) << "blocked opening the FIFO? " << daemon.err();
   EXPECT_NE(daemon.err().find("/dev/shm/" + r + " is a FIFO"), std::string::npos) << daemon.err();
+}
+
+TEST_F(DaemonProcess, SecondDaemonOnTheRingFailsWhileTheFirstPublishes) {
+  const auto d1 = dir("owner1"), d2 = dir("owner2");
+  const std::string r = ring("owner");
+  Daemon first(d1, config(g_fast_seq, d1, r, true, true));
+  ASSERT_GE(readPoses(r, 3, 60s).size(), 3u) << first.err();
+  Daemon second(d2, config(g_fast_seq, d2, r, true, true));
+  EXPECT_EQ(second.waitExit(60s), 1) << second.err();
+  EXPECT_NE(second.err().find("ring " + r + " is owned by a running writer, pid " + std::to_string(first.pid())),
+            std::string::npos)
+      << second.err();
+  // The first still publishes into the ring the name refers to.
+  auto waitFor = [](const std::function<bool()>& condition) {
+    const auto until = Clock::now() + 60s;
+    while (!condition() && Clock::now() < until) std::this_thread::sleep_for(20ms);
+    return condition();
+  };
+  EXPECT_EQ(ringHeader(r).writer_pid, static_cast<std::uint32_t>(first.pid()));
+  const std::uint64_t before = ringHeader(r).write_count;
+  EXPECT_TRUE(waitFor([&] { return ringHeader(r).write_count > before; })) << first.err();
+
+  // Killed, it leaves a ring that says "running"; readers see it gone, a new daemon takes over.
+  first.signal(SIGKILL);
+  EXPECT_EQ(first.waitExit(5s), 128 + SIGKILL);
+  sp_shm_reader reader;
+  sp_shm_reader_init(&reader);
+  ASSERT_EQ(sp_shm_reader_open(&reader, r.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+  EXPECT_EQ(sp_shm_writer_alive(&reader), 0);
+  EXPECT_EQ(sp_shm_reader_writer_died(&reader), 1);
+  sp_shm_reader_close(&reader);
+  Daemon third(d2, config(g_fast_seq, d2, r, true, true));
+  ASSERT_TRUE(waitFor([&] { return ringHeader(r).generation == 2 && ringHeader(r).write_count >= 3; }))
+      << third.err();
+  EXPECT_EQ(ringHeader(r).writer_pid, static_cast<std::uint32_t>(third.pid()));
 }
 
 TEST_F(DaemonProcess, SignalDuringStartUpExitsAtOnce) {

@@ -113,4 +113,4 @@ while True:
     ;;
   *) echo "usage: $0 STILLPOINTD SEQUENCE_DIR latency|shutdown [N]|timing [N]|rss [SECONDS]" >&2; exit 2 ;;
 esac
-rm -f /dev/shm/$ring
+rm -f /dev/shm/$ring /dev/shm/$ring.lock

@@ -33,6 +33,14 @@
  * `generation` one higher. Readers notice the new file (different inode) while polling
  * and reattach to it; sp_shm_reader_next() then returns SP_SHM_RESTARTED once.
  *
+ * Writer liveness: a writer holds an open-file-description write lock (F_OFD_SETLK) on
+ * its ring file for as long as it lives, taken before the file gets its public name. The
+ * kernel drops the lock when the writer exits, however it exits, so
+ * sp_shm_writer_alive() and sp_shm_reader_writer_died() tell a running writer from a
+ * killed one whose ring still says SP_SHM_WRITER_RUNNING. They only query the lock
+ * (F_OFD_GETLK) on the reader's own descriptor. Writers exclude each other with a second
+ * lock, on "/dev/shm/<name>.lock", which only the writer's user can open.
+ *
  * Files: anyone can create files in /dev/shm, so the ring is opened without following a
  * symbolic link and without blocking on a FIFO, and must be a regular file owned by the
  * expected user (r.owner_uid: this process's effective uid unless set after
@@ -72,6 +80,14 @@
 #error "stillpoint_shm.h needs O_NOFOLLOW: include it first, or define _POSIX_C_SOURCE >= 200809L"
 #endif
 
+/* Open-file-description locks (Linux 3.15): glibc declares them only for _GNU_SOURCE;
+ * the value is the same on every Linux architecture. */
+#ifdef F_OFD_GETLK
+#define SP_SHM_F_OFD_GETLK F_OFD_GETLK
+#else
+#define SP_SHM_F_OFD_GETLK 36
+#endif
+
 #if !defined(__GNUC__) && !defined(__clang__)
 #error "stillpoint_shm.h needs the GCC/Clang __atomic builtins"
 #endif
@@ -87,6 +103,7 @@ extern "C" {
 #define SP_SHM_POSE_WORDS 14
 #define SP_SHM_DEFAULT_NAME "stillpoint_pose"
 #define SP_SHM_DIR "/dev/shm/"
+#define SP_SHM_LOCK_SUFFIX ".lock" /* writers' lock file, mode 0600: SP_SHM_DIR <name> SP_SHM_LOCK_SUFFIX */
 #define SP_SHM_MAX_CAPACITY (1u << 20)
 
 /* Tracking state of a pose record. */
@@ -380,6 +397,35 @@ static inline int sp_shm_reader_check_restart(sp_shm_reader* r) {
   if (rc != SP_SHM_OK) return rc;
   r->restarts++;
   return SP_SHM_RESTARTED;
+}
+
+/* 1 while the writer of the attached ring runs (holds its write lock on the ring file),
+ * 0 once it has ended, negative SP_SHM_ERR_* on error. One fcntl() on the reader's
+ * descriptor. Only a write lock counts: anyone who can read the ring can put a read lock
+ * on it, but only its owner can write-lock it. */
+static inline int sp_shm_writer_alive(const sp_shm_reader* r) {
+  struct flock query;
+  if (r->base == NULL || r->fd < 0) return SP_SHM_ERR_NOT_OPEN;
+  memset(&query, 0, sizeof(query));
+  query.l_type = F_WRLCK;
+  query.l_whence = SEEK_SET; /* l_start = l_len = 0: the whole file */
+  if (fcntl(r->fd, SP_SHM_F_OFD_GETLK, &query) != 0) return SP_SHM_ERR_OPEN;
+  return query.l_type == F_WRLCK ? 1 : 0;
+}
+
+/* For a reader that has had SP_SHM_EMPTY for a while (say 100 ms): 1 when the writer of
+ * the attached ring ended without closing it (SIGKILL, crash) and no new writer has
+ * replaced the ring; 0 while it runs, after a clean close (a restart may follow), or when
+ * a new ring is already at the name (sp_shm_reader_next() reattaches to it shortly);
+ * negative SP_SHM_ERR_* on error. Asks the lock first and the ring's state second: a
+ * writer marks its ring closed before the lock goes. */
+static inline int sp_shm_reader_writer_died(const sp_shm_reader* r) {
+  struct stat st;
+  const int alive = sp_shm_writer_alive(r);
+  if (alive != 0) return alive < 0 ? alive : 0;
+  if (__atomic_load_n(&sp_shm_reader_header(r)->writer_state, __ATOMIC_ACQUIRE) == SP_SHM_WRITER_CLOSED) return 0;
+  if (lstat(r->path, &st) == 0 && ((uint64_t)st.st_ino != r->ino || (uint64_t)st.st_dev != r->dev)) return 0;
+  return 1;
 }
 
 /* Copies record n if the slot still holds it. 1 on success, 0 if it was overwritten. */

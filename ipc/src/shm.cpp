@@ -1,6 +1,7 @@
 // Shared-memory transport: poses go into the ring; status is not carried (the ring
 // holds pose records only; status travels over LCM or DDS).
 #include <cerrno>
+#include <chrono>
 #include <cstring>
 #include <thread>
 
@@ -92,6 +93,9 @@ class ShmSubscriber final : public Subscriber {
       }
       if (rc < 0 && !(rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring)) return Error{describe(rc, err)};
       if (handled > 0 || std::chrono::steady_clock::now() >= deadline) return handled;
+      if (rc == SP_SHM_EMPTY) {
+        if (Status writer = checkWriter(); !writer) return Error{writer.error()};
+      }
       if (!options_.busy_poll) std::this_thread::sleep_for(std::chrono::microseconds(50));
     }
   }
@@ -99,6 +103,24 @@ class ShmSubscriber final : public Subscriber {
   std::uint64_t lost() const override { return reader_.lost; }
 
  private:
+  // How often an idle subscriber asks whether the writer is still there.
+  static constexpr std::chrono::milliseconds kLivenessPeriod{100};
+
+  // Nothing new arrived: an error when the writer died and no new writer took over.
+  Status checkWriter() {
+    const auto now = std::chrono::steady_clock::now();
+    if (reader_.base == nullptr || now < next_liveness_check_) return Status::success();
+    next_liveness_check_ = now + kLivenessPeriod;
+    const int died = sp_shm_reader_writer_died(&reader_);
+    if (died < 0)
+      return Error{"shm: cannot tell whether the writer of " + std::string(reader_.path) +
+                   " is alive: " + sp_shm_strerror(died)};
+    if (died == 0 || options_.wait_for_ring) return Status::success();
+    return Error{"shm: ring " + std::string(reader_.path) + ": writer gone (pid " +
+                 std::to_string(sp_shm_reader_header(&reader_)->writer_pid) +
+                 " ended without closing the ring: killed or crashed)"};
+  }
+
   // The reader's code as a message naming the file; err: errno right after the call.
   std::string describe(int rc, int err) const {
     const std::string where = reader_.path[0] != '\0' ? std::string(reader_.path) : name_;
@@ -115,6 +137,7 @@ class ShmSubscriber final : public Subscriber {
   std::string name_;
   ShmSubscriberOptions options_;
   sp_shm_reader reader_;
+  std::chrono::steady_clock::time_point next_liveness_check_{};
 };
 
 }  // namespace

@@ -1,14 +1,15 @@
 #include "stillpoint/ipc/shm_writer.hpp"
 
 #include <fcntl.h>
-#include <signal.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <chrono>
+#include <cstdlib>
 #include <cstring>
+#include <fstream>
 
 namespace stillpoint::ipc {
 namespace {
@@ -28,39 +29,93 @@ std::string fileError(const std::string& path, int code, const struct stat& st) 
   return "shm: cannot open " + path + ": " + std::strerror(err);
 }
 
-// Generation and owner of the ring currently at `path`, if it is a valid ring.
-struct Previous {
-  std::uint64_t generation = 0;
-  std::uint32_t pid = 0;
-  bool running = false;
-};
+// The pid the lock's holder wrote into the lock file, or "unknown".
+std::string recordedPid(int fd) {
+  char buf[24] = {};
+  const ssize_t n = ::pread(fd, buf, sizeof(buf) - 1, 0);
+  std::string pid = n > 0 ? std::string(buf, static_cast<std::size_t>(n)) : "";
+  while (!pid.empty() && pid.back() == '\n') pid.pop_back();
+  if (pid.empty() || pid.find_first_not_of("0123456789") != std::string::npos) return "unknown";
+  return pid;
+}
 
-// None when nothing is there; an error when anything but a regular file of ours is.
-Result<Previous> inspectPrevious(const std::string& path) {
-  Previous prev;
+// An open-file-description write lock on the whole file, without waiting. The kernel
+// drops it when the last descriptor of this open goes, whenever and however the process
+// ends. Returns 0 or errno.
+int writeLock(int fd) {
+  struct flock lock {};
+  lock.l_type = F_WRLCK;
+  lock.l_whence = SEEK_SET;  // l_start = l_len = 0: the whole file
+  return ::fcntl(fd, F_OFD_SETLK, &lock) == 0 ? 0 : errno;
+}
+
+// The process's umask, read without changing it: umask() sets it while reading it, for
+// every thread of the process.
+mode_t currentUmask() {
+  std::ifstream status("/proc/self/status");
+  for (std::string line; std::getline(status, line);)
+    if (line.rfind("Umask:", 0) == 0) return static_cast<mode_t>(std::strtoul(line.c_str() + 6, nullptr, 8) & 0777);
+  return 022;
+}
+
+// Takes the writers' lock of the ring. Taken before the ring is looked at, so finding no
+// owner and replacing the ring are one step. Mode 0600: a user who could open the lock
+// file could hold a read lock on it and so keep every writer from starting.
+Result<int> lockRing(const std::string& name, const std::string& lock_path) {
+  // remove() may unlink the lock file between our open() and our lock, which would then
+  // guard nothing: keep the lock only on the file the name still refers to.
+  for (int attempt = 0; attempt < 8; ++attempt) {
+    struct stat st {};
+    const int fd = sp_shm_open_file(lock_path.c_str(), O_RDWR | O_CREAT, 0600, effectiveUid(), &st);
+    if (fd < 0) return Error{fileError(lock_path, fd, st)};
+    if ((st.st_mode & 077) != 0 && ::fchmod(fd, 0600) != 0) {
+      const std::string err = errnoText();
+      ::close(fd);
+      return Error{"shm: cannot make " + lock_path + " private: " + err};
+    }
+    if (const int err = writeLock(fd); err != 0) {
+      const std::string pid = recordedPid(fd);
+      ::close(fd);
+      if (err == EAGAIN || err == EACCES)
+        return Error{"shm: ring " + name + " is owned by a running writer, pid " + pid + " (" + lock_path +
+                     " is locked)"};
+      return Error{"shm: cannot lock " + lock_path + ": " + std::strerror(err)};
+    }
+    struct stat now {};
+    if (::lstat(lock_path.c_str(), &now) == 0 && now.st_dev == st.st_dev && now.st_ino == st.st_ino) {
+      // For the error message of the next writer that tries; the lock is what counts.
+      const std::string pid = std::to_string(::getpid()) + "\n";
+      if (::ftruncate(fd, 0) != 0 || ::pwrite(fd, pid.data(), pid.size(), 0) != static_cast<ssize_t>(pid.size())) {
+        const std::string err = errnoText();
+        ::close(fd);
+        return Error{"shm: cannot write " + lock_path + ": " + err};
+      }
+      return fd;
+    }
+    ::close(fd);
+  }
+  return Error{"shm: " + lock_path + " keeps being replaced; cannot lock ring " + name};
+}
+
+// Generation of the ring at `path`: 0 when there is none or the file is not a valid ring
+// (it is replaced); an error when anything but a regular file of ours is there.
+Result<std::uint64_t> previousGeneration(const std::string& path) {
   struct stat st {};
   const int fd = sp_shm_open_file(path.c_str(), O_RDONLY, 0, effectiveUid(), &st);
-  if (fd == SP_SHM_ERR_NO_RING) return prev;
+  if (fd == SP_SHM_ERR_NO_RING) return std::uint64_t{0};
   if (fd < 0) return Error{fileError(path, fd, st)};
-  if (static_cast<std::size_t>(st.st_size) >= SP_SHM_HEADER_SIZE) {
-    void* map = ::mmap(nullptr, static_cast<std::size_t>(st.st_size), PROT_READ, MAP_SHARED, fd, 0);
+  std::uint64_t generation = 0;
+  const auto size = static_cast<std::size_t>(st.st_size);
+  if (size >= SP_SHM_HEADER_SIZE) {
+    void* map = ::mmap(nullptr, size, PROT_READ, MAP_SHARED, fd, 0);
     if (map != MAP_FAILED) {
       const auto* h = static_cast<const sp_shm_header*>(map);
-      if (sp_shm_check_header(h, static_cast<std::size_t>(st.st_size)) == SP_SHM_OK) {
-        prev.generation = h->generation;
-        prev.pid = h->writer_pid;
-        prev.running = __atomic_load_n(&h->writer_state, __ATOMIC_ACQUIRE) == SP_SHM_WRITER_RUNNING;
-      }
-      ::munmap(map, static_cast<std::size_t>(st.st_size));
+      if (sp_shm_check_header(h, size) == SP_SHM_OK) generation = h->generation;
+      ::munmap(map, size);
     }
   }
   ::close(fd);
-  return prev;
-}
-
-bool processAlive(std::uint32_t pid) {
-  if (pid == 0) return false;
-  return ::kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM;
+  return generation;
 }
 
 }  // namespace
@@ -74,41 +129,42 @@ Result<std::unique_ptr<ShmPoseWriter>> ShmPoseWriter::create(const std::string& 
     return Error{"shm: capacity " + std::to_string(capacity) + " must be a power of two in [2, " +
                  std::to_string(SP_SHM_MAX_CAPACITY) + "]"};
 
-  const auto inspected = inspectPrevious(path);
-  if (!inspected) return Error{inspected.error()};
-  const Previous& prev = *inspected;
-  if (prev.running && prev.pid != static_cast<std::uint32_t>(::getpid()) && processAlive(prev.pid))
-    return Error{std::string("shm: ring ") + path + " is owned by running process " +
-                 std::to_string(prev.pid) + " (one writer per ring)"};
-
   std::unique_ptr<ShmPoseWriter> w(new ShmPoseWriter());
   w->path_ = path;
+  auto lock = lockRing(name, w->path_ + SP_SHM_LOCK_SUFFIX);
+  if (!lock) return Error{lock.error()};
+  w->lock_fd_ = *lock;  // from here on the destructor releases it on every error path
+
+  const auto previous = previousGeneration(w->path_);
+  if (!previous) return Error{previous.error()};
   w->capacity_ = capacity;
-  w->generation_ = prev.generation + 1;
+  w->generation_ = *previous + 1;
   w->size_ = SP_SHM_HEADER_SIZE + static_cast<std::size_t>(capacity) * SP_SHM_SLOT_SIZE;
 
   // Build the ring under a temporary name, then rename: a reader never sees a
-  // half-initialised ring under the public name.
+  // half-initialised ring under the public name. The file is private until it carries
+  // the liveness lock, so no other user can get a lock on it first.
   const std::string tmp = w->path_ + ".tmp." + std::to_string(::getpid());
   ::unlink(tmp.c_str());
-  const int fd = ::open(tmp.c_str(), O_RDWR | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
+  const int fd = ::open(tmp.c_str(), O_RDWR | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0600);
   if (fd < 0) return Error{"shm: cannot create " + tmp + ": " + errnoText()};
-  if (::ftruncate(fd, static_cast<off_t>(w->size_)) != 0) {
+  w->ring_fd_ = fd;  // kept open: it carries the lock readers test
+  auto fail = [&](const std::string& what) -> Error {
     const std::string err = errnoText();
-    ::close(fd);
     ::unlink(tmp.c_str());
-    return Error{"shm: cannot size " + tmp + ": " + err};
+    return Error{"shm: cannot " + what + " " + tmp + ": " + err};
+  };
+  if (const int err = writeLock(fd); err != 0) {
+    errno = err;
+    return fail("lock");
   }
+  if (::fchmod(fd, 0644 & ~currentUmask()) != 0) return fail("set the mode of");
+  if (::ftruncate(fd, static_cast<off_t>(w->size_)) != 0) return fail("size");
   void* map = ::mmap(nullptr, w->size_, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
-  ::close(fd);
-  if (map == MAP_FAILED) {
-    const std::string err = errnoText();
-    ::unlink(tmp.c_str());
-    return Error{"shm: cannot map " + tmp + ": " + err};
-  }
-  w->base_ = static_cast<unsigned char*>(map);
-  std::memset(w->base_, 0, w->size_);  // tmpfs pages are zero already; touch them now, not in write()
-  auto* h = reinterpret_cast<sp_shm_header*>(w->base_);
+  if (map == MAP_FAILED) return fail("map");
+  unsigned char* base = static_cast<unsigned char*>(map);
+  std::memset(base, 0, w->size_);  // tmpfs pages are zero already; touch them now, not in write()
+  auto* h = reinterpret_cast<sp_shm_header*>(base);
   h->schema_version = SP_SHM_SCHEMA_VERSION;
   h->header_size = SP_SHM_HEADER_SIZE;
   h->record_size = sizeof(sp_pose_record);
@@ -123,19 +179,24 @@ Result<std::unique_ptr<ShmPoseWriter>> ShmPoseWriter::create(const std::string& 
   __atomic_store_n(&h->magic, SP_SHM_MAGIC, __ATOMIC_RELEASE);
   if (::rename(tmp.c_str(), path) != 0) {
     const std::string err = errnoText();
-    ::munmap(w->base_, w->size_);
-    w->base_ = nullptr;
+    ::munmap(base, w->size_);
     ::unlink(tmp.c_str());
     return Error{"shm: cannot publish ring as " + std::string(path) + ": " + err};
   }
+  w->base_ = base;
   return w;
 }
 
 ShmPoseWriter::~ShmPoseWriter() {
-  if (base_ == nullptr) return;
-  auto* h = reinterpret_cast<sp_shm_header*>(base_);
-  __atomic_store_n(&h->writer_state, SP_SHM_WRITER_CLOSED, __ATOMIC_RELEASE);
-  ::munmap(base_, size_);
+  if (base_ != nullptr) {
+    auto* h = reinterpret_cast<sp_shm_header*>(base_);
+    __atomic_store_n(&h->writer_state, SP_SHM_WRITER_CLOSED, __ATOMIC_RELEASE);
+    ::munmap(base_, size_);
+  }
+  // The locks go after the ring says closed: a reader that finds the ring's lock free
+  // and the ring still running knows the writer died.
+  if (ring_fd_ >= 0) ::close(ring_fd_);
+  if (lock_fd_ >= 0) ::close(lock_fd_);
 }
 
 void ShmPoseWriter::write(const sp_pose_record& record) {
@@ -161,8 +222,28 @@ Status ShmPoseWriter::remove(const std::string& name) {
   char path[256];
   if (sp_shm_make_path(name.c_str(), path, sizeof(path)) != SP_SHM_OK)
     return Error{"shm: invalid ring name '" + name + "'"};
-  if (::unlink(path) != 0 && errno != ENOENT) return Error{std::string("shm: cannot remove ") + path + ": " + errnoText()};
-  return Status::success();
+  const std::string lock_path = std::string(path) + SP_SHM_LOCK_SUFFIX;
+  // Holding the lock while unlinking: a writer that opened the old lock file meanwhile
+  // sees it replaced and locks the new one (lockRing).
+  struct stat st {};
+  const int fd = sp_shm_open_file(lock_path.c_str(), O_RDWR, 0, effectiveUid(), &st);
+  if (fd < 0 && fd != SP_SHM_ERR_NO_RING) return Error{fileError(lock_path, fd, st)};
+  if (fd >= 0) {
+    if (writeLock(fd) != 0) {
+      const std::string pid = recordedPid(fd);
+      ::close(fd);
+      return Error{"shm: ring " + name + " is owned by a running writer, pid " + pid + "; not removed"};
+    }
+  }
+  Status status;
+  if (::unlink(path) != 0 && errno != ENOENT)
+    status = Error{std::string("shm: cannot remove ") + path + ": " + errnoText()};
+  if (fd >= 0) {
+    if (status.ok() && ::unlink(lock_path.c_str()) != 0 && errno != ENOENT)
+      status = Error{"shm: cannot remove " + lock_path + ": " + errnoText()};
+    ::close(fd);
+  }
+  return status;
 }
 
 }  // namespace stillpoint::ipc

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # stillpoint-echo: usage errors (exit 2), a missing ring (exit 1, says so), files that
-# are not a ring of ours at the ring's path (exit 1 at once, naming the path), and poses
-# read from a ring that a separate publisher process fills.
+# are not a ring of ours at the ring's path (exit 1 at once, naming the path), poses read
+# from a ring that a separate publisher process fills, and that publisher killed (exit 1,
+# "writer gone", instead of waiting forever).
 # usage: echo_cli_test.sh BIN_DIR
 set -uo pipefail
 bin=$1
@@ -12,8 +13,8 @@ suffix="_echo$$"
 pub=
 hostile=/dev/shm/sp_hostile$suffix
 cleanup() {
-  [[ -n $pub ]] && kill "$pub" 2>/dev/null; wait 2>/dev/null; rm -rf "$work"
-  rm -f "/dev/shm/sp_probe$suffix" "$hostile"
+  [[ -n $pub ]] && kill -9 "$pub" 2>/dev/null; wait 2>/dev/null; rm -rf "$work"
+  rm -f "/dev/shm/sp_probe$suffix" "/dev/shm/sp_probe$suffix.lock" "$hostile"
 }
 trap cleanup EXIT
 
@@ -52,4 +53,19 @@ grep -q 'map=c0ffee' "$work/out" || fail "pose line lacks the map id"
 expect 1 "is owned by uid $(id -u), not by uid 65534" --shm --name "sp_probe$suffix" --owner 65534
 timeout 20 "$echo_" --shm --name "sp_probe$suffix" --owner "$(id -un)" --count 1 >/dev/null 2>"$work/err" \
   || { cat "$work/err"; fail "stillpoint-echo --owner $(id -un) failed"; }
+
+# The publisher killed while stillpoint-echo reads: the ring still says "running", but
+# its writer's lock is gone with the process.
+timeout 20 "$echo_" --shm --name "sp_probe$suffix" >"$work/out" 2>"$work/err" &
+reader=$!
+for _ in $(seq 200); do grep -q '^pose frame=' "$work/out" 2>/dev/null && break; sleep 0.05; done
+grep -q '^pose frame=' "$work/out" || fail "stillpoint-echo printed no pose before the kill"
+kill -9 "$pub"; wait "$pub" 2>/dev/null; pub=
+wait "$reader"; rc=$?
+cat "$work/err"
+[[ $rc -ne 124 ]] || fail "stillpoint-echo still waiting 20 s after its writer was killed"
+[[ $rc -eq 1 ]] || fail "stillpoint-echo exited $rc after its writer was killed, expected 1"
+grep -q "writer gone" "$work/err" || fail "stillpoint-echo did not say the writer is gone"
+# Started on the dead ring: says so at once.
+expect 1 "writer gone" --shm --name "sp_probe$suffix"
 echo "PASS"

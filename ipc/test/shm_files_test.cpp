@@ -28,7 +28,9 @@ class RingFiles : public testing::Test {
   }
   void TearDown() override { clear(); }
   void clear() {
-    if (::unlink(ringPath(name_).c_str()) != 0) ::rmdir(ringPath(name_).c_str());
+    for (const std::string& p : {ringPath(name_), lockPath(name_)}) {
+      if (::unlink(p.c_str()) != 0) ::rmdir(p.c_str());
+    }
   }
   std::string name_;
 };
@@ -64,6 +66,15 @@ TEST_F(RingFiles, FifoAtTheRingPathFailsFastNamingThePath) {
   EXPECT_EQ(subscriber.exit_code, 0) << subscriber.output;
   EXPECT_NE(subscriber.output.find(ringPath(name_)), std::string::npos) << subscriber.output;
   EXPECT_NE(subscriber.output.find("FIFO"), std::string::npos) << subscriber.output;
+}
+
+TEST_F(RingFiles, FifoAtTheLockPathFailsFastNamingThePath) {
+  ASSERT_EQ(::mkfifo(lockPath(name_).c_str(), 0666), 0) << std::strerror(errno);
+  const ChildOutcome writer = runInChild([&](std::string& out) { return expectRefused(name_, out); });
+  ASSERT_TRUE(writer.finished) << "writer start-up: " << writer.output;
+  EXPECT_EQ(writer.exit_code, 0) << writer.output;
+  EXPECT_NE(writer.output.find(lockPath(name_)), std::string::npos) << writer.output;
+  EXPECT_NE(writer.output.find("FIFO"), std::string::npos) << writer.output;
 }
 
 TEST_F(RingFiles, SymlinkOrDirectoryAtTheRingPathIsRefused) {
@@ -122,6 +133,13 @@ TEST_F(RingFiles, AnotherUsersFileIsRefusedUnlessTheReaderNamesThatUser) {
   r.owner_uid = kOther;  // a reader of a writer that runs as another user says so
   EXPECT_EQ(sp_shm_reader_open(&r, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
   sp_shm_reader_close(&r);
+
+  ASSERT_EQ(::unlink(ringPath(name_).c_str()), 0);
+  ASSERT_EQ(::chown(lockPath(name_).c_str(), kOther, kOther), 0) << std::strerror(errno);
+  const ChildOutcome on_lock = runInChild([&](std::string& out) { return expectRefused(name_, out); });
+  ASSERT_TRUE(on_lock.finished) << on_lock.output;
+  EXPECT_EQ(on_lock.exit_code, 0) << on_lock.output;
+  EXPECT_NE(on_lock.output.find(lockPath(name_) + " is owned by uid 65534"), std::string::npos) << on_lock.output;
 }
 
 }  // namespace

@@ -1,13 +1,15 @@
 #pragma once
-// Real processes for the ring tests: a body run in a forked child under a time limit. A
-// step that a regression could block (an open() of a FIFO) runs in a child that is killed
-// after the limit, so a hang fails the test instead of stalling it.
+// Real processes for the ring tests: a body run in a forked child under a time limit, and
+// a writer in its own process. Locks, FIFOs and SIGKILL act on processes, so the tests
+// use them; a step that a regression could block runs in a child that is killed after
+// the limit, so a hang fails the test instead of stalling it.
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <chrono>
+#include <csignal>
 #include <functional>
 #include <string>
 #include <thread>
@@ -21,6 +23,7 @@ using namespace std::chrono_literals;
 using Clock = std::chrono::steady_clock;
 
 inline std::string ringPath(const std::string& name) { return std::string(SP_SHM_DIR) + name; }
+inline std::string lockPath(const std::string& name) { return ringPath(name) + SP_SHM_LOCK_SUFFIX; }
 
 inline std::string readAll(int fd) {
   std::string text;
@@ -79,5 +82,81 @@ inline int expectRefused(const std::string& name, std::string& out) {
   out = w.error();
   return 0;
 }
+
+inline volatile std::sig_atomic_t g_stop = 0;
+inline void onTerm(int) { g_stop = 1; }
+
+// A writer in its own process that publishes a record every millisecond until SIGTERM
+// (clean close) or SIGKILL. Its first line on the pipe says whether it got the ring.
+class WriterProcess {
+ public:
+  // `gate` (a pipe) given: wait until its write end is closed before creating the writer.
+  WriterProcess(const std::string& name, std::uint32_t capacity, const int* gate = nullptr) {
+    int fds[2];
+    if (::pipe(fds) != 0) return;
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::close(fds[0]);
+      std::signal(SIGTERM, onTerm);
+      if (gate != nullptr) {
+        ::close(gate[1]);
+        (void)readAll(gate[0]);
+      }
+      auto w = ShmPoseWriter::create(name, capacity);
+      const std::string line = w ? "ok\n" : "refused: " + w.error() + "\n";
+      (void)!::write(fds[1], line.data(), line.size());
+      ::close(fds[1]);
+      if (!w) ::_exit(1);
+      sp_pose_record r{};
+      r.orientation[3] = 1.0;
+      while (!g_stop) {
+        (*w)->write(r);
+        ::usleep(1000);
+      }
+      w->reset();
+      ::_exit(0);
+    }
+    ::close(fds[1]);
+    out_fd_ = fds[0];
+  }
+  ~WriterProcess() {
+    stop(SIGKILL);
+    if (out_fd_ >= 0) ::close(out_fd_);
+  }
+  WriterProcess(const WriterProcess&) = delete;
+  WriterProcess& operator=(const WriterProcess&) = delete;
+
+  pid_t pid() const { return pid_; }
+  // The child's report: "ok" or "refused: <error>"; "" if it said nothing within `limit`.
+  std::string report(std::chrono::milliseconds limit = 5s) {
+    if (report_.empty() && out_fd_ >= 0) {
+      const auto until = Clock::now() + limit;
+      ::fcntl(out_fd_, F_SETFL, O_NONBLOCK);
+      char buf[1024];
+      while (report_.find('\n') == std::string::npos && Clock::now() < until) {
+        const ssize_t n = ::read(out_fd_, buf, sizeof(buf));
+        if (n > 0) report_.append(buf, static_cast<std::size_t>(n));
+        else if (n == 0) break;
+        else std::this_thread::sleep_for(1ms);
+      }
+      if (!report_.empty() && report_.back() == '\n') report_.pop_back();
+    }
+    return report_;
+  }
+  // Sends `sig` and reaps the child; returns its wait status.
+  int stop(int sig) {
+    if (pid_ <= 0) return -1;
+    ::kill(pid_, sig);
+    int status = 0;
+    ::waitpid(pid_, &status, 0);
+    pid_ = -1;
+    return status;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  int out_fd_ = -1;
+  std::string report_;
+};
 
 }  // namespace stillpoint::ipc::shm_test

@@ -10,7 +10,10 @@ ring="sp_stress_$$"
 fail() { echo "FAIL: $*"; exit 1; }
 work=$(mktemp -d)
 pids=()
-cleanup() { for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done; wait 2>/dev/null; rm -rf "$work"; rm -f "/dev/shm/$ring"; }
+cleanup() {
+  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done; wait 2>/dev/null
+  rm -rf "$work"; rm -f "/dev/shm/$ring" "/dev/shm/$ring.lock"
+}
 trap cleanup EXIT
 rm -f "/dev/shm/$ring"
 

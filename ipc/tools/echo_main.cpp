@@ -28,7 +28,8 @@ constexpr const char* kUsage =
     "  --dds         subscribe on Cyclone DDS domain ID (default 0) with the given config\n"
     "  --config F    take names, URL, domain and DDS config from the ipc: section of F\n"
     "  --count N     exit after N poses;  --seconds S  exit after S seconds\n"
-    "Exit status: 0 ok, 1 error (missing ring, bad URL, receive failure), 2 usage error.\n";
+    "Exit status: 0 ok, 1 error (missing ring, writer gone, bad URL, receive failure),\n"
+    "2 usage error.\n";
 
 int usageError(const std::string& why) {
   std::cerr << "stillpoint-echo: " << why << "\n" << kUsage;

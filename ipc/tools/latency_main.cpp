@@ -173,6 +173,7 @@ int runPub(Args a, char* self) {
   int status = 0;
   ::waitpid(child, &status, 0);
   std::filesystem::remove(a.ready_file);
+  transports.value().clear();  // the writer goes first: remove() refuses a ring that has one
   if (a.transport == "shm") (void)ShmPoseWriter::remove(o.shm.name);
   return ok && WIFEXITED(status) && WEXITSTATUS(status) == 0 ? 0 : 1;
 }

@@ -61,7 +61,9 @@ class Subscriber {
 struct ShmSubscriberOptions {
   bool from_oldest = false;  // start with the oldest record still in the ring
   bool busy_poll = false;    // spin instead of sleeping 50 us between empty polls
-  bool wait_for_ring = false;  // a missing ring is not an error: keep trying until it appears
+  // A missing ring, or one whose writer died, is not an error: keep trying until a
+  // writer (re)creates it. Otherwise poll() fails with "writer gone" on a dead ring.
+  bool wait_for_ring = false;
   std::int64_t owner_uid = -1;  // user that must own the ring; -1: this process's effective uid
 };
 Result<std::unique_ptr<Subscriber>> makeShmSubscriber(const ShmOptions& options,
