@@ -1,6 +1,7 @@
 // A deterministic mutation fuzzer for every parser of files a user or an
 // attacker controls: camera YAML, SLAM options, the daemon config, the ipc
-// config, model cards, TUM list files and trajectories. Each target starts
+// config, model cards, TUM list files, trajectories, and the shared-memory
+// pose ring as its C reader maps it. Each target starts
 // from real seed files (the shipped configs, the bundled excerpt's lists)
 // and runs a fixed number of mutations from a fixed seed, so a failure is
 // reproducible by its case number. A case passes when the parser returns
@@ -21,6 +22,8 @@
 #include <unistd.h>
 
 #include "config.hpp"
+#include "stillpoint/ipc/shm_writer.hpp"
+#include "stillpoint_shm.h"
 #include "stillpoint/core/camera.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/trajectory.hpp"
@@ -200,6 +203,41 @@ int main(int argc, char** argv) {
                        (void)eval::readTumTrajectory((dir / "traj.txt").string());
                      }});
 
+  // The ring: a real one from the writer (a few records, capacity 8) as the
+  // seed; each mutation replaces the file under the reader's name, which is
+  // then opened and read to its end. The reader must refuse or read, never
+  // fault on what another process left in /dev/shm.
+  const std::string ring = "sp_fuzz_ring_" + std::to_string(::getpid());
+  std::string ring_seed;
+  {
+    auto writer = ipc::ShmPoseWriter::create(ring, 8);
+    if (writer) {
+      sp_pose_record rec{};
+      for (int k = 0; k < 11; ++k) {
+        rec.sensor_stamp_ns = 1'000'000'000LL * k;
+        rec.orientation[3] = 1;
+        (*writer)->write(rec);
+      }
+      ring_seed = readFile((*writer)->path());
+    }
+  }
+  (void)ipc::ShmPoseWriter::remove(ring);
+  targets.push_back({"shm-ring", ring_seed.empty() ? std::vector<std::string>{} : std::vector<std::string>{ring_seed},
+                     [&ring](const fs::path&, const std::string& bytes) {
+                       const fs::path path = fs::path("/dev/shm") / ring;
+                       writeFile(path, bytes);
+                       sp_shm_reader r;
+                       sp_shm_reader_init(&r);
+                       if (sp_shm_reader_open(&r, ring.c_str(), SP_SHM_START_OLDEST) == SP_SHM_OK) {
+                         sp_pose_record pose;
+                         for (int k = 0; k < 64 && sp_shm_reader_next(&r, &pose) == SP_SHM_OK; ++k) {
+                         }
+                         (void)sp_shm_reader_latest(&r, &pose);
+                       }
+                       sp_shm_reader_close(&r);
+                       fs::remove(path);
+                     }});
+
   int failures = 0, ran_targets = 0;
   for (const Target& t : targets) {
     if (!only.empty() && t.name != only) continue;
@@ -229,6 +267,7 @@ int main(int argc, char** argv) {
     failures += errors_thrown;
   }
   fs::remove_all(work);
+  (void)ipc::ShmPoseWriter::remove(ring);
   if (ran_targets == 0) return 2;
   return failures == 0 ? 0 : 1;
 }

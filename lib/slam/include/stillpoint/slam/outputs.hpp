@@ -1,0 +1,149 @@
+#pragma once
+// What the SLAM core reports: per-frame tracking output (state, pose, stage
+// times, the geometry module's verdict and, when asked for, every judged
+// feature), trajectory poses, map statistics and keyframe views.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "stillpoint/core/geometry.hpp"
+#include "stillpoint/core/time.hpp"
+#include "stillpoint/geometry/depth_clustering.hpp"
+#include "stillpoint/geometry/dynamic_clusters.hpp"
+
+namespace stillpoint::slam {
+
+enum class TrackingState { kInitialising, kOk, kLost, kRelocalised };
+const char* toString(TrackingState state);
+
+// Where one frame's tracking time went (milliseconds).
+struct StageTimes {
+  double extract = 0;         // ORB extraction and depth lookup
+  double initial_pose = 0;    // motion model / reference keyframe / relocalisation matching
+  double local_map = 0;       // local map update and projection search
+  double pose_optimisation = 0;  // every pose-only optimisation of the frame
+  double keyframe = 0;        // keyframe decision and creation
+  double geometry = 0;        // waiting for the clusters and judging them (tracking thread)
+};
+
+// A feature matched in the first tracking stage and judged by the geometry
+// module; (u, v) in distorted image pixels.
+struct JudgedFeature {
+  float u = 0, v = 0;
+  bool dynamic = false;
+  int cluster = -1;
+  float chi2 = 0;  // squared reprojection error / level sigma^2 under the pose it was judged under
+  // What chi2 was measured against: the anchor frame's match, a stage-1 map
+  // point, or a match carried from the last frame's dynamic features / the
+  // reference keyframe.
+  enum class Evidence : std::uint8_t { kAnchor = 0, kMapPoint = 1, kCarried = 2 };
+  Evidence evidence = Evidence::kMapPoint;
+  bool inherited = false;  // matched to a feature that was dynamic before
+  float depth = 0;         // keypoint depth in metres (0: none)
+  int distance = 0;        // Hamming distance of the evidence match
+  // Its distance over the second best in the search window (0: none or not a
+  // projection match; anchor and keyframe matches passed a 0.7 ratio test).
+  float ratio = 0;
+  // chi2's components: u, v and the depth term, each over its sigma.
+  Eigen::Vector3f residual = Eigen::Vector3f::Zero();
+  float freespace = -1;  // its cluster's GeometryOutput::freespace
+  // Its evidence disagreed, but the static hypothesis explains it as well
+  // (geometry.static_match_margin): left out of
+  // the verdict, reported with its outcome all the same.
+  bool explained = false;
+  // kAnchor: how many frames back its anchor match lies (geometry.anchor_frames,
+  // or fewer for a nearer anchor: geometry.near_anchor_frames); else 0.
+  int baseline = 0;
+};
+
+// What the geometry module saw in one frame (for visualisation and scoring).
+struct GeometryOutput {
+  bool ran = false;              // clusters arrived in time and were judged
+  bool deadline_missed = false;  // clusters were not ready within deadline_ms
+  int clusters = 0;
+  int dynamic_clusters = 0;
+  int dynamic_features = 0;      // features excluded from pose and mapping
+  bool anchor_fallback = false;  // judged by stage-1 matches: the anchor evidence disagreed with most of the view
+  bool consensus_pose = false;   // judged under the consensus pose of the anchor matches (geometry.consensus_ratio)
+  bool freespace_vetoed = false; // free space would have flagged most of the view: the pose is off, nothing added
+  double threshold = 0;          // score above which a cluster was dynamic
+  double clustering_ms = 0;      // K-Means time (in the module's thread)
+  std::vector<geometry::ClusterScore> scores;
+  // Per cluster: share of its depth samples in space the anchor frame saw
+  // empty (-1: fewer than 8 samples could be tested).
+  std::vector<float> freespace;
+  std::shared_ptr<const geometry::DepthClusters> labels;
+  std::vector<JudgedFeature> judged;
+};
+
+struct TrackOutput {
+  TrackingState state = TrackingState::kInitialising;
+  SE3 T_w_c = SE3::Identity();  // valid when state is kOk or kRelocalised
+  int features = 0;
+  int tracked = 0;  // inlier matches to map points
+  // Features matched to the masked features of the newest segmented keyframe
+  // and kept out of the pose (semantic module).
+  int semantic_features = 0;
+  bool new_keyframe = false;
+  std::size_t keyframes = 0;
+  double extract_ms = 0;  // ORB extraction
+  double track_ms = 0;    // whole tracking step, extraction included
+  StageTimes stages;
+  GeometryOutput geometry;
+};
+
+struct TrajectoryPose {
+  Timestamp stamp;
+  SE3 T_w_c;
+};
+
+struct MapStats {
+  std::size_t keyframes = 0;  // in the map
+  std::size_t points = 0;     // in the map
+  // Memory held: keyframes and map points still allocated (culled ones not
+  // yet freed included), and tracked frames kept for trajectory().
+  std::size_t keyframes_in_memory = 0;
+  std::size_t points_in_memory = 0;
+  std::size_t trajectory_records = 0;
+  int local_ba_runs = 0;
+  double local_mapping_ms_total = 0;
+  int dynamic_points_culled = 0;          // map points removed by the geometry module
+  std::int64_t geometry_deadline_misses = 0;
+  // Semantic module (all 0 when it is off).
+  int semantic_keyframes_segmented = 0;  // results applied to keyframes
+  int semantic_keyframes_no_colour = 0;  // keyframes from frames without colour (not segmented)
+  int semantic_keyframes_dropped = 0;    // left unsegmented: queue full (drop-oldest)
+  int semantic_failures = 0;             // segment() errors
+  int semantic_features_removed = 0;     // keyframe features dropped inside movable masks
+  int semantic_points_removed = 0;       // map points those features had created
+  int semantic_points_culled = 0;        // older map points seen mostly inside masks
+  int semantic_instances_applied = 0;
+  int semantic_instances_unconfirmed = 0;  // needed geometry's agreement and had none
+  int semantic_instances_capped = 0;       // over max_removed_fraction without confirmation
+  int semantic_instances_continued = 0;    // of the applied: kept only by the detector hysteresis (track_*)
+  // Over the most recent 1024 keyframes.
+  double semantic_latency_ms_median = 0, semantic_latency_ms_p95 = 0;  // keyframe creation -> mask applied
+  double segmentation_ms_median = 0, segmentation_ms_p95 = 0;          // segment() per keyframe
+  std::string semantic_model;  // card name and why it was chosen
+};
+
+// One keyframe's features as the map holds them (inspection, scoring, tests).
+struct KeyFrameFeature {
+  float u = 0, v = 0;    // distorted image pixels
+  bool mapped = false;   // holds a (live) map point
+  bool dynamic = false;  // dropped by the geometry or the semantic module
+};
+
+struct KeyFrameView {
+  std::int64_t id = 0;
+  Timestamp stamp;
+  bool bad = false;        // culled as redundant
+  bool segmented = false;  // the semantic module's result was applied
+  SE3 T_w_c = SE3::Identity();  // current estimate (a culled keyframe's follows its parent)
+  std::vector<KeyFrameFeature> features;
+};
+
+}  // namespace stillpoint::slam
