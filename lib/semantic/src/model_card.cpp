@@ -29,8 +29,11 @@ class CardReader {
   // Unknown keys are errors: a typo must not silently fall back to a default.
   Status checkKeys(const YAML::Node& map, const std::string& prefix,
                    const std::set<std::string>& known) const {
+    std::set<std::string> seen;
     for (const auto& kv : map) {
-      const std::string key = kv.first.as<std::string>("");
+      if (!kv.first.IsScalar()) return error(kv.first, prefix, "has a key that is not a plain name");
+      const std::string key = kv.first.Scalar();
+      if (!seen.insert(key).second) return error(kv.first, prefix + key, "is given twice");
       if (!known.count(key))
         return error(kv.first, prefix + key, "is not a known field");
     }

@@ -89,6 +89,7 @@ TEST_F(CardFile, ErrorsNameTheFieldAndLine) {
       {"classes: [bg, person, chair]", "classes: [bg, person, person]", "classes", ""},
       {"model: net.onnx\n", "", "model", ""},
       {"  background_class: bg", "  background_class: bg\n  threshold: 3", "decoder.threshold", "line 17"},
+      {"  width: 32", "  width: 32\n  width: 64", "input.width", "line 5"},  // given twice: not the first silently
   };
   for (const BadCase& c : cases) {
     std::string text = kGood;

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <set>
 
 #include <yaml-cpp/yaml.h>
 
@@ -28,8 +29,12 @@ class Reader {
 
   Status checkKeys(const YAML::Node& map, const std::string& prefix, std::initializer_list<const char*> keys) const {
     if (!map.IsMap()) return Error{where(map, prefix) + " must be a map"};
+    std::set<std::string> seen;
     for (const auto& kv : map) {
-      const std::string key = kv.first.as<std::string>();
+      if (!kv.first.IsScalar()) return Error{where(kv.first, prefix) + ": keys must be plain names"};
+      const std::string key = kv.first.Scalar();
+      if (!seen.insert(key).second)
+        return Error{where(kv.first, prefix.empty() ? key : prefix + "." + key) + " is given twice"};
       bool known = false;
       for (const char* k : keys) known |= key == k;
       if (!known) return Error{where(kv.first, prefix.empty() ? key : prefix + "." + key) + " is not a known key"};
