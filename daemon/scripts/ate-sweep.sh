@@ -6,7 +6,7 @@
 #
 # usage: daemon/scripts/ate-sweep.sh [SEQUENCE_DIR] [EXTRA_YAML]
 #   SEQUENCE_DIR defaults to ../shared/data/tum_fr3_teddy_200 beside the repository;
-#   EXTRA_YAML is appended to each run's config, e.g. $'mapping:\n  ba_iterations: 20\n'.
+#   EXTRA_YAML is appended to each run's config, e.g. $'mapping:\n  ba_max_keyframes: 30\n'.
 #   ORB_EXTRA (environment) holds more `orb:` keys, as indented lines, e.g. $'  num_levels: 3\n'
 #   (an `orb:` block in EXTRA_YAML would clash with the sweep's own).
 #   BUDGETS (environment) replaces the six feature budgets, e.g. "1400 1450 1500 1550 1600 1650".
