@@ -56,9 +56,9 @@ sigset_t stopSignals() {
 // (OpenCV, Ceres, GDAL, ...) and before the config loads: until then their
 // default action would end the process with 143 and no message. Every thread
 // inherits the mask; one thread takes the signals with sigtimedwait, and one
-// that came during start-up ends it cleanly. Only the dynamic loader's
-// mapping of the libraries comes before this (about 0.1 s after exec on a
-// 2-core x86-64; systemd counts an exit by SIGTERM as clean).
+// that came during start-up ends it cleanly. Started through the launcher
+// (stillpointd_launcher.c) the signals are blocked from exec on; this covers
+// a service started directly.
 void blockStopSignals(int, char**, char**) {
   const sigset_t signals = stopSignals();
   sigprocmask(SIG_BLOCK, &signals, nullptr);
