@@ -132,6 +132,13 @@ int main(int argc, char** argv) {
   log::setLevel(level);
   cv::setNumThreads(1);  // OpenCV's pool would compete with our pinned threads
 
+  // A signal that came while the config loaded is pending now: it ends
+  // start-up here, whatever the signal thread would see first.
+  const timespec no_wait{0, 0};
+  if (sigtimedwait(&signals, nullptr, &no_wait) > 0) {
+    writeAll("stillpointd: signal during start-up, exiting\n");
+    return 0;
+  }
   daemon::Daemon service(config);
   // First signal: orderly stop. Second signal, or a stop overrunning
   // shutdown_timeout_s: immediate _exit (nothing flushed). A signal during
