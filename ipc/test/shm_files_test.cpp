@@ -19,20 +19,9 @@ namespace {
 
 using namespace shm_test;
 
-class RingFiles : public testing::Test {
+class RingFiles : public RingNameTest {
  protected:
-  void SetUp() override {
-    name_ = std::string("sp_files_") + testing::UnitTest::GetInstance()->current_test_info()->name() + "_" +
-            std::to_string(::getpid());
-    clear();
-  }
-  void TearDown() override { clear(); }
-  void clear() {
-    for (const std::string& p : {ringPath(name_), lockPath(name_)}) {
-      if (::unlink(p.c_str()) != 0) ::rmdir(p.c_str());
-    }
-  }
-  std::string name_;
+  RingFiles() : RingNameTest("sp_files_") {}
 };
 
 TEST_F(RingFiles, FifoAtTheRingPathFailsFastNamingThePath) {

@@ -59,20 +59,9 @@ bool waitUntil(const std::function<bool()>& condition, std::chrono::milliseconds
   return true;
 }
 
-class RingOwnership : public testing::Test {
+class RingOwnership : public RingNameTest {
  protected:
-  void SetUp() override {
-    name_ = std::string("sp_own_") + testing::UnitTest::GetInstance()->current_test_info()->name() + "_" +
-            std::to_string(::getpid());
-    clear();
-  }
-  void TearDown() override { clear(); }
-  void clear() {
-    for (const std::string& p : {ringPath(name_), lockPath(name_)}) {
-      if (::unlink(p.c_str()) != 0) ::rmdir(p.c_str());
-    }
-  }
-  std::string name_;
+  RingOwnership() : RingNameTest("sp_own_") {}
 };
 
 TEST_F(RingOwnership, AnotherUserReadsTheRingButCannotBlockWriters) {

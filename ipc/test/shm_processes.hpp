@@ -8,6 +8,8 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <gtest/gtest.h>
+
 #include <chrono>
 #include <csignal>
 #include <functional>
@@ -157,6 +159,24 @@ class WriterProcess {
   pid_t pid_ = -1;
   int out_fd_ = -1;
   std::string report_;
+};
+
+// A ring name of the test's own (prefix, test name, pid), with its ring and
+// lock files removed before and after the test.
+class RingNameTest : public testing::Test {
+ protected:
+  explicit RingNameTest(const char* prefix) : prefix_(prefix) {}
+  void SetUp() override {
+    name_ = prefix_ + testing::UnitTest::GetInstance()->current_test_info()->name() + "_" + std::to_string(::getpid());
+    clear();
+  }
+  void TearDown() override { clear(); }
+  void clear() {
+    for (const std::string& p : {ringPath(name_), lockPath(name_)}) {
+      if (::unlink(p.c_str()) != 0) ::rmdir(p.c_str());
+    }
+  }
+  std::string prefix_, name_;
 };
 
 }  // namespace stillpoint::ipc::shm_test
