@@ -10,7 +10,7 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include "stillpoint/core/yaml_error.hpp"
+#include "stillpoint/core/yaml_file.hpp"
 #include "stillpoint/core/log.hpp"
 
 namespace stillpoint::daemon {
@@ -332,16 +332,9 @@ void emitPlacement(YAML::Emitter& out, const char* name, const ThreadPlacement& 
 }  // namespace
 
 Result<DaemonConfig> loadDaemonConfig(const std::string& path) {
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    return Error{path + ": cannot be opened"};
-  } catch (const YAML::Exception& e) {
-    return Error{path + ": " + yamlErrorText(e)};
-  } catch (const std::exception& e) {  // a directory, an I/O error while reading
-    return Error{path + ": " + e.what()};
-  }
+  auto loaded = loadYamlFile(path, path);
+  if (!loaded) return Error{loaded.error()};
+  const YAML::Node root = *loaded;
   if (!root.IsMap()) return Error{path + ": expected a mapping at the top level"};
   DaemonConfig config;
   std::string error;

@@ -5,7 +5,7 @@
 #include <functional>
 #include <set>
 
-#include "stillpoint/core/yaml_error.hpp"
+#include "stillpoint/core/yaml_file.hpp"
 
 namespace stillpoint::ipc {
 
@@ -118,16 +118,9 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
 }
 
 Result<IpcOptions> loadIpcOptions(const std::string& path) {
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    return Error{"config '" + path + "': cannot be opened"};
-  } catch (const YAML::Exception& e) {
-    return Error{"config '" + path + "': " + yamlErrorText(e)};
-  } catch (const std::exception& e) {  // a directory, an I/O error while reading
-    return Error{"config '" + path + "': " + e.what()};
-  }
+  auto loaded = loadYamlFile(path, "config '" + path + "'");
+  if (!loaded) return Error{loaded.error()};
+  const YAML::Node root = *loaded;
   if (root.IsNull()) return IpcOptions{};
   if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};
   auto parsed = parseIpcOptions(root["ipc"]);

@@ -6,7 +6,7 @@
 #include <filesystem>
 #include <set>
 
-#include "stillpoint/core/yaml_error.hpp"
+#include "stillpoint/core/yaml_file.hpp"
 
 namespace stillpoint {
 
@@ -85,16 +85,9 @@ Result<CameraModel> cameraPreset(const std::string& name) {
 }
 
 Result<CameraModel> loadCameraYaml(const std::string& path) {
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    return Error{"camera file '" + path + "': cannot be opened"};
-  } catch (const YAML::Exception& e) {
-    return Error{"camera file '" + path + "': " + yamlErrorText(e)};
-  } catch (const std::exception& e) {  // a directory, an I/O error while reading
-    return Error{"camera file '" + path + "': " + e.what()};
-  }
+  auto loaded = loadYamlFile(path, "camera file '" + path + "'");
+  if (!loaded) return Error{loaded.error()};
+  const YAML::Node root = *loaded;
   if (!root.IsMap()) return Error{"camera file '" + path + "': expected a mapping at the top level"};
   // Unknown keys are typos ("depth_factr: 1000" would keep 5000), keys given
   // twice would keep the first silently: both are errors.

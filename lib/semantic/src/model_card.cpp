@@ -6,7 +6,7 @@
 #include <cmath>
 #include <set>
 
-#include "stillpoint/core/yaml_error.hpp"
+#include "stillpoint/core/yaml_file.hpp"
 
 namespace stillpoint::semantic {
 namespace {
@@ -162,16 +162,9 @@ Status ModelCard::validate() const {
 
 Result<ModelCard> loadModelCard(const std::filesystem::path& path) {
   const std::string file = path.string();
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(file);
-  } catch (const YAML::BadFile&) {
-    return Error{"model card '" + file + "': cannot be opened"};
-  } catch (const YAML::Exception& e) {
-    return Error{"model card '" + file + "': " + yamlErrorText(e)};
-  } catch (const std::exception& e) {  // a directory, an I/O error while reading
-    return Error{"model card '" + file + "': " + e.what()};
-  }
+  auto loaded = loadYamlFile(file, "model card '" + file + "'");
+  if (!loaded) return Error{loaded.error()};
+  const YAML::Node root = *loaded;
   if (!root.IsMap()) return Error{"model card '" + file + "': expected a mapping at the top level"};
   CardReader r(file);
   ModelCard card;

@@ -7,7 +7,7 @@
 #include <map>
 #include <sstream>
 
-#include "stillpoint/core/yaml_error.hpp"
+#include "stillpoint/core/yaml_file.hpp"
 
 namespace stillpoint::slam {
 
@@ -210,16 +210,9 @@ std::string yamlText(const T& value) {
 
 Result<SlamOptions> loadSlamOptions(const std::string& path) {
   try {
-    YAML::Node root;
-    try {
-      root = YAML::LoadFile(path);
-    } catch (const YAML::BadFile&) {
-      return Error{"config '" + path + "': cannot be opened"};
-    } catch (const YAML::Exception& e) {
-      return Error{"config '" + path + "': " + yamlErrorText(e)};
-    } catch (const std::exception& e) {  // a directory, an I/O error while reading
-      return Error{"config '" + path + "': " + e.what()};
-    }
+    auto loaded = loadYamlFile(path, "config '" + path + "'");
+    if (!loaded) return Error{loaded.error()};
+    const YAML::Node root = *loaded;
     SlamOptions options;
     if (root.IsNull()) return options;
     if (!root.IsMap()) return Error{"config '" + path + "': expected a mapping at the top level"};

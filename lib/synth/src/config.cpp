@@ -9,7 +9,7 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include "stillpoint/core/yaml_error.hpp"
+#include "stillpoint/core/yaml_file.hpp"
 
 namespace stillpoint::synth {
 namespace {
@@ -233,14 +233,9 @@ Status SynthConfig::validate() const {
 Result<SynthConfig> loadSynthConfig(const std::string& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) return Error{"config '" + path + "' does not exist"};
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::ParserException& e) {
-    return Error{"config '" + path + "': " + yamlErrorText(e)};
-  } catch (const std::exception& e) {
-    return Error{"config '" + path + "': " + e.what()};
-  }
+  auto loaded = loadYamlFile(path, "config '" + path + "'");
+  if (!loaded) return Error{loaded.error()};
+  const YAML::Node root = *loaded;
   if (!root || root.IsNull()) return Error{"config '" + path + "' is empty"};
   SynthConfig c;
   c.base_dir = fs::absolute(fs::path(path)).parent_path().string();
