@@ -3,6 +3,7 @@
 // machine-readable.
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/videoio.hpp>
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -11,6 +12,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <map>
 #include <string>
 #include <thread>
@@ -24,6 +26,7 @@
 #include "stillpoint/slam/options.hpp"
 #include "stillpoint/slam/system.hpp"
 #include "stillpoint/synth/score.hpp"
+#include "render/frame_render.hpp"
 
 namespace {
 
@@ -35,6 +38,8 @@ constexpr const char* kUsage =
     "                         [--modules none|geometry,semantic] [--features-out FEATURES.txt]\n"
     "                         [--keyframes-out KEYFRAMES.txt] [--keyframe-trajectory KF_TRAJ.txt]\n"
     "                         [--known-movers] [--max-frames N] [--log-level debug|info|warn|error]\n"
+    "                         [--frame-log FRAMES.txt] [--render DIR] [--render-every N]\n"
+    "                         [--render-video FILE.mp4] [--model-card CARD.yaml]\n"
     "       stillpoint-replay --help | --version | --options-reference\n"
     "\n"
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
@@ -54,10 +59,22 @@ constexpr const char* kUsage =
     "--known-movers gives tracking the sequence's own mover masks (mask.txt, written by\n"
     "stillpoint-synth) as known movers: their features stay out of the pose and the map. With\n"
     "--modules none it measures the best a detector could do (a perfect one).\n"
-    "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n";
+    "--model-card picks the semantic module's model (semantic.model_card).\n"
+    "--frame-log writes one line per frame: 'index timestamp state track_ms geometry_ms features\n"
+    "in_pose geometry_dynamic semantic_dynamic keyframe(0|1)' (state: ok, relocalised, lost,\n"
+    "initialising, or skipped for a frame that could not be read or tracked).\n"
+    "--render DIR writes a picture of every frame (every N-th with --render-every): the colour\n"
+    "image with each feature drawn by its fate (in the pose, dynamic by geometry, dynamic by a\n"
+    "semantic mask, no depth, unmatched), the depth clusters, the newest semantic masks and the\n"
+    "trajectory so far; --render-video writes the same pictures as a video (OpenCV VideoWriter,\n"
+    "mp4v) at the sequence's frame rate.\n"
+    "The last line is: frames=<n> tracked=<n> lost=<n> keyframes=<n> track_ms_median=<v> track_ms_p95=<v>\n"
+    "geometry_ms_median=<v> segment_ms_median=<v> segmentations_dropped=<n> (one line).\n";
 
 struct Args {
   std::string dataset, camera, output, config, modules, features_out, keyframes_out, keyframe_trajectory, log_level = "warn";
+  std::string frame_log, render_dir, render_video, model_card;
+  long render_every = 1;
   bool sequential = false, paced = false, known_movers = false;
   bool geometry = false, semantic = false;  // from --modules
   long max_frames = -1;
@@ -90,6 +107,23 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       if (!value(&args->keyframe_trajectory)) return false;
     } else if (a == "--log-level") {
       if (!value(&args->log_level)) return false;
+    } else if (a == "--model-card") {
+      if (!value(&args->model_card)) return false;
+    } else if (a == "--frame-log") {
+      if (!value(&args->frame_log)) return false;
+    } else if (a == "--render") {
+      if (!value(&args->render_dir)) return false;
+    } else if (a == "--render-video") {
+      if (!value(&args->render_video)) return false;
+    } else if (a == "--render-every") {
+      std::string v;
+      if (!value(&v)) return false;
+      char* end = nullptr;
+      args->render_every = std::strtol(v.c_str(), &end, 10);
+      if (*end || args->render_every <= 0) {
+        *error = "--render-every needs a positive integer";
+        return false;
+      }
     } else if (a == "--max-frames") {
       std::string v;
       if (!value(&v)) return false;
@@ -197,16 +231,28 @@ int main(int argc, char** argv) {
     options = *loaded;
   }
   if (args.sequential) options.sequential = true;
+  if (!args.model_card.empty()) options.semantic.model_card = args.model_card;
   // The keyframe file lists every keyframe made, culled ones included.
   if (!args.keyframes_out.empty()) options.mapping.keep_culled_keyframes = true;
   options.geometry.report_features = !args.features_out.empty();
+  const bool rendering = !args.render_dir.empty() || !args.render_video.empty();
+  options.report_fates = rendering;
   if (!args.modules.empty()) {
     options.geometry.enabled = args.geometry;
     options.semantic.enabled = args.semantic;
   }
   // Every output is opened (created) before the run: an unwritable path is
   // an error now, not after the whole sequence.
-  for (const std::string* path : {&args.output, &args.keyframe_trajectory, &args.keyframes_out}) {
+  if (!args.render_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(args.render_dir, ec);
+    if (ec || !std::filesystem::is_directory(args.render_dir)) {
+      std::fprintf(stderr, "stillpoint-replay: cannot create --render folder %s: %s\n", args.render_dir.c_str(),
+                   ec ? ec.message().c_str() : "not a folder");
+      return 1;
+    }
+  }
+  for (const std::string* path : {&args.output, &args.keyframe_trajectory, &args.keyframes_out, &args.frame_log}) {
     if (path->empty()) continue;
     std::FILE* f = std::fopen(path->c_str(), "a");
     if (!f) {
@@ -244,6 +290,39 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "stillpoint-replay: %s\n", data.error().c_str());
     return 1;
   }
+  std::FILE* frame_log = nullptr;
+  if (!args.frame_log.empty()) {
+    frame_log = std::fopen(args.frame_log.c_str(), "w");
+    if (!frame_log) {
+      std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.frame_log.c_str());
+      return 1;
+    }
+    std::fputs("# index timestamp state track_ms geometry_ms features in_pose geometry_dynamic semantic_dynamic "
+               "keyframe\n",
+               frame_log);
+  }
+  cv::VideoWriter video;
+  if (!args.render_video.empty()) {
+    // The sequence's own rate, from its first and last stamps.
+    double fps = 30.0;
+    if (data->size() > 1) {
+      const double span = secondsBetween(data->stamp(data->size() - 1), data->stamp(0));
+      if (span > 0) fps = std::clamp((data->size() - 1) / span, 1.0, 120.0);
+    }
+    try {
+      video.open(args.render_video, cv::VideoWriter::fourcc('m', 'p', '4', 'v'), fps,
+                 cv::Size(2 * camera->width, 2 * camera->height));
+    } catch (const cv::Exception& e) {
+      std::fprintf(stderr, "stillpoint-replay: %s\n", e.what());
+    }
+    if (!video.isOpened()) {
+      std::fprintf(stderr, "stillpoint-replay: cannot write the video %s (OpenCV has no mp4v writer for it)\n",
+                   args.render_video.c_str());
+      return 1;
+    }
+  }
+  eval::Trajectory rendered_poses;
+  std::size_t render_failures = 0;
   std::map<Timestamp, std::string> mover_masks;
   if (args.known_movers) {
     auto listed = synth::readMaskList(args.dataset);
@@ -285,6 +364,7 @@ int main(int argc, char** argv) {
     if (!frame) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, frame.error().c_str());
       ++skipped;
+      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0\n", i, data->stamp(i).toSecondsString().c_str());
       continue;
     }
     if (frames == 0) first_stamp = frame->stamp;
@@ -316,7 +396,38 @@ int main(int argc, char** argv) {
     if (!out) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, out.error().c_str());
       ++skipped;
+      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0\n", i, frame->stamp.toSecondsString().c_str());
       continue;
+    }
+    const bool has_pose = out->state == slam::TrackingState::kOk || out->state == slam::TrackingState::kRelocalised;
+    if (frame_log)
+      std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d\n", i, frame->stamp.toSecondsString().c_str(),
+                   slam::toString(out->state), out->track_ms, out->stages.geometry, out->features, out->tracked,
+                   out->geometry.dynamic_features, out->semantic_features, out->new_keyframe ? 1 : 0);
+    if (rendering && has_pose) rendered_poses.push_back({frame->stamp, out->T_w_c});
+    if (rendering && i % static_cast<std::size_t>(args.render_every) == 0) {
+      render::FrameInput in;
+      in.bgr = &frame->bgr;
+      in.gray = &frame->gray;
+      in.out = &*out;
+      in.index = i;
+      in.estimate = &rendered_poses;
+      in.geometry_enabled = options.geometry.enabled;
+      in.semantic_enabled = options.semantic.enabled;
+      const cv::Mat picture = render::renderFrame(in);
+      if (!args.render_dir.empty()) {
+        char name[32];
+        std::snprintf(name, sizeof(name), "/%06zu.png", i);
+        bool written = false;
+        try {
+          written = cv::imwrite(args.render_dir + name, picture);
+        } catch (const cv::Exception&) {
+        }
+        if (!written && render_failures++ == 0)
+          std::fprintf(stderr, "stillpoint-replay: cannot write %s%s (further failures counted)\n",
+                       args.render_dir.c_str(), name);
+      }
+      if (video.isOpened()) video.write(picture);
     }
     ++frames;
     extract_ms.push_back(out->extract_ms);
@@ -351,6 +462,16 @@ int main(int argc, char** argv) {
     }
   }
   (*system)->finish();
+  if (video.isOpened()) video.release();
+  if (frame_log && (std::ferror(frame_log) | std::fclose(frame_log))) {
+    std::fprintf(stderr, "stillpoint-replay: writing %s failed: %s\n", args.frame_log.c_str(), std::strerror(errno));
+    return 1;
+  }
+  if (render_failures > 0) {
+    std::fprintf(stderr, "stillpoint-replay: %zu pictures could not be written to %s\n", render_failures,
+                 args.render_dir.c_str());
+    return 1;
+  }
   // A full disk (or /dev/full) shows when the buffered writes are flushed.
   if (features_out && (std::ferror(features_out) | std::fclose(features_out))) {
     std::fprintf(stderr, "stillpoint-replay: writing %s failed: %s\n", args.features_out.c_str(), std::strerror(errno));
@@ -459,7 +580,9 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "stillpoint-replay: evaluation failed: %s\n", ev.error().c_str());
     }
   }
-  std::printf("frames=%zu tracked=%zu lost=%zu keyframes=%zu track_ms_median=%.3f track_ms_p95=%.3f\n", frames,
-              tracked, lost, map.keyframes, tr.median, tr.p95);
+  std::printf("frames=%zu tracked=%zu lost=%zu keyframes=%zu track_ms_median=%.3f track_ms_p95=%.3f "
+              "geometry_ms_median=%.3f segment_ms_median=%.3f segmentations_dropped=%d\n",
+              frames, tracked, lost, map.keyframes, tr.median, tr.p95, stats(geometry_ms).median,
+              map.segmentation_ms_median, map.semantic_keyframes_dropped);
   return frames > 0 ? 0 : 1;
 }

@@ -179,7 +179,10 @@ Range padded(Range r, double fraction, double min_span) {
   return {r.lo - pad, r.hi + pad};
 }
 
-void drawTopView(cv::Mat& image, cv::Rect area, const Trajectory& gt, const Trajectory& est) {
+}  // namespace
+
+void drawTopView(cv::Mat& image, cv::Rect area, const Trajectory& gt, const Trajectory& est,
+                 const std::string& estimate_label) {
   // The two axes of largest extent form the viewing plane.
   std::array<Range, 3> extent;
   for (const Trajectory* trajectory : {&gt, &est}) {
@@ -219,11 +222,14 @@ void drawTopView(cv::Mat& image, cv::Rect area, const Trajectory& gt, const Traj
     drawSeries(image, points, times, color, thickness);
     if (!points.empty()) cv::circle(image, points.front(), 5, color, 2, cv::LINE_AA);
   }
-  drawLegend(image, {area.x + 10, area.y + 10},
-             {{"ground truth", kGroundTruthColor},
-              {"estimate (aligned)", kEstimateColor},
-              {"start", kBlack, LegendEntry::Style::kCircle}});
+  std::vector<LegendEntry> legend;
+  if (!gt.empty()) legend.push_back({"ground truth", kGroundTruthColor});
+  legend.push_back({estimate_label, kEstimateColor});
+  legend.push_back({"start", kBlack, LegendEntry::Style::kCircle});
+  drawLegend(image, {area.x + 10, area.y + 10}, legend);
 }
+
+namespace {
 
 void drawErrorPanel(cv::Mat& image, cv::Rect area, const Trajectory& est,
                     const std::vector<double>& errors) {
@@ -290,9 +296,77 @@ Status writeTrajectoryPlot(const std::string& png_path, const Trajectory& gt,
                           top_height - title_height - 55);
   const cv::Rect bottom_area(kLeft, top_height + 15, options.width - kLeft - kRight,
                              options.height - top_height - 15 - 55);
-  drawTopView(image, top_area, gt, est_aligned);
+  drawTopView(image, top_area, gt, est_aligned, "estimate (aligned)");
   drawErrorPanel(image, bottom_area, est_aligned, ate_errors);
 
+  try {
+    if (!cv::imwrite(png_path, image)) return Error{png_path + ": could not write image"};
+  } catch (const cv::Exception& e) {
+    return Error{png_path + ": could not write image: " + e.what()};
+  }
+  return Status::success();
+}
+
+}  // namespace stillpoint::eval
+
+namespace stillpoint::eval {
+
+Status writeSeriesPlot(const std::string& png_path, const SeriesPlot& plot) {
+  if (plot.width < 400 || plot.height < 300) return Error{png_path + ": plot must be at least 400x300 pixels"};
+  Range x_range, y_range;
+  for (const Series& s : plot.series) {
+    if (s.x.size() != s.y.size())
+      return Error{png_path + ": series '" + s.label + "' has " + std::to_string(s.x.size()) + " x and " +
+                   std::to_string(s.y.size()) + " y values"};
+    for (std::size_t k = 0; k < s.x.size(); ++k) {
+      if (!std::isfinite(s.x[k]) || !std::isfinite(s.y[k])) continue;
+      x_range.add(s.x[k]);
+      y_range.add(s.y[k]);
+    }
+  }
+  if (!(x_range.span() >= 0)) return Error{png_path + ": nothing to plot"};
+  if (std::isfinite(plot.reference)) y_range.add(plot.reference);
+  y_range.add(0.0);
+
+  static const cv::Scalar kPalette[] = {kEstimateColor, kErrorColor, cv::Scalar(40, 150, 40), cv::Scalar(150, 40, 150),
+                                        cv::Scalar(20, 140, 200), kGroundTruthColor};
+  cv::Mat image(plot.height, plot.width, CV_8UC3, kWhite);
+  const int title_height = plot.title.empty() ? 15 : 40;
+  if (!plot.title.empty())
+    putText(image, plot.title, {plot.width / 2 - textSize(plot.title, kTitleScale).width / 2, 27}, kTitleScale);
+  Axes axes;
+  axes.area = cv::Rect(95, title_height, plot.width - 95 - 25, plot.height - title_height - 55);
+  axes.x = padded(x_range, 0.0, 1.0);
+  axes.y = {std::min(0.0, y_range.lo), y_range.hi > 0.0 ? 1.1 * y_range.hi : 1.0};
+  drawAxes(image, axes, plot.x_label, plot.y_label);
+  std::vector<LegendEntry> legend;
+  for (std::size_t k = 0; k < plot.series.size(); ++k) {
+    const Series& s = plot.series[k];
+    const cv::Scalar color = kPalette[k % std::size(kPalette)];
+    // Non-finite values break the line, as a gap in time does.
+    std::vector<cv::Point> points;
+    std::vector<double> times;
+    auto flush = [&] {
+      drawSeries(image, points, times, color, 1);
+      points.clear();
+      times.clear();
+    };
+    for (std::size_t i = 0; i < s.x.size(); ++i) {
+      if (!std::isfinite(s.x[i]) || !std::isfinite(s.y[i])) {
+        flush();
+        continue;
+      }
+      points.push_back(axes.toPixel(s.x[i], s.y[i]));
+      times.push_back(0.0);  // only non-finite values break a series here
+    }
+    flush();
+    legend.push_back({s.label, color});
+  }
+  if (std::isfinite(plot.reference)) {
+    drawDashedLine(image, axes.toPixel(axes.x.lo, plot.reference), axes.toPixel(axes.x.hi, plot.reference), kBlack);
+    legend.push_back({plot.reference_label, kBlack, LegendEntry::Style::kDashed});
+  }
+  if (!legend.empty()) drawLegend(image, {axes.area.x + 10, axes.area.y + 10}, legend);
   try {
     if (!cv::imwrite(png_path, image)) return Error{png_path + ": could not write image"};
   } catch (const cv::Exception& e) {

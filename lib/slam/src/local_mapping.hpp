@@ -8,6 +8,7 @@
 #include <list>
 #include <mutex>
 #include <thread>
+#include <utility>
 
 #include "map.hpp"
 #include "semantic_worker.hpp"
@@ -72,6 +73,9 @@ class LocalMapper {
   // Masks need the geometry module's agreement (confirm_with_geometry).
   void setSemanticConfirmation(bool required) { semantic_confirm_ = required; }
   const SemanticStats& semanticStats() const { return semantic_stats_; }
+  // The labels of the newest segmentation applied, with its keyframe's stamp
+  // (null until one is); kept only under SlamOptions::report_fates.
+  std::pair<std::shared_ptr<const cv::Mat>, Timestamp> latestSemanticLabels() const;
 
  private:
   void run(std::stop_token stop);
@@ -99,6 +103,9 @@ class LocalMapper {
   std::deque<SemanticResult> mailbox_;  // guarded by queue_mutex_
   bool semantic_confirm_ = false;
   SemanticStats semantic_stats_;
+  mutable std::mutex labels_mutex_;
+  std::shared_ptr<const cv::Mat> latest_labels_;  // guarded by labels_mutex_
+  Timestamp latest_labels_stamp_;                 // guarded by labels_mutex_
 };
 
 }  // namespace stillpoint::slam

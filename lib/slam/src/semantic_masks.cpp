@@ -14,6 +14,11 @@ namespace {
 log::Logger logger("semantic");
 }  // namespace
 
+std::pair<std::shared_ptr<const cv::Mat>, Timestamp> LocalMapper::latestSemanticLabels() const {
+  std::lock_guard lock(labels_mutex_);
+  return {latest_labels_, latest_labels_stamp_};
+}
+
 void LocalMapper::applySemantic(const SemanticResult& r) {
   SemanticStats& st = semantic_stats_;
   st.segment_ms.add(r.segment_ms);
@@ -110,6 +115,11 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   }
   if (features_removed > 0) kf->updateConnections();
   kf->segmented = true;
+  if (options_.report_fates) {
+    std::lock_guard lock(labels_mutex_);
+    latest_labels_ = std::make_shared<const cv::Mat>(r.labels);
+    latest_labels_stamp_ = f.stamp;
+  }
   ++st.segmented;
   st.features_removed += features_removed;
   st.points_removed += points_removed;

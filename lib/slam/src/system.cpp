@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <mutex>
 #include <optional>
+#include <tuple>
 
 #include "frame.hpp"
 #include "local_mapping.hpp"
@@ -63,6 +64,17 @@ const char* toString(TrackingState state) {
     case TrackingState::kOk: return "ok";
     case TrackingState::kLost: return "lost";
     case TrackingState::kRelocalised: return "relocalised";
+  }
+  return "?";
+}
+
+const char* toString(FeatureFate fate) {
+  switch (fate) {
+    case FeatureFate::kInPose: return "in the pose";
+    case FeatureFate::kGeometryDynamic: return "dynamic (geometry)";
+    case FeatureFate::kSemanticDynamic: return "dynamic (semantic)";
+    case FeatureFate::kNoDepth: return "no depth";
+    case FeatureFate::kUnused: return "unmatched";
   }
   return "?";
 }
@@ -262,6 +274,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
     std::shared_lock lock(s.map.mutex());
     out.keyframes = s.map.goodKeyFrameCount();
   }
+  if (s.options.report_fates) std::tie(out.semantic_labels, out.semantic_stamp) = s.mapper.latestSemanticLabels();
   return out;
 }
 

@@ -56,6 +56,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       new_keyframe = createKeyFrame();
     }
   }
+  if (options_.report_fates) reportFates(ok, out);
   if (ok) {
     updateVelocity();
     // Temporary odometry points never outlive the frame they helped track.
@@ -82,6 +83,23 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
+}
+
+void Tracker::reportFates(bool ok, TrackOutput* out) const {
+  out->fates.resize(current_.size());
+  for (int i = 0; i < current_.size(); ++i) {
+    FeatureView& f = out->fates[i];
+    f.u = current_.keys[i].pt.x;
+    f.v = current_.keys[i].pt.y;
+    if (current_.dynamic[i] == kGeometryDynamic)
+      f.fate = FeatureFate::kGeometryDynamic;
+    else if (current_.dynamic[i] == kSemanticDynamic)
+      f.fate = FeatureFate::kSemanticDynamic;
+    else if (ok && current_.points[i] && !current_.outlier[i])
+      f.fate = FeatureFate::kInPose;
+    else
+      f.fate = current_.depth[i] > 0 ? FeatureFate::kUnused : FeatureFate::kNoDepth;
+  }
 }
 
 bool Tracker::trackFrame(bool clusters_pending) {

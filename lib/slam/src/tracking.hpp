@@ -62,6 +62,7 @@ class Tracker {
   void updateVelocity();
   void updateProbation();
   void markMoverCells(bool tracked);
+  void reportFates(bool ok, TrackOutput* out) const;  // SlamOptions::report_fates
   // Relocalisation (relocalisation.cpp).
   bool relocalise();
   std::vector<KeyFrame*> relocalisationCandidates();

@@ -223,6 +223,9 @@ struct SlamOptions {
   GeometryOptions geometry;
   SemanticOptions semantic;
   bool sequential = false;  // YAML: one thread, deterministic (tests, evaluation)
+  // Diagnostics, built only when asked for: TrackOutput::fates and
+  // TrackOutput::semantic_labels (stillpoint-replay --render).
+  bool report_fates = false;
   Status validate() const;
 };
 

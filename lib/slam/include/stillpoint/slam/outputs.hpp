@@ -79,6 +79,21 @@ struct GeometryOutput {
   std::vector<JudgedFeature> judged;
 };
 
+// What became of a feature in its frame (TrackOutput::fates: pictures of a run).
+enum class FeatureFate : std::uint8_t {
+  kInPose = 0,           // matched to a map point and an inlier of the final pose
+  kGeometryDynamic = 1,  // kept out by the geometry module
+  kSemanticDynamic = 2,  // kept out by the semantic module (a movable mask, or a known mover)
+  kNoDepth = 3,          // no depth at the keypoint, and not in the pose
+  kUnused = 4,           // has depth, but unmatched or an outlier
+};
+const char* toString(FeatureFate fate);
+
+struct FeatureView {
+  float u = 0, v = 0;  // distorted image pixels
+  FeatureFate fate = FeatureFate::kUnused;
+};
+
 struct TrackOutput {
   TrackingState state = TrackingState::kInitialising;
   SE3 T_w_c = SE3::Identity();  // valid when state is kOk or kRelocalised
@@ -93,6 +108,13 @@ struct TrackOutput {
   double track_ms = 0;    // whole tracking step, extraction included
   StageTimes stages;
   GeometryOutput geometry;
+  // Filled only when SlamOptions::report_fates asks for it (pictures of a
+  // run): every feature of the frame with its fate, and the labels of the
+  // newest segmentation applied to the map (CV_8U, image size: 0 = none, k =
+  // the k-th movable instance), null until one is, with its keyframe's stamp.
+  std::vector<FeatureView> fates;
+  std::shared_ptr<const cv::Mat> semantic_labels;
+  Timestamp semantic_stamp;
 };
 
 struct TrajectoryPose {

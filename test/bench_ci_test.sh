@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# The CI-sized bench: the real excerpt and one generated dynamic sequence,
+# every module set, one sequential run each. Fails on a crashed run or a
+# malformed report, never on a number. When evo (PyPI) is installed, every
+# run's ATE must agree with evo_ape's to 1e-4 m.
+# usage: bench_ci_test.sh BENCH SYNTH DATA_DIR WORK_DIR [MAX_FRAMES]
+# Skips (77) when DATA_DIR lacks the real excerpt.
+set -uo pipefail
+bench=$1 synth=$2 data=$3 work=$4 max_frames=${5:-90}
+teddy=$data/tum_fr3_teddy_200
+[[ -d $teddy ]] || { echo "SKIP: $teddy not found"; exit 77; }
+fail() { echo "FAIL: $*"; exit 1; }
+rm -rf "$work" && mkdir -p "$work"
+"$synth" overlay "$teddy" "$work/poster-walk" --camera fr3 --preset poster-walk --max-frames "$max_frames" \
+  > "$work/synth.log" 2>&1 || fail "stillpoint-synth: $(tail -n 3 "$work/synth.log")"
+out=$work/out
+"$bench" --sequence "$teddy:fr3" --sequence "$work/poster-walk:fr3" --sequence "$work/absent:fr3" \
+  --modules none,geometry,semantic,geometry+semantic --runs 1 --sequential --max-frames "$max_frames" \
+  --render-every 45 --out "$out" > "$work/bench.out" 2> "$work/bench.err" \
+  || fail "stillpoint-bench exited $?: $(tail -n 3 "$work/bench.err")"
+report=$out/report.md csv=$out/results.csv
+for f in "$report" "$csv"; do [[ -s $f ]] || fail "$f missing or empty"; done
+grep -qx '<!-- bench-summary: begin -->' "$report" && grep -qx '<!-- bench-summary: end -->' "$report" \
+  || fail "report without the summary markers"
+for section in '## Accuracy' '## Runtime' '## Published figures' '## Plots'; do
+  grep -qx "$section.*" "$report" || fail "report without '$section'"
+done
+rows=$(awk '/<!-- bench-summary: begin -->/{f=1;next} /<!-- bench-summary: end -->/{f=0} f && /^\| `/' "$report" | wc -l)
+[[ $rows -eq 12 ]] || fail "accuracy table has $rows rows, expected 12 (3 sequences x 4 module sets)"
+header=$(head -n 1 "$csv")
+for col in sequence modules run ate_rmse_m rpe_trans_m_s rpe_rot_deg_s frames frames_with_pose \
+           track_ms_median track_ms_p95 trajectory; do
+  [[ ",$header," == *",$col,"* ]] || fail "results.csv lacks column $col"
+done
+ncol=$(awk -F, 'NR == 1 {print NF}' "$csv")
+[[ $(awk -F, -v n="$ncol" 'NR > 1 && NF != n' "$csv" | wc -l) -eq 0 ]] || fail "results.csv rows of unequal width"
+[[ $(($(wc -l < "$csv") - 1)) -eq 12 ]] || fail "results.csv has $(($(wc -l < "$csv") - 1)) rows, expected 12"
+col() { awk -F, -v name="$1" 'NR == 1 {for (i = 1; i <= NF; i++) if ($i == name) c = i; next} {print $c}' "$csv"; }
+paste -d' ' <(col sequence) <(col modules) <(col status) <(col frames) <(col frames_with_pose) \
+            <(col ate_rmse_m) <(col trajectory) > "$work/rows"
+checked=0 evo_checked=0
+have_evo=0
+command -v evo_ape > /dev/null && have_evo=1
+while read -r seq modules status frames with_pose ate trajectory; do
+  case $seq in
+    absent) [[ $status == "missing folder" || $status == missing ]] || fail "$seq/$modules: status '$status'"; continue ;;
+  esac
+  [[ $status == ok ]] || fail "$seq/$modules: status '$status' (crash or failure)"
+  [[ $frames -eq $max_frames || ($seq == poster-walk && $frames -gt 0 && $frames -le $max_frames) ]] \
+    || fail "$seq/$modules: $frames frames"
+  poses=$(grep -vc '^#' "$out/$trajectory")
+  [[ $poses -eq $with_pose ]] || fail "$seq/$modules: frames_with_pose $with_pose but the trajectory has $poses poses"
+  [[ $ate =~ ^[0-9.]+$ ]] || fail "$seq/$modules: ATE '$ate'"
+  checked=$((checked + 1))
+  if [[ $have_evo -eq 1 ]]; then
+    gt=$([[ $seq == poster-walk ]] && echo "$work/poster-walk/groundtruth.txt" || echo "$teddy/groundtruth.txt")
+    evo=$(evo_ape tum "$gt" "$out/$trajectory" --align --t_max_diff 0.02 2>&1 | awk '$1 == "rmse" {print $2}')
+    [[ -n $evo ]] || fail "$seq/$modules: evo_ape printed no rmse"
+    awk -v a="$ate" -v b="$evo" 'BEGIN {d = a - b; if (d < 0) d = -d; exit !(d <= 1e-4)}' \
+      || fail "$seq/$modules: bench ATE $ate m, evo_ape $evo m: more than 1e-4 m apart"
+    echo "$seq $modules: bench $ate m, evo_ape $evo m"
+    evo_checked=$((evo_checked + 1))
+  fi
+done < "$work/rows"
+[[ $checked -eq 8 ]] || fail "$checked runs checked, expected 8"
+pngs=$(find "$out/plots" -name '*.png' | wc -l)
+[[ $pngs -ge 16 ]] || fail "$pngs plots, expected at least 16"
+renders=$(find "$out/runs" -path '*render*' -name '*.png' | wc -l)
+[[ $renders -ge 8 ]] || fail "$renders rendered frames, expected at least 8"
+if [[ $have_evo -eq 1 ]]; then
+  echo "PASS: 8 runs, report and results.csv well formed; ATE agrees with evo_ape (evo $(evo pkg --version 2>/dev/null | head -n 1)) on $evo_checked runs"
+else
+  echo "PASS: 8 runs, report and results.csv well formed (evo_ape not installed: pip install evo to compare ATE)"
+fi
