@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "bench/published.hpp"
+#include "stillpoint_commit.h"
 #include "stillpoint/eval/metrics.hpp"
 #include "stillpoint/eval/plot.hpp"
 #include "stillpoint/eval/trajectory.hpp"
@@ -276,7 +277,7 @@ Result<std::vector<FrameRecord>> readFrameLog(const std::string& path) {
   return log;
 }
 
-bool hasPose(const std::string& state) { return state == "ok" || state == "relocalised"; }
+bool hasPose(const std::string& state) { return state == "ok" || state == "relocalised" || state == "new_map"; }
 
 void runOnce(const Args& args, const std::string& replay, const SequenceArg& seq, const std::string& modules,
              const std::string& card, int run, RunResult* r) {

@@ -40,6 +40,7 @@ constexpr const char* kUsage =
     "                         [--known-movers] [--max-frames N] [--log-level debug|info|warn|error]\n"
     "                         [--frame-log FRAMES.txt] [--render DIR] [--render-every N]\n"
     "                         [--render-video FILE.mp4] [--model-card CARD.yaml]\n"
+    "                         [--load-map MAP] [--localisation] [--save-map MAP] [--export-cloud CLOUD.ply]\n"
     "       stillpoint-replay --help | --version | --options-reference\n"
     "\n"
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
@@ -60,9 +61,13 @@ constexpr const char* kUsage =
     "stillpoint-synth) as known movers: their features stay out of the pose and the map. With\n"
     "--modules none it measures the best a detector could do (a perfect one).\n"
     "--model-card picks the semantic module's model (semantic.model_card).\n"
+    "--load-map reads a map file (from --save-map) before the first frame: tracking relocalises\n"
+    "against it; --localisation tracks against it only (no keyframes, points or maps are made).\n"
+    "--save-map writes the maps after the run; --export-cloud writes the map points as a coloured\n"
+    "PLY point cloud.\n"
     "--frame-log writes one line per frame: 'index timestamp state track_ms geometry_ms features\n"
-    "in_pose geometry_dynamic semantic_dynamic keyframe(0|1)' (state: ok, relocalised, lost,\n"
-    "initialising, or skipped for a frame that could not be read or tracked).\n"
+    "in_pose geometry_dynamic semantic_dynamic keyframe(0|1)' (state: ok, relocalised, new_map,\n"
+    "lost, no_depth, initialising, or skipped for a frame that could not be read or tracked).\n"
     "--render DIR writes a picture of every frame (every N-th with --render-every): the colour\n"
     "image with each feature drawn by its fate (in the pose, dynamic by geometry, dynamic by a\n"
     "semantic mask, no depth, unmatched), the depth clusters, the newest semantic masks and the\n"
@@ -73,7 +78,8 @@ constexpr const char* kUsage =
 
 struct Args {
   std::string dataset, camera, output, config, modules, features_out, keyframes_out, keyframe_trajectory, log_level = "warn";
-  std::string frame_log, render_dir, render_video, model_card;
+  std::string frame_log, render_dir, render_video, model_card, load_map, save_map, export_cloud;
+  bool localisation = false;
   long render_every = 1;
   bool sequential = false, paced = false, known_movers = false;
   bool geometry = false, semantic = false;  // from --modules
@@ -107,6 +113,14 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       if (!value(&args->keyframe_trajectory)) return false;
     } else if (a == "--log-level") {
       if (!value(&args->log_level)) return false;
+    } else if (a == "--load-map") {
+      if (!value(&args->load_map)) return false;
+    } else if (a == "--save-map") {
+      if (!value(&args->save_map)) return false;
+    } else if (a == "--export-cloud") {
+      if (!value(&args->export_cloud)) return false;
+    } else if (a == "--localisation") {
+      args->localisation = true;
     } else if (a == "--model-card") {
       if (!value(&args->model_card)) return false;
     } else if (a == "--frame-log") {
@@ -150,6 +164,7 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
     }
   }
   if (args->dataset.empty()) *error = "missing DATASET_DIR";
+  else if (args->localisation && args->load_map.empty()) *error = "--localisation needs --load-map";
   else if (args->camera.empty()) *error = "missing --camera";
   else if (args->output.empty()) *error = "missing --output";
   else if (!args->modules.empty() && args->modules != "none") {
@@ -232,6 +247,7 @@ int main(int argc, char** argv) {
   }
   if (args.sequential) options.sequential = true;
   if (!args.model_card.empty()) options.semantic.model_card = args.model_card;
+  if (args.localisation) options.localisation = true;
   // The keyframe file lists every keyframe made, culled ones included.
   if (!args.keyframes_out.empty()) options.mapping.keep_culled_keyframes = true;
   options.geometry.report_features = !args.features_out.empty();
@@ -252,7 +268,8 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
-  for (const std::string* path : {&args.output, &args.keyframe_trajectory, &args.keyframes_out, &args.frame_log}) {
+  for (const std::string* path :
+       {&args.output, &args.keyframe_trajectory, &args.keyframes_out, &args.frame_log, &args.save_map, &args.export_cloud}) {
     if (path->empty()) continue;
     std::FILE* f = std::fopen(path->c_str(), "a");
     if (!f) {
@@ -349,8 +366,17 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "stillpoint-replay: %s\n", system.error().c_str());
     return 1;
   }
+  double map_load_ms = 0;
+  if (!args.load_map.empty()) {
+    const auto t0 = std::chrono::steady_clock::now();
+    if (Status s = (*system)->loadMap(args.load_map); !s) {
+      std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
+      return 1;
+    }
+    map_load_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  }
 
-  std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0;
+  std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0, no_depth = 0, relocalised = 0;
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
   std::vector<double> geometry_ms, clustering_ms;
   std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0, consensus = 0;
@@ -399,7 +425,7 @@ int main(int argc, char** argv) {
       if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0\n", i, frame->stamp.toSecondsString().c_str());
       continue;
     }
-    const bool has_pose = out->state == slam::TrackingState::kOk || out->state == slam::TrackingState::kRelocalised;
+    const bool has_pose = slam::hasPose(out->state);
     if (frame_log)
       std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d\n", i, frame->stamp.toSecondsString().c_str(),
                    slam::toString(out->state), out->track_ms, out->stages.geometry, out->features, out->tracked,
@@ -456,9 +482,11 @@ int main(int argc, char** argv) {
     }
     switch (out->state) {
       case slam::TrackingState::kOk:
-      case slam::TrackingState::kRelocalised: ++tracked; break;
+      case slam::TrackingState::kNewMap: ++tracked; break;
+      case slam::TrackingState::kRelocalised: ++tracked; ++relocalised; break;
       case slam::TrackingState::kLost: ++lost; break;
       case slam::TrackingState::kInitialising: ++initialising; break;
+      case slam::TrackingState::kNoDepth: ++no_depth; break;
     }
   }
   (*system)->finish();
@@ -480,12 +508,24 @@ int main(int argc, char** argv) {
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   eval::Trajectory trajectory;
-  for (const auto& p : (*system)->trajectory()) trajectory.push_back({p.stamp, p.T_w_c});
+  for (const auto& p : (*system)->trajectory()) trajectory.push_back({p.stamp, p.T_w_c, p.map_id});
   if (Status s = eval::writeTumTrajectory(args.output, trajectory); !s) {
     std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
     return 1;
   }
   const slam::MapStats map = (*system)->mapStats();
+  if (!args.save_map.empty()) {
+    if (Status s = (*system)->saveMap(args.save_map); !s) {
+      std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
+      return 1;
+    }
+  }
+  if (!args.export_cloud.empty()) {
+    if (Status s = (*system)->exportCloud(args.export_cloud); !s) {
+      std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
+      return 1;
+    }
+  }
   if (!args.keyframe_trajectory.empty()) {
     eval::Trajectory keyframes;
     for (const slam::KeyFrameView& kf : (*system)->keyframes()) keyframes.push_back({kf.stamp, kf.T_w_c});
@@ -514,8 +554,14 @@ int main(int argc, char** argv) {
   const Stats ex = stats(extract_ms), tr = stats(track_ms);
   std::printf("sequence:     %s (%zu associated frames, %zu colour frames without depth)\n", args.dataset.c_str(),
               data->size(), data->unassociatedColourFrames());
-  std::printf("frames:       %zu processed, %zu tracked, %zu lost, %zu initialising, %zu skipped (bad input)\n",
-              frames, tracked, lost, initialising, skipped);
+  std::printf("frames:       %zu processed, %zu tracked, %zu lost, %zu initialising, %zu without depth, "
+              "%zu skipped (bad input)\n",
+              frames, tracked, lost, initialising, no_depth, skipped);
+  std::printf("recovery:     %zu relocalisations, %u map%s (%u started after a loss)\n", relocalised, map.maps,
+              map.maps == 1 ? "" : "s", map.maps > 0 ? map.maps - 1 : 0);
+  if (!args.load_map.empty())
+    std::printf("map file:     %s loaded in %.1f ms%s\n", args.load_map.c_str(), map_load_ms,
+                args.localisation ? ", localisation only" : "");
   std::printf("map:          %zu keyframes, %zu points, %d local BA runs, local mapping %.1f ms total\n",
               map.keyframes, map.points, map.local_ba_runs, map.local_mapping_ms_total);
   std::printf("timing [ms]:  %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "ORB extraction", ex.mean,
@@ -576,6 +622,10 @@ int main(int argc, char** argv) {
     } else if (auto ev = eval::evaluate(*gt, trajectory); ev) {
       std::printf("accuracy:     ate_rmse_m=%.6f rpe_trans_m_s=%.6f rpe_rot_deg_s=%.6f matched=%zu\n",
                   ev->ate_rmse_m, ev->rpe_trans_m_s, ev->rpe_rot_deg_s, ev->matched);
+      if (ev->maps > 1)
+        std::printf("              over %zu maps, each aligned on its own (%zu poses of maps too short to align left "
+                    "out)\n",
+                    ev->maps, ev->unaligned);
     } else {
       std::fprintf(stderr, "stillpoint-replay: evaluation failed: %s\n", ev.error().c_str());
     }

@@ -10,6 +10,7 @@
 
 #include "stillpoint/core/camera.hpp"
 #include "stillpoint/synth/config.hpp"
+#include "stillpoint/synth/edit.hpp"
 #include "stillpoint/synth/generator.hpp"
 #include "stillpoint/synth/score.hpp"
 
@@ -28,6 +29,8 @@ constexpr const char* kUsage =
     "       stillpoint-synth room OUTPUT_DIR (--config ROOM.yaml | --preset NAME)\n"
     "                        [--motion static|xyz|rpy|halfsphere] [--frames N] [--size WxH] [common options]\n"
     "       stillpoint-synth score SEQUENCE_DIR FEATURES.txt [--min-features N] [--min-speed M_S] [--per-frame]\n"
+    "       stillpoint-synth edit INPUT_DIR OUTPUT_DIR [--cover START:SECONDS ...] [--cut START:SECONDS ...]\n"
+    "                        [--there-and-back] [--camera fr1|fr2|fr3|CAMERA.yaml (its depth_factor)]\n"
     "       stillpoint-synth presets\n"
     "common options: [--seed N] [--blur] [--threads N] [--max-frames N] [--png-compression 0-9 (default 0: uncompressed, fastest)]\n"
     "                [--no-write] [--photo-dir DIR] [--cutout MASK.png] [--face-camera]\n"
@@ -44,6 +47,11 @@ constexpr const char* kUsage =
     "  its photo: stillpoint-segment --card CARD --out DIR PHOTO writes DIR/<photo>_mask.png.\n"
     "--face-camera turns every poster mover to face the camera in each frame (a cut-out person\n"
     "  stays recognisable; a flat poster seen edge-on does not).\n"
+    "edit: a copy of a TUM sequence in which the camera loses track of the world: --cover S:D\n"
+    "  makes the frames from S s (after the first frame) for D s black with zero depth, while the\n"
+    "  camera moves on; --cut S:D leaves those frames out and closes the gap in the stamps (the\n"
+    "  camera jumps); --there-and-back plays the sequence forwards, then backwards (a revisit).\n"
+    "  Kept images are hard-linked; groundtruth.txt follows every frame.\n"
     "--no-write renders without writing images (speed measurement). Exit status: 0 ok,\n"
     "1 bad input, 2 usage error. The last line of overlay/room output is machine-readable.\n";
 
@@ -53,8 +61,10 @@ struct Args {
   std::string camera, config, preset, motion, photo_dir = STILLPOINT_PHOTO_DIR, size, cutout;
   long seed = -1, threads = 2, max_frames = 0, frames = 0, png_compression = 0, min_features = 10;
   double min_speed = 0;
-  bool blur = false, no_write = false, per_frame = false, face_camera = false;
+  bool blur = false, no_write = false, per_frame = false, face_camera = false, there_and_back = false;
+  std::vector<TimeSpan> covers, cuts;
 };
+
 
 bool parseLong(const std::string& text, long lo, long hi, long* out) {
   char* end = nullptr;
@@ -70,6 +80,13 @@ bool parseDouble(const std::string& text, double lo, double hi, double* out) {
   if (text.empty() || *end || !(v >= lo && v <= hi)) return false;
   *out = v;
   return true;
+}
+
+bool parseSpan(const std::string& text, TimeSpan* span) {
+  const std::size_t colon = text.find(':');
+  if (colon == std::string::npos) return false;
+  return parseDouble(text.substr(0, colon), 0, 1e6, &span->start_s) &&
+         parseDouble(text.substr(colon + 1), 1e-6, 1e6, &span->duration_s);
 }
 
 bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
@@ -123,6 +140,16 @@ bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
     else if (s == "--png-compression") ok = number(0, 9, &a->png_compression);
     else if (s == "--min-features") ok = number(1, 1000000, &a->min_features);
     else if (s == "--min-speed") ok = real(0, 100, &a->min_speed);
+    else if (s == "--cover" || s == "--cut") {
+      std::string v;
+      TimeSpan span;
+      ok = value(&v);
+      if (ok && !parseSpan(v, &span)) {
+        *error = s + " needs START:SECONDS (seconds after the first frame, duration > 0), got '" + v + "'";
+        return false;
+      }
+      if (ok) (s == "--cover" ? a->covers : a->cuts).push_back(span);
+    } else if (s == "--there-and-back") a->there_and_back = true;
     else if (s == "--blur") a->blur = true;
     else if (s == "--face-camera") a->face_camera = true;
     else if (s == "--no-write") a->no_write = true;
@@ -179,6 +206,29 @@ int runScore(const Args& a) {
               "eligible_frames=%d min_features=%ld\n",
               fmt(q.precision_mean).c_str(), fmt(q.recall_mean).c_str(), fmt(q.eligible_precision_mean).c_str(),
               fmt(q.eligible_recall_mean).c_str(), q.eligible_frames, a.min_features);
+  return 0;
+}
+
+int runEdit(const Args& a) {
+  EditOptions options;
+  options.covers = a.covers;
+  options.cuts = a.cuts;
+  options.there_and_back = a.there_and_back;
+  if (!a.camera.empty()) {
+    Result<CameraModel> camera = loadCamera(a.camera);
+    if (!camera.ok()) {
+      std::fprintf(stderr, "stillpoint-synth: %s\n", camera.error().c_str());
+      return 1;
+    }
+    options.depth_factor = camera->depth_factor;
+  }
+  auto summary = editSequence(a.positional[0], a.positional[1], options);
+  if (!summary) {
+    std::fprintf(stderr, "stillpoint-synth: %s\n", summary.error().c_str());
+    return 1;
+  }
+  std::printf("frames=%zu covered=%zu cut=%zu ground_truth=%zu\n", summary->frames, summary->covered, summary->cut,
+              summary->ground_truth);
   return 0;
 }
 
@@ -246,7 +296,10 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "stillpoint-synth: %s\n%s", error.c_str(), kUsage);
     return 2;
   }
-  const std::size_t want = a.command == "overlay" ? 2 : a.command == "room" ? 1 : a.command == "score" ? 2 : 0;
+  const std::size_t want = a.command == "overlay" || a.command == "edit" ? 2
+                           : a.command == "room"                       ? 1
+                           : a.command == "score"                      ? 2
+                                                                       : 0;
   if (a.command == "presets") {
     for (const std::string& n : presetNames()) std::printf("%s\n", n.c_str());
     return 0;
@@ -260,6 +313,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (a.command == "score") return runScore(a);
+  if (a.command == "edit") return runEdit(a);
   if (a.command == "overlay" && a.camera.empty()) {
     std::fprintf(stderr, "stillpoint-synth: overlay needs --camera\n%s", kUsage);
     return 2;

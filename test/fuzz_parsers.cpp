@@ -1,6 +1,6 @@
 // A deterministic mutation fuzzer for every parser of files a user or an
 // attacker controls: camera YAML, SLAM options, the daemon config, the ipc
-// config, model cards, TUM list files, trajectories, and the shared-memory
+// config, model cards, TUM list files, trajectories, map files, and the shared-memory
 // pose ring as its C reader maps it. Each target starts
 // from real seed files (the shipped configs, the bundled excerpt's lists)
 // and runs a fixed number of mutations from a fixed seed, so a failure is
@@ -10,6 +10,8 @@
 //
 // usage: stillpoint-fuzz [--cases N] [--seed S] [--target NAME] [--keep DIR]
 //   N mutated inputs per target (default 2000); --keep writes every failing input to DIR.
+#include <algorithm>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -30,6 +32,7 @@
 #include "stillpoint/ipc/options.hpp"
 #include "stillpoint/semantic/model_card.hpp"
 #include "stillpoint/slam/options.hpp"
+#include "stillpoint/slam/system.hpp"
 
 namespace fs = std::filesystem;
 using namespace stillpoint;
@@ -201,6 +204,44 @@ int main(int argc, char** argv) {
                        for (int k = 0; k < 60 && std::getline(in, line); ++k) head += line + "\n";
                        writeFile(dir / "traj.txt", head);
                        (void)eval::readTumTrajectory((dir / "traj.txt").string());
+                     }});
+
+  // Map files: a real one, from the first frames of the excerpt. Half of the
+  // cases get the header's size and checksum fixed up to match the mutated
+  // payload, so that mutations reach the parser behind the checksum.
+  std::string map_seed;
+  if (fs::exists(teddy / "rgb.txt")) {
+    auto data = dataset::TumDataset::open(teddy.string());
+    slam::SlamOptions options;
+    options.sequential = true;
+    options.geometry.enabled = false;
+    auto system = slam::SlamSystem::create(*cameraPreset("fr3"), options);
+    if (data && system) {
+      for (std::size_t i = 0; i < std::min<std::size_t>(12, data->size()); ++i)
+        if (auto f = data->load(i)) (void)(*system)->track({f->stamp, f->gray, f->depth_m, f->bgr});
+      (*system)->finish();
+      if ((*system)->saveMap((work / "seed.map").string())) map_seed = readFile(work / "seed.map");
+    }
+  }
+  int map_case = 0;
+  targets.push_back({"map-file", map_seed.empty() ? std::vector<std::string>{} : std::vector<std::string>{map_seed},
+                     [&map_case](const fs::path& dir, const std::string& bytes) {
+                       std::string file = bytes;
+                       if (++map_case % 2 == 0 && file.size() >= 40) {
+                         const std::uint64_t size = file.size() - 40;
+                         std::uint64_t h = 1469598103934665603ull;
+                         for (std::size_t i = 40; i < file.size(); ++i) {
+                           h ^= static_cast<unsigned char>(file[i]);
+                           h *= 1099511628211ull;
+                         }
+                         std::memcpy(&file[16], &size, 8);
+                         std::memcpy(&file[24], &h, 8);
+                       }
+                       writeFile(dir / "fuzz.map", file);
+                       slam::SlamOptions options;
+                       options.geometry.enabled = false;
+                       auto system = slam::SlamSystem::create(*cameraPreset("fr3"), options);
+                       if (system) (void)(*system)->loadMap((dir / "fuzz.map").string());
                      }});
 
   // The ring: a real one from the writer (a few records, capacity 8) as the

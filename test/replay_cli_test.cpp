@@ -93,7 +93,8 @@ TEST_F(ReplayCli, GoodSequenceWritesTrajectoryAndMachineReadableLastLine) {
   EXPECT_TRUE(fs::is_regular_file(output_)) << describe(r);
   EXPECT_TRUE(contains(r.out, "0 skipped (bad input)"));
   const std::regex last(
-      "frames=10 tracked=[0-9]+ lost=[0-9]+ keyframes=[0-9]+ track_ms_median=[0-9.]+ track_ms_p95=[0-9.]+");
+      "frames=10 tracked=[0-9]+ lost=[0-9]+ keyframes=[0-9]+ track_ms_median=[0-9.]+ track_ms_p95=[0-9.]+ "
+      "geometry_ms_median=[0-9.]+ segment_ms_median=[0-9.]+ segmentations_dropped=[0-9]+");
   EXPECT_TRUE(std::regex_match(test::lastLine(r.out), last)) << describe(r);
 }
 
@@ -252,21 +253,25 @@ TEST_F(ReplayCli, TimestampsOutOfOrderNameFileAndLine) {
 
 // --- bad frames are skipped and counted, the run goes on ----------------------
 
-TEST_F(ReplayCli, CorruptPngAndEmptyDepthAreSkippedAndCounted) {
+TEST_F(ReplayCli, CorruptPngIsSkippedAndEmptyDepthIsNoDepth) {
   const fs::path dir(seq_.directory);
   writeFile(dir / rgbFile(3), "\x89PNG\r\n\x1a\n this is not really a PNG");
   const cv::Mat zeros(seq_.camera.height, seq_.camera.width, CV_16UC1, cv::Scalar(0));
   ASSERT_TRUE(cv::imwrite((dir / depthFile(6)).string(), zeros));
+  const fs::path frame_log = fs::path(seq_.directory) / "frames.txt";
 
-  const RunResult r = replaySequence();
+  const RunResult r = replaySequence({"--frame-log", frame_log.string()});
   ASSERT_EQ(r.exit_code, 0) << describe(r);
-  EXPECT_TRUE(contains(r.out, "2 skipped (bad input)")) << describe(r);
-  EXPECT_TRUE(contains(test::lastLine(r.out), "frames=8 ")) << describe(r);
+  EXPECT_TRUE(contains(r.out, "1 skipped (bad input)")) << describe(r);
+  EXPECT_TRUE(contains(r.out, "1 without depth")) << describe(r);
+  EXPECT_TRUE(contains(test::lastLine(r.out), "frames=9 ")) << describe(r);
   EXPECT_TRUE(contains(r.err, "skipping frame 3")) << describe(r);
   EXPECT_TRUE(contains(r.err, rgbFile(3))) << describe(r);
-  EXPECT_TRUE(contains(r.err, "skipping frame 6")) << describe(r);
-  EXPECT_TRUE(contains(r.err, depthFile(6))) << describe(r);
-  EXPECT_TRUE(contains(r.err, "all pixels are 0")) << describe(r);
+  // The all-zero depth frame is tracked as a frame without depth, not skipped.
+  EXPECT_FALSE(contains(r.err, "skipping frame 6")) << describe(r);
+  const std::string log = test::readFile(frame_log);
+  EXPECT_TRUE(contains(log, "\n3 ") && contains(log, " skipped ")) << log;
+  EXPECT_TRUE(contains(log, "\n6 ") && contains(log, " no_depth ")) << log;
 }
 
 TEST_F(ReplayCli, EveryFrameBadExitsOne) {

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <sstream>
 #include <string>
 
 #include "cli_runner.hpp"
@@ -61,6 +62,36 @@ TEST_F(SynthCli, RoomThenScore) {
   const RunResult bad = synth({"score", out.string(), (scratch_ / "features.txt").string(), "--min-speed", "fast"});
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_TRUE(contains(bad.err, "--min-speed needs a number"));
+}
+
+TEST_F(SynthCli, EditCoversCutsAndPlaysBack) {
+  const fs::path room = scratch_ / "room";
+  ASSERT_EQ(synth({"room", room.string(), "--preset", "room-static", "--frames", "12", "--size", "80x60"}).exit_code,
+            0);
+  // 12 frames at 30 Hz: frames 3..5 covered (0.1 s .. 0.2 s), 7..8 cut, then back.
+  const fs::path out = scratch_ / "edited";
+  const RunResult r = synth({"edit", room.string(), out.string(), "--cover", "0.09:0.1", "--cut", "0.22:0.06",
+                             "--there-and-back"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  // 10 kept frames forwards, 9 backwards; the covered ones twice.
+  EXPECT_TRUE(contains(test::lastLine(r.out), "frames=19 covered=6 cut=2 ground_truth=19")) << r.out;
+  const RunResult again = synth({"edit", room.string(), out.string()});
+  EXPECT_EQ(again.exit_code, 1);
+  EXPECT_TRUE(contains(again.err, "exists"));
+  // The edit is a sequence stillpoint reads, with increasing stamps.
+  const std::string rgb = test::readFile(out / "rgb.txt");
+  std::istringstream lines(rgb);
+  double last = 0;
+  int frames = 0;
+  for (std::string line; std::getline(lines, line);) {
+    if (line.empty() || line[0] == '#') continue;
+    const double t = std::stod(line);
+    EXPECT_GT(t, last) << line;
+    last = t;
+    ++frames;
+  }
+  EXPECT_EQ(frames, 19);
+  EXPECT_EQ(synth({"edit", room.string(), (scratch_ / "bad").string(), "--cover", "1"}).exit_code, 2);
 }
 
 TEST_F(SynthCli, BadInputExitsOneWithAMessage) {

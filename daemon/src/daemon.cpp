@@ -74,6 +74,8 @@ ipc::TrackingState toIpc(slam::TrackingState s) {
     case slam::TrackingState::kOk: return ipc::TrackingState::kOk;
     case slam::TrackingState::kLost: return ipc::TrackingState::kLost;
     case slam::TrackingState::kRelocalised: return ipc::TrackingState::kRelocalised;
+    case slam::TrackingState::kNoDepth: return ipc::TrackingState::kNoDepth;
+    case slam::TrackingState::kNewMap: return ipc::TrackingState::kNewMap;
   }
   return ipc::TrackingState::kLost;
 }
@@ -117,6 +119,7 @@ struct Daemon::Impl {
   std::atomic<std::uint64_t> frames_received{0}, frames_bad{0}, frames_tracked{0}, frames_lost{0},
       frames_processed{0}, reconnects{0}, keyframes{0};
   std::atomic<int> last_state{-1};
+  std::atomic<std::uint32_t> map_id{0};
   std::atomic<bool> device_gone{false};
   std::atomic<int> semantic_tid{0};  // the segmentation thread (nice 10 by default)
   LatencyHistogram latency;
@@ -267,7 +270,8 @@ void Daemon::Impl::trackingLoop() {
     pose.tracked_features = static_cast<std::uint32_t>(std::max(0, out->tracked));
     pose.dynamic_rejected_features = static_cast<std::uint32_t>(std::max(0, out->geometry.dynamic_features));
     pose.keyframes = static_cast<std::uint32_t>(out->keyframes);
-    const bool has_pose = out->state == slam::TrackingState::kOk || out->state == slam::TrackingState::kRelocalised;
+    pose.map_id = out->map_id;
+    const bool has_pose = slam::hasPose(out->state);
     if (has_pose) {
       const Eigen::Quaterniond q(out->T_w_c.rotation());
       const Eigen::Vector3d t = out->T_w_c.translation();
@@ -280,6 +284,7 @@ void Daemon::Impl::trackingLoop() {
     if (has_pose) ++frames_tracked;
     if (out->state == slam::TrackingState::kLost) ++frames_lost;
     keyframes = out->keyframes;
+    map_id = out->map_id;
     last_state = static_cast<int>(out->state);
   }
   std::lock_guard lock(mutex);
@@ -296,9 +301,10 @@ std::string Daemon::Impl::statusLine(double fps) const {
   const slam::MapStats map = system->mapStats();
   char buf[256];
   std::snprintf(buf, sizeof buf,
-                "%s, %.1f fps, %" PRIu64 " frames, %" PRIu64 " lost, %" PRIu64 " dropped, map %zu keyframes %zu points",
-                state.c_str(), fps, frames_processed.load(), frames_lost.load(), queue->dropped(), map.keyframes,
-                map.points);
+                "%s, %.1f fps, %" PRIu64 " frames, %" PRIu64 " lost, %" PRIu64 " dropped, map %u of %u, %zu keyframes "
+                "%zu points",
+                state.c_str(), fps, frames_processed.load(), frames_lost.load(), queue->dropped(), map_id.load(),
+                std::max(1u, map.maps), map.keyframes, map.points);
   return buf;
 }
 
@@ -307,6 +313,7 @@ ipc::StatusMessage Daemon::Impl::statusMessage() const {
   m.uptime_s = std::chrono::duration<double>(Clock::now() - start_time).count();
   m.frames_received = frames_received;
   m.frames_dropped = queue->dropped();
+  m.map_id = map_id;
   ipc::ThreadStats tracking;
   tracking.name = "tracking";
   tracking.latency_ms_median = latency.quantile(0.5);
@@ -325,7 +332,7 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
   Status result;
   if (!config.output.trajectory.empty()) {
     eval::Trajectory trajectory;
-    for (const auto& p : system->trajectory()) trajectory.push_back({p.stamp, p.T_w_c});
+    for (const auto& p : system->trajectory()) trajectory.push_back({p.stamp, p.T_w_c, p.map_id});
     if (Status s = eval::writeTumTrajectory(config.output.trajectory, trajectory); !s) result = s;
   }
   if (!config.output.status.empty()) {
@@ -347,8 +354,9 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
     const slam::MapStats map = system->mapStats();
     std::fprintf(f,
                  "map_keyframes=%zu\nmap_points=%zu\nkeyframes_in_memory=%zu\npoints_in_memory=%zu\n"
-                 "trajectory_records=%zu\n",
-                 map.keyframes, map.points, map.keyframes_in_memory, map.points_in_memory, map.trajectory_records);
+                 "trajectory_records=%zu\nmap_id=%u\nmaps=%u\nframes_no_depth=%zu\n",
+                 map.keyframes, map.points, map.keyframes_in_memory, map.points_in_memory, map.trajectory_records,
+                 map_id.load(), map.maps, map.no_depth_frames);
     if (config.modules.semantic) {
       const slam::MapStats m = system->mapStats();
       std::fprintf(f,

@@ -111,7 +111,9 @@ enum {
   SP_TRACKING_INITIALISING = 0,
   SP_TRACKING_OK = 1,
   SP_TRACKING_LOST = 2,
-  SP_TRACKING_RELOCALISED = 3
+  SP_TRACKING_RELOCALISED = 3,
+  SP_TRACKING_NO_DEPTH = 4, /* too little depth to track: no pose */
+  SP_TRACKING_NEW_MAP = 5   /* first pose of a new map (map_id changed) after a loss */
 };
 
 /* Writer state in the header. */

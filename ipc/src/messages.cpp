@@ -10,12 +10,14 @@ const char* toString(TrackingState state) {
     case TrackingState::kOk: return "ok";
     case TrackingState::kLost: return "lost";
     case TrackingState::kRelocalised: return "relocalised";
+    case TrackingState::kNoDepth: return "no_depth";
+    case TrackingState::kNewMap: return "new_map";
   }
   return "unknown";
 }
 
 Result<TrackingState> trackingStateFromInt(std::int64_t value) {
-  if (value < 0 || value > 3) return Error{"tracking state " + std::to_string(value) + " is not one of 0..3"};
+  if (value < 0 || value > 5) return Error{"tracking state " + std::to_string(value) + " is not one of 0..5"};
   return static_cast<TrackingState>(value);
 }
 

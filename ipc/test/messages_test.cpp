@@ -8,8 +8,8 @@ namespace stillpoint::ipc {
 
 TEST(Messages, TrackingStateNamesAndRange) {
   EXPECT_STREQ(toString(TrackingState::kRelocalised), "relocalised");
-  for (int i = 0; i < 4; ++i) EXPECT_TRUE(trackingStateFromInt(i).ok());
-  EXPECT_FALSE(trackingStateFromInt(4).ok());
+  for (int i = 0; i < 6; ++i) EXPECT_TRUE(trackingStateFromInt(i).ok());
+  EXPECT_FALSE(trackingStateFromInt(6).ok());
   EXPECT_FALSE(trackingStateFromInt(-1).ok());
 }
 

@@ -227,7 +227,6 @@ const char* toString(SkipReason reason) {
     case SkipReason::kUnreadableColour: return "unreadable colour";
     case SkipReason::kUnreadableDepth: return "unreadable depth";
     case SkipReason::kWrongSize: return "wrong size";
-    case SkipReason::kEmptyDepth: return "empty depth";
     case SkipReason::kNoDepthMatch: return "no depth match";
     case SkipReason::kIndexOutOfRange: return "index out of range";
   }
@@ -342,11 +341,8 @@ Result<RgbdFrame> TumDataset::load(std::size_t i, SkipReason* reason) const {
                       " but colour image " + pair.rgb_path + " is " + sizeText(*bgr),
                   reason);
     }
-    if (cv::countNonZero(*raw_depth) == 0) {
-      return fail(SkipReason::kEmptyDepth,
-                  "depth image " + pair.depth_path + " has no valid measurement (all pixels are 0)",
-                  reason);
-    }
+    // An all-zero depth image (a covered camera) is a frame: tracking says
+    // it has no depth (TrackingState::kNoDepth) rather than never seeing it.
     frame.bgr = std::move(*bgr);
     cv::cvtColor(frame.bgr, frame.gray, cv::COLOR_BGR2GRAY);
     raw_depth->convertTo(frame.depth_m, CV_32F, 1.0 / options_.depth_factor);

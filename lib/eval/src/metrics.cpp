@@ -4,7 +4,9 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <numbers>
+#include <numeric>
 #include <sstream>
 #include <tuple>
 
@@ -209,43 +211,80 @@ Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
     return Error{os.str()};
   }
 
-  EvalResult result;
-  result.matched = matches.size();
-  std::vector<Vec3> est_positions;
-  std::vector<Vec3> gt_positions;
-  Trajectory est_matched;
-  for (const Match& m : matches) {
-    est_matched.push_back(est[m.est_index]);
-    result.gt_matched.push_back(gt[m.gt_index]);
-    est_positions.push_back(est[m.est_index].T_w_c.translation());
-    gt_positions.push_back(gt[m.gt_index].T_w_c.translation());
-  }
-  auto alignment = alignUmeyama(est_positions, gt_positions, options.estimate_scale);
-  if (!alignment) return Error{alignment.error()};
-  result.alignment = *alignment;
+  // Each map of the estimate (StampedPose::map_id: a SLAM system that
+  // started a new map after a loss) is in its own frame: it is aligned on its
+  // own, and relative errors never span two maps. A map with fewer than
+  // min_matches matched poses cannot be aligned and is left out (counted).
+  std::map<std::uint32_t, std::vector<Match>> by_map;
+  for (const Match& m : matches) by_map[est[m.est_index].map_id].push_back(m);
 
-  std::vector<double> errors;
-  for (std::size_t k = 0; k < matches.size(); ++k) {
-    const SE3 aligned = result.alignment.apply(est_matched[k].T_w_c);
-    result.est_aligned.push_back({est_matched[k].stamp, aligned});
-    const double e = (aligned.translation() - gt_positions[k]).norm();
-    errors.push_back(e);
-    result.pose_errors.push_back({est_matched[k].stamp, e});
+  EvalResult result;
+  result.maps = by_map.size();
+  std::vector<double> errors, trans_rates, rot_rates;
+  for (const auto& [map_id, map_matches] : by_map) {
+    if (by_map.size() > 1 && map_matches.size() < options.min_matches) {
+      result.unaligned += map_matches.size();
+      continue;
+    }
+    std::vector<Vec3> est_positions, gt_positions;
+    Trajectory est_matched, gt_matched;
+    for (const Match& m : map_matches) {
+      est_matched.push_back(est[m.est_index]);
+      gt_matched.push_back(gt[m.gt_index]);
+      est_positions.push_back(est[m.est_index].T_w_c.translation());
+      gt_positions.push_back(gt[m.gt_index].T_w_c.translation());
+    }
+    auto alignment = alignUmeyama(est_positions, gt_positions, options.estimate_scale);
+    if (!alignment) return Error{alignment.error()};
+    // The alignment reported is the largest map's.
+    if (map_matches.size() > result.matched_in_largest_map) {
+      result.matched_in_largest_map = map_matches.size();
+      result.alignment = *alignment;
+    }
+    Trajectory aligned_map;
+    for (std::size_t k = 0; k < map_matches.size(); ++k) {
+      const SE3 aligned = alignment->apply(est_matched[k].T_w_c);
+      aligned_map.push_back({est_matched[k].stamp, aligned, map_id});
+      const double e = (aligned.translation() - gt_positions[k]).norm();
+      errors.push_back(e);
+      result.pose_errors.push_back({est_matched[k].stamp, e});
+    }
+    // Aligned poses: a no-op for a rigid alignment, and with a scale it applies
+    // the scale correction to the relative translations too.
+    RpeSummary rpe = computeRpe(aligned_map, gt_matched, options.rpe_delta_s);
+    for (const RelativeError& pair : rpe.pairs) {
+      trans_rates.push_back(pair.trans_m / pair.dt_s);
+      rot_rates.push_back(pair.rot_deg / pair.dt_s);
+      result.relative_errors.push_back(pair);
+    }
+    result.est_aligned.insert(result.est_aligned.end(), aligned_map.begin(), aligned_map.end());
+    result.gt_matched.insert(result.gt_matched.end(), gt_matched.begin(), gt_matched.end());
   }
+  // Maps were visited in id order; the per-pose lists go back to time order.
+  std::vector<std::size_t> order(result.est_aligned.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(),
+            [&](std::size_t a, std::size_t b) { return result.est_aligned[a].stamp < result.est_aligned[b].stamp; });
+  auto permute = [&order](auto& v) {
+    auto copy = v;
+    for (std::size_t k = 0; k < order.size(); ++k) v[k] = copy[order[k]];
+  };
+  permute(result.est_aligned);
+  permute(result.gt_matched);
+  permute(result.pose_errors);
+  std::sort(result.relative_errors.begin(), result.relative_errors.end(),
+            [](const RelativeError& a, const RelativeError& b) { return a.from < b.from; });
+  result.matched = errors.size();
+  if (errors.empty()) return Error{"no map of the estimate has enough matched poses to align"};
   result.ate_rmse_m = rms(errors);
   double sum = 0.0;
   for (double e : errors) sum += e;
   result.ate_mean = sum / static_cast<double>(errors.size());
   result.ate_median = median(errors);
   result.ate_max = *std::max_element(errors.begin(), errors.end());
-
-  // Aligned poses: a no-op for a rigid alignment, and with a scale it applies
-  // the scale correction to the relative translations too.
-  RpeSummary rpe = computeRpe(result.est_aligned, result.gt_matched, options.rpe_delta_s);
-  result.rpe_trans_m_s = rpe.trans_m_s;
-  result.rpe_rot_deg_s = rpe.rot_deg_s;
-  result.rpe_pairs = rpe.pairs.size();
-  result.relative_errors = std::move(rpe.pairs);
+  result.rpe_pairs = trans_rates.size();
+  result.rpe_trans_m_s = trans_rates.empty() ? std::numeric_limits<double>::quiet_NaN() : rms(trans_rates);
+  result.rpe_rot_deg_s = rot_rates.empty() ? std::numeric_limits<double>::quiet_NaN() : rms(rot_rates);
   return result;
 }
 

@@ -227,6 +227,52 @@ TEST(Evaluate, FailsWithFewerThanThreeMatches) {
   EXPECT_NE(result.error().find("only 2 of 7"), std::string::npos) << result.error();
 }
 
+TEST(Evaluate, AlignsEachMapOnItsOwn) {
+  // The second half of the estimate is a new map: the same path in another
+  // frame. Each map aligned on its own matches exactly; one alignment of both
+  // could not.
+  std::mt19937 rng(11);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 6.0);
+  Trajectory est = gt;
+  const SE3 second_frame = knownTransform();
+  for (std::size_t k = est.size() / 2; k < est.size(); ++k) {
+    est[k].T_w_c = second_frame * est[k].T_w_c;
+    est[k].map_id = 1;
+  }
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+  EXPECT_EQ(result->maps, 2u);
+  EXPECT_EQ(result->matched, gt.size());
+  EXPECT_EQ(result->unaligned, 0u);
+  EXPECT_LT(result->ate_rmse_m, 1e-9);
+  EXPECT_LT(result->rpe_trans_m_s, 1e-9);  // no relative error spans the two maps
+  ASSERT_EQ(result->pose_errors.size(), gt.size());
+  for (std::size_t k = 1; k < result->pose_errors.size(); ++k)
+    EXPECT_LT(result->pose_errors[k - 1].stamp, result->pose_errors[k].stamp);
+
+  // Marked as one map, the same poses are far off.
+  for (StampedPose& p : est) p.map_id = 0;
+  const auto merged = evaluate(gt, est);
+  ASSERT_TRUE(merged.ok()) << merged.error();
+  EXPECT_EQ(merged->maps, 1u);
+  EXPECT_GT(merged->ate_rmse_m, 0.1);
+}
+
+TEST(Evaluate, LeavesOutMapsTooShortToAlign) {
+  std::mt19937 rng(12);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 3.0);
+  Trajectory est = gt;
+  est[est.size() - 2].map_id = 1;
+  est[est.size() - 1].map_id = 1;
+  est[est.size() - 1].T_w_c.translation() += Vec3(5, 5, 5);
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+  EXPECT_EQ(result->maps, 2u);
+  EXPECT_EQ(result->unaligned, 2u);
+  EXPECT_EQ(result->matched, gt.size() - 2);
+  EXPECT_LT(result->ate_rmse_m, 1e-9);
+}
+
 TEST(Evaluate, RejectsBadOptions) {
   EvalOptions options;
   options.max_dt_s = -1.0;

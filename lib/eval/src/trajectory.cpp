@@ -70,9 +70,15 @@ Result<Trajectory> readTumTrajectory(const std::string& path) {
   Trajectory trajectory;
   std::string line;
   std::size_t line_number = 0;
+  std::uint32_t map_id = 0;
   while (std::getline(in, line)) {
     ++line_number;
-    if (isBlankOrComment(line)) continue;
+    if (isBlankOrComment(line)) {
+      unsigned id = 0;
+      char extra = 0;
+      if (std::sscanf(line.c_str(), " # map %u %c", &id, &extra) == 1) map_id = id;
+      continue;
+    }
 
     const auto fields = splitFields(line);
     if (fields.size() != kFieldCount) {
@@ -112,7 +118,7 @@ Result<Trajectory> readTumTrajectory(const std::string& path) {
                            " is not after the previous one (" +
                            trajectory.back().stamp.toSecondsString() + ")");
     }
-    trajectory.push_back({*stamp, makeSE3(q, Vec3(v[0], v[1], v[2]))});
+    trajectory.push_back({*stamp, makeSE3(q, Vec3(v[0], v[1], v[2])), map_id});
   }
   if (in.bad()) return Error{path + ": read error after line " + std::to_string(line_number)};
   return trajectory;
@@ -123,8 +129,13 @@ Status writeTumTrajectory(const std::string& path, const Trajectory& trajectory)
   if (file == nullptr) return Error{path + ": cannot open for writing"};
 
   bool ok = std::fputs("# timestamp tx ty tz qx qy qz qw\n", file) >= 0;
+  std::uint32_t map_id = 0;
   for (const StampedPose& pose : trajectory) {
     if (!ok) break;
+    if (pose.map_id != map_id) {
+      map_id = pose.map_id;
+      ok = std::fprintf(file, "# map %u\n", static_cast<unsigned>(map_id)) > 0;
+    }
     Eigen::Quaterniond q(pose.T_w_c.linear());
     q.normalize();
     // q and -q are the same rotation; the positive-w half keeps files diffable.

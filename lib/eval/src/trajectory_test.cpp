@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <numbers>
 #include <random>
 
@@ -99,6 +100,24 @@ TEST_F(TrajectoryIoTest, RoundTripKeepsStampsAndPoses) {
     EXPECT_LT(((*loaded)[k].T_w_c.translation() - original[k].T_w_c.translation()).norm(), 1e-8);
     EXPECT_LT(((*loaded)[k].T_w_c.linear() - original[k].T_w_c.linear()).norm(), 1e-8);
   }
+}
+
+TEST_F(TrajectoryIoTest, MapIdsRoundTripAsCommentLines) {
+  Trajectory original;
+  for (int k = 0; k < 6; ++k)
+    original.push_back({Timestamp::fromNanoseconds(1'000'000'000LL * (k + 1)), SE3::Identity(),
+                        static_cast<std::uint32_t>(k < 2 ? 0 : k < 5 ? 1 : 3)});
+  const std::string path = (dir_ / "maps.txt").string();
+  ASSERT_TRUE(writeTumTrajectory(path, original).ok());
+  std::ifstream in(path);
+  const std::string text{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  EXPECT_NE(text.find("\n# map 1\n"), std::string::npos) << text;
+  EXPECT_NE(text.find("\n# map 3\n"), std::string::npos) << text;
+  EXPECT_EQ(text.find("# map 0"), std::string::npos) << text;  // a one-map file is plain TUM
+  const auto loaded = readTumTrajectory(path);
+  ASSERT_TRUE(loaded.ok()) << loaded.error();
+  ASSERT_EQ(loaded->size(), original.size());
+  for (std::size_t k = 0; k < original.size(); ++k) EXPECT_EQ((*loaded)[k].map_id, original[k].map_id) << k;
 }
 
 TEST_F(TrajectoryIoTest, WritesPositiveQw) {

@@ -66,6 +66,11 @@ class DynamicDetector {
   GeometryOutput judge(Frame* frame, const StageOneMatches& stage_one, const PoseRefit& refit);
   // The frame is done: `tracked` frames become history, a lost one clears it.
   void endFrame(const Frame& frame, bool tracked);
+  // The world frame moved under the history (maps merged): forget it.
+  void forgetHistory() {
+    anchors_.clear();
+    seen_.clear();
+  }
   // Map points found in dynamic clusters since the last call (for the next
   // keyframe: local mapping culls those that stay dynamic).
   std::vector<std::shared_ptr<MapPoint>> takeSuspects();

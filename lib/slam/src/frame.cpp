@@ -1,5 +1,7 @@
 #include "frame.hpp"
 
+#include <opencv2/imgproc.hpp>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -69,6 +71,17 @@ Vec3 Frame::unprojectToWorld(int i) const {
 void Frame::clearMatches() {
   points.assign(keys.size(), nullptr);
   outlier.assign(keys.size(), 0);
+}
+
+cv::Mat viewThumbnail(const cv::Mat& gray) {
+  cv::Mat small, f;
+  cv::resize(gray, small, cv::Size(40, 30), 0, 0, cv::INTER_AREA);
+  small.convertTo(f, CV_32F);
+  cv::GaussianBlur(f, f, cv::Size(3, 3), 0);
+  f -= cv::mean(f)[0];
+  const double norm = cv::norm(f);
+  if (norm > 1e-6) f /= norm;
+  return f;
 }
 
 void buildFrame(Frame* frame, const cv::Mat& gray, const cv::Mat& depth_m, features::OrbExtractor* orb,

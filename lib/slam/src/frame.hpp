@@ -68,6 +68,12 @@ struct Frame {
   // The grey image, only while the geometry module's photometric test needs
   // it (geometry.photo_release_ncc > 0); keyframes do not keep it.
   cv::Mat gray;
+  // The whole view in 40x30 pixels, blurred, zero mean, unit norm (CV_32F):
+  // two views of one place have a high dot product. Ranks older keyframes
+  // for a map merge (map_merge.cpp).
+  cv::Mat thumbnail;
+  // Colour (BGR) at each keypoint; empty for a frame without colour.
+  std::vector<cv::Vec3b> colour;
 
   int size() const { return static_cast<int>(keys.size()); }
   const std::uint8_t* descriptor(int i) const { return descriptors.ptr<std::uint8_t>(i); }
@@ -76,6 +82,10 @@ struct Frame {
   Vec3 unprojectToWorld(int i) const;
   void clearMatches();
 };
+
+// Frame::thumbnail of an 8-bit grey image; the dot product of two is their
+// normalised cross-correlation, in [-1, 1].
+cv::Mat viewThumbnail(const cv::Mat& gray);
 
 // Extracts features from an 8-bit grey image and samples depth (metres,
 // CV_32F, 0 = none) at each keypoint. `depth_m` may be empty (no depth).

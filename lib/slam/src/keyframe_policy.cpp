@@ -10,8 +10,8 @@ log::Logger logger("tracking");
 
 bool Tracker::needNewKeyFrame(bool mapping_idle) const {
   const KeyframeOptions& o = options_.keyframes;
-  if (!reference_) return false;
-  const std::size_t keyframes = map_->goodKeyFrameCount();
+  if (!reference_ || options_.localisation) return false;
+  const std::size_t keyframes = map_->goodKeyFrameCount(map_->activeMapId());
   if (current_.id < last_reloc_frame_id_ + 30 && keyframes > 30) return false;
   // Every map point of the reference keyframe counts: a point seen by one
   // keyframe is as useful to tracking as one seen by many (requiring several

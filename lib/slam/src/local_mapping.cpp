@@ -83,7 +83,7 @@ void LocalMapper::cullKeyFrames(KeyFrame* kf) {
   for (KeyFrame* n : kf->bestNeighbours(1000)) {
     // Keyframes newer than kf wait in our queue: not processed, never culled
     // (tracking frees culled keyframes, and the queue still holds them).
-    if (n->id == 0 || n->bad || n == kf || n->id > kf->id) continue;
+    if (n->origin || n->bad || n == kf || n->id > kf->id) continue;
     int total = 0, redundant = 0;
     for (int i = 0; i < n->frame.size(); ++i) {
       const auto& p = n->frame.points[i];

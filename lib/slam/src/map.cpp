@@ -121,7 +121,7 @@ void KeyFrame::updateConnections() {
     const int wa = connections.at(a), wb = connections.at(b);
     return wa != wb ? wa > wb : a->id < b->id;
   });
-  if (!parent && best && id != 0 && best->id < id) {
+  if (!parent && best && !origin && best->id < id) {
     parent = best;
     best->children.push_back(this);
   }
@@ -136,9 +136,27 @@ std::vector<KeyFrame*> KeyFrame::bestNeighbours(int n) const {
   return out;
 }
 
+void Map::adoptLoaded(Map&& loaded) {
+  keyframes_ = std::move(loaded.keyframes_);
+  points_ = std::move(loaded.points_);
+  next_point_id_ = loaded.next_point_id_;
+  next_keyframe_id_ = loaded.next_keyframe_id_;
+  next_frame_id_ = loaded.next_frame_id_;
+  active_map_id_ = loaded.active_map_id_;
+  maps_started_ = loaded.maps_started_;
+  ++epoch_;
+}
+
+std::uint32_t Map::beginMap() {
+  if (maps_started_ > 0) ++active_map_id_;
+  ++maps_started_;
+  return active_map_id_;
+}
+
 KeyFrame* Map::addKeyFrame(std::unique_ptr<KeyFrame> kf) {
   assert(kf->id >= next_keyframe_id_);
   next_keyframe_id_ = kf->id + 1;
+  kf->map_id = active_map_id_;
   keyframes_.push_back(std::move(kf));
   return keyframes_.back().get();
 }
@@ -174,7 +192,7 @@ void Map::erasePoint(const std::shared_ptr<MapPoint>& point) {
 
 
 void Map::setKeyFrameBad(KeyFrame* kf) {
-  if (kf->id == 0 || kf->bad) return;
+  if (kf->origin || kf->bad) return;
   for (auto& [other, w] : kf->connections) {
     other->connections.erase(kf);
     std::erase(other->ordered_neighbours, kf);
@@ -213,6 +231,11 @@ void Map::setKeyFrameBad(KeyFrame* kf) {
 
 std::size_t Map::goodKeyFrameCount() const {
   return std::count_if(keyframes_.begin(), keyframes_.end(), [](const auto& kf) { return !kf->bad; });
+}
+
+std::size_t Map::goodKeyFrameCount(std::uint32_t map_id) const {
+  return std::count_if(keyframes_.begin(), keyframes_.end(),
+                       [map_id](const auto& kf) { return !kf->bad && kf->map_id == map_id; });
 }
 
 std::size_t Map::pointsInMemory() const {

@@ -22,9 +22,11 @@
 #include <map>
 #include <memory>
 #include <shared_mutex>
+#include <string>
 #include <vector>
 
 #include "frame.hpp"
+#include "stillpoint/core/result.hpp"
 
 namespace stillpoint::slam {
 
@@ -112,6 +114,11 @@ class KeyFrame {
 
   const std::int64_t id;
   Frame frame;  // features, matches (frame.points) and pose (frame.T_c_w)
+  // The map it belongs to (Map::activeMapId() when it was made), and whether
+  // it is that map's first keyframe: its origin, never culled, fixed in
+  // bundle adjustment, the root of the map's spanning tree.
+  std::uint32_t map_id = 0;
+  bool origin = false;
 
   SE3& T_c_w() { return frame.T_c_w; }
   const SE3& T_c_w() const { return frame.T_c_w; }
@@ -150,6 +157,10 @@ class KeyFrame {
   std::shared_ptr<PoseAnchor> anchor_;
 };
 
+class Map;
+Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& levels, const std::string& path);
+Status loadMap(const std::string& path, const CameraModel& camera, const LevelInfo& levels, Map* map);
+
 class Map {
  public:
   std::shared_mutex& mutex() const { return mutex_; }
@@ -174,6 +185,30 @@ class Map {
   // In id order: the keyframes in the map and the culled ones not yet freed.
   const std::vector<std::unique_ptr<KeyFrame>>& keyframes() const { return keyframes_; }
   std::size_t goodKeyFrameCount() const;
+  std::size_t goodKeyFrameCount(std::uint32_t map_id) const;
+  // The map new keyframes join. A new map (tracking lost for too long) keeps
+  // the old ones' keyframes and points; they share none with it.
+  std::uint32_t activeMapId() const { return active_map_id_; }
+  std::uint32_t mapsStarted() const { return maps_started_; }
+  // Called by tracking (exclusive lock) just before it makes a map's first
+  // keyframe; the first map is 0.
+  std::uint32_t beginMap();
+  // The active map was moved into map `into`'s frame and joins it (exclusive
+  // lock): new keyframes go to `into`, and the world epoch changes.
+  void mergedInto(std::uint32_t into) {
+    active_map_id_ = into;
+    ++epoch_;
+  }
+  // Changes whenever the world frame of some keyframes moves as a whole (a
+  // merge): a bundle adjustment that read poses before must not write them
+  // back.
+  std::uint64_t epoch() const { return epoch_; }
+  // Takes over a map read from a file (map_io.cpp), exclusive lock held; this
+  // map must be empty.
+  void adoptLoaded(Map&& loaded);
+  // Map files (map_io.cpp).
+  friend Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& levels, const std::string& path);
+  friend Status loadMap(const std::string& path, const CameraModel& camera, const LevelInfo& levels, Map* map);
   std::size_t pointCount() const;  // live (not bad) points
   std::size_t pointsInMemory() const;  // map points not yet freed (bad ones included)
   std::int64_t nextFrameId() { return next_frame_id_++; }
@@ -185,6 +220,9 @@ class Map {
   std::int64_t next_point_id_ = 0;
   std::int64_t next_keyframe_id_ = 0;
   std::int64_t next_frame_id_ = 0;
+  std::uint32_t active_map_id_ = 0;
+  std::uint32_t maps_started_ = 0;
+  std::uint64_t epoch_ = 0;
 };
 
 }  // namespace stillpoint::slam

@@ -471,17 +471,19 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
   std::vector<std::array<double, 3>> positions;
   std::vector<Obs> observations;
   const CameraModel* camera = kf->frame.camera;
+  std::uint64_t epoch = 0;
 
   {  // Snapshot under a shared lock.
     std::shared_lock lock(map->mutex());
     if (kf->bad) return stats;
+    epoch = map->epoch();
     std::vector<KeyFrame*> local{kf};
     for (KeyFrame* n : kf->bestNeighbours(max_keyframes - 1)) local.push_back(n);
     std::unordered_map<KeyFrame*, int> camera_index;
     for (KeyFrame* k : local) {
       camera_index[k] = static_cast<int>(cameras.size());
       cameras.push_back(k);
-      fixed.push_back(k->id == 0);
+      fixed.push_back(k->origin);
     }
     std::unordered_map<MapPoint*, int> point_index;
     for (KeyFrame* k : local) {
@@ -554,6 +556,8 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
 
   {  // Write back under the exclusive lock.
     std::unique_lock lock(map->mutex());
+    // Maps merged meanwhile: the poses read are in a frame the map left.
+    if (map->epoch() != epoch) return stats;
     for (std::size_t i = 0; i < observations.size(); ++i) {
       if (!is_outlier[i]) continue;
       const Obs& ob = observations[i];

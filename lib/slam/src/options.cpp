@@ -19,6 +19,9 @@ Status TrackingOptions::validate() const {
   if (!(close_depth_baselines > 0)) return Error{"tracking.close_depth_baselines must be > 0"};
   if (local_keyframes_max < 1) return Error{"tracking.local_keyframes_max must be >= 1"};
   if (relocalisation_candidates < 1) return Error{"tracking.relocalisation_candidates must be >= 1"};
+  if (!(new_map_after_lost_s >= 0 && new_map_after_lost_s <= 3600))
+    return Error{"tracking.new_map_after_lost_s must be in [0, 3600] (0: never)"};
+  if (!(min_depth_share >= 0 && min_depth_share < 1)) return Error{"tracking.min_depth_share must be in [0, 1)"};
   if (trajectory_records < -1) return Error{"tracking.trajectory_records must be >= -1 (-1: every frame)"};
   if (motion_prior_sigma_m < 0) return Error{"tracking.motion_prior_sigma_m must be >= 0 (0: no prior)"};
   if (motion_prior_sigma_deg <= 0) return Error{"tracking.motion_prior_sigma_deg must be > 0"};
@@ -153,6 +156,10 @@ void visitFields(SlamOptions& o, Visitor&& v) {
     "keyframes tried per lost frame: the newest N, then N older ones in turn");
   v("tracking", "trajectory_records", o.tracking.trajectory_records,
     "tracked frames kept for the trajectory: -1 all, 0 none, N the last N");
+  v("tracking", "new_map_after_lost_s", o.tracking.new_map_after_lost_s,
+    "lost this long (s) without relocalising: start a new map, keep the old one (0: never)");
+  v("tracking", "min_depth_share", o.tracking.min_depth_share,
+    "frames with a smaller share of pixels with depth have no pose (state no_depth), [0, 1)");
   v("keyframes", "max_interval_s", o.keyframes.max_interval_s, "insert a keyframe at least this often (s) while tracking degrades");
   v("mapping", "local_ba", o.mapping.local_ba, "local bundle adjustment after each keyframe");
   v("mapping", "ba_max_keyframes", o.mapping.ba_max_keyframes, "keyframes in the bundle adjustment window, >= 2");
@@ -175,6 +182,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "confirm_with_geometry", o.semantic.confirm_with_geometry,
     "card, always or never: whether masks need the geometry module's agreement (card: as the model card says)");
   v("", "sequential", o.sequential, "one thread, deterministic (tests, evaluation)");
+  v("", "localisation", o.localisation, "track against a loaded map only: no new keyframes, points or maps");
 }
 
 std::string lineOf(const YAML::Node& node) { return "line " + std::to_string(node.Mark().line + 1); }

@@ -171,6 +171,8 @@ SlamOptions everythingChanged() {
   o.tracking.min_inliers_local_map = 40;
   o.tracking.relocalisation_candidates = 12;
   o.tracking.trajectory_records = 300;
+  o.tracking.new_map_after_lost_s = 2.5;
+  o.tracking.min_depth_share = 0.1;
   o.keyframes.max_interval_s = 0.75;
   o.mapping.local_ba = false;
   o.mapping.ba_max_keyframes = 15;
@@ -188,6 +190,7 @@ SlamOptions everythingChanged() {
   o.semantic.threads = 2;
   o.semantic.confirm_with_geometry = "always";
   o.sequential = true;
+  o.localisation = true;
   return o;
 }
 
@@ -196,6 +199,8 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.orb.num_features, b.orb.num_features);
   EXPECT_EQ(a.orb.scale_factor, b.orb.scale_factor);
   EXPECT_EQ(a.tracking.trajectory_records, b.tracking.trajectory_records);
+  EXPECT_EQ(a.tracking.new_map_after_lost_s, b.tracking.new_map_after_lost_s);
+  EXPECT_EQ(a.tracking.min_depth_share, b.tracking.min_depth_share);
   EXPECT_EQ(a.keyframes.max_interval_s, b.keyframes.max_interval_s);
   EXPECT_EQ(a.mapping.keep_culled_keyframes, b.mapping.keep_culled_keyframes);
   EXPECT_EQ(a.geometry.clustering.clusters_at_vga, b.geometry.clustering.clusters_at_vga);
@@ -203,6 +208,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.semantic.model_dirs, b.semantic.model_dirs);
   EXPECT_EQ(a.semantic.confirm_with_geometry, b.semantic.confirm_with_geometry);
   EXPECT_EQ(a.sequential, b.sequential);
+  EXPECT_EQ(a.localisation, b.localisation);
 }
 
 TEST_F(OptionsFileTest, EveryKeyRoundTrips) {

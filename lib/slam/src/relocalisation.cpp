@@ -10,6 +10,34 @@ namespace {
 log::Logger logger("tracking");
 }  // namespace
 
+bool Tracker::poseFromMatches(Frame* frame) const {
+  std::vector<cv::Point3f> object;
+  std::vector<cv::Point2f> image;
+  for (int i = 0; i < frame->size(); ++i) {
+    if (!frame->points[i]) continue;
+    const Vec3& p = frame->points[i]->position;
+    object.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+    image.push_back(frame->un[i]);
+  }
+  if (object.size() < 4) return false;
+  const cv::Mat K = (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
+  cv::Mat rvec, tvec;
+  std::vector<int> inliers;
+  if (!cv::solvePnPRansac(object, image, K, cv::noArray(), rvec, tvec, false, 300, 4.0f, 0.99, inliers,
+                          cv::SOLVEPNP_EPNP) ||
+      inliers.size() < 12)
+    return false;
+  cv::Mat R;
+  cv::Rodrigues(rvec, R);
+  SE3 T = SE3::Identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) T.linear()(r, c) = R.at<double>(r, c);
+    T.translation()[r] = tvec.at<double>(r);
+  }
+  frame->T_c_w = T;
+  return true;
+}
+
 bool Tracker::relocalise() {
   // Most recent keyframes first: after a short loss the camera is usually
   // still near where it was. Then as many of the older ones, a window that
@@ -19,8 +47,9 @@ bool Tracker::relocalise() {
   // reaches recently mapped ground.
   const auto n = static_cast<std::size_t>(options_.tracking.relocalisation_candidates);
   std::vector<KeyFrame*> candidates, older;  // newest first
+  // Only the map being tracked: an older map (left after a loss) has its own frame.
   for (auto it = map_->keyframes().rbegin(); it != map_->keyframes().rend(); ++it) {
-    if ((*it)->bad) continue;
+    if ((*it)->bad || (*it)->map_id != map_->activeMapId()) continue;
     (candidates.size() < n ? candidates : older).push_back(it->get());
   }
   if (!older.empty()) {
@@ -31,32 +60,10 @@ bool Tracker::relocalise() {
     for (std::size_t k = 0; k < count; ++k) candidates.push_back(older[(start + k) % older.size()]);
     reloc_window_next_id_ = candidates.back()->id;
   }
-  const cv::Mat K = (cv::Mat_<double>(3, 3) << camera_.fx, 0, camera_.cx, 0, camera_.fy, camera_.cy, 0, 0, 1);
   for (KeyFrame* kf : candidates) {
     current_.clearMatches();
     if (searchByDescriptor(&current_, *kf, 0.75f) < 15) continue;
-    std::vector<cv::Point3f> object;
-    std::vector<cv::Point2f> image;
-    for (int i = 0; i < current_.size(); ++i) {
-      if (!current_.points[i]) continue;
-      const Vec3& p = current_.points[i]->position;
-      object.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
-      image.push_back(current_.un[i]);
-    }
-    cv::Mat rvec, tvec;
-    std::vector<int> inliers;
-    if (!cv::solvePnPRansac(object, image, K, cv::noArray(), rvec, tvec, false, 300, 4.0f, 0.99, inliers,
-                            cv::SOLVEPNP_EPNP) ||
-        inliers.size() < 12)
-      continue;
-    cv::Mat R;
-    cv::Rodrigues(rvec, R);
-    SE3 T = SE3::Identity();
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) T.linear()(r, c) = R.at<double>(r, c);
-      T.translation()[r] = tvec.at<double>(r);
-    }
-    current_.T_c_w = T;
+    if (!poseFromMatches(&current_)) continue;
     if (timedOptimizePose() < 10) continue;
     discardOutliers();
     // Widen to the local map around the candidate.

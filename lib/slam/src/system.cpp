@@ -10,10 +10,12 @@
 #include <mutex>
 #include <optional>
 #include <tuple>
+#include <unordered_set>
 
 #include "frame.hpp"
 #include "local_mapping.hpp"
 #include "map.hpp"
+#include "map_io.hpp"
 #include "segmentation_latency.hpp"
 #include "semantic_worker.hpp"
 #include "stillpoint/core/log.hpp"
@@ -23,6 +25,18 @@
 namespace stillpoint::slam {
 namespace {
 log::Logger logger("slam");
+
+// Share of the depth image's pixels with a usable depth (as buildFrame takes
+// them), from every 4th pixel of every 4th row; 0 for no image.
+double depthShare(const cv::Mat& depth_m, const CameraModel& cam) {
+  if (depth_m.empty()) return 0.0;
+  std::size_t valid = 0, samples = 0;
+  for (int y = 0; y < depth_m.rows; y += 4) {
+    const float* row = depth_m.ptr<float>(y);
+    for (int x = 0; x < depth_m.cols; x += 4, ++samples) valid += row[x] > cam.min_depth && row[x] < cam.max_depth;
+  }
+  return samples ? static_cast<double>(valid) / samples : 0.0;
+}
 
 std::pair<double, double> medianP95(std::vector<double> v) {
   if (v.empty()) return {0.0, 0.0};
@@ -64,6 +78,8 @@ const char* toString(TrackingState state) {
     case TrackingState::kOk: return "ok";
     case TrackingState::kLost: return "lost";
     case TrackingState::kRelocalised: return "relocalised";
+    case TrackingState::kNoDepth: return "no_depth";
+    case TrackingState::kNewMap: return "new_map";
   }
   return "?";
 }
@@ -104,8 +120,10 @@ struct SlamSystem::Impl {
   std::unique_ptr<SemanticWorker> semantic;
   std::string semantic_model;
   std::atomic<int> semantic_no_colour{0};
+  std::atomic<std::size_t> no_depth_frames{0};
   log::RateLimiter no_colour_warning{std::chrono::seconds(10)};
   bool finished = false;
+  bool tracked_any = false;  // a frame reached tracking (no map can be loaded then)
 
   // Sequential mode with semantic.sequential_latency_frames (evaluation).
   ModelledSegmentationLatency latency{options.semantic.sequential_latency_frames, options.semantic.queue_capacity};
@@ -198,6 +216,8 @@ Result<TrackOutput> SlamSystem::track(const RgbdInput& input) {
 Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   Impl& s = *impl_;
   if (s.finished) return Error{"track() called after finish()"};
+  if (s.options.localisation && s.map.mapsStarted() == 0)
+    return Error{"localisation needs a loaded map (SlamSystem::loadMap) to track against"};
   const cv::Size expected(s.camera.width, s.camera.height);
   if (input.gray.empty()) return Error{"grey image is empty"};
   if (input.gray.type() != CV_8UC1) return Error{"grey image must be 8-bit single channel"};
@@ -219,6 +239,18 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   }
 
   const auto t0 = std::chrono::steady_clock::now();
+  if (depthShare(input.depth_m, s.camera) < s.options.tracking.min_depth_share) {
+    // A covered or blinded camera: no pose, said so, never the last state.
+    ++s.no_depth_frames;
+    s.tracker.noDepth(input.stamp);
+    TrackOutput out;
+    out.state = TrackingState::kNoDepth;
+    out.map_id = s.tracker.mapId();
+    out.track_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    std::shared_lock lock(s.map.mutex());
+    out.keyframes = s.map.goodKeyFrameCount();
+    return out;
+  }
   Frame frame;
   frame.id = s.map.nextFrameId();
   frame.stamp = input.stamp;
@@ -231,6 +263,13 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   if (clusters_pending) s.clustering->submit(frame.id, input.depth_m.clone());
   buildFrame(&frame, input.gray, input.depth_m, &s.orb, s.tracker.moverCells(), s.options.tracking.mover_cells_every);
   if (!input.movers.empty()) markKnownMovers(&frame, input.movers);
+  frame.thumbnail = viewThumbnail(input.gray);
+  if (!input.bgr.empty()) {
+    frame.colour.resize(frame.keys.size());
+    for (int i = 0; i < frame.size(); ++i)
+      frame.colour[i] = input.bgr.at<cv::Vec3b>(std::clamp(cvRound(frame.keys[i].pt.y), 0, input.bgr.rows - 1),
+                                                std::clamp(cvRound(frame.keys[i].pt.x), 0, input.bgr.cols - 1));
+  }
   // The tracker keeps it for geometry.freespace_frames frames.
   if (clusters_pending && s.options.geometry.photo_release_ncc > 0) frame.gray = input.gray.clone();
   const auto t1 = std::chrono::steady_clock::now();
@@ -238,6 +277,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   if (s.latency.busy()) s.latency.advance(frame.id, [&s](const SemanticJob& job) { s.applySegmentation(job); });
   TrackOutput out;
   const bool idle = s.options.sequential || s.mapper.idle();
+  s.tracked_any = true;
   KeyFrame* kf = s.tracker.track(std::move(frame), idle, clusters_pending, &out);
   const auto t2 = std::chrono::steady_clock::now();
   out.extract_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
@@ -291,8 +331,71 @@ std::vector<TrajectoryPose> SlamSystem::trajectory() const {
   std::shared_lock lock(impl_->map.mutex());
   std::vector<TrajectoryPose> out;
   out.reserve(impl_->tracker.records().size());
-  for (const TrajectoryRecord& r : impl_->tracker.records()) out.push_back({r.stamp, r.T_c_w().inverse()});
+  for (const TrajectoryRecord& r : impl_->tracker.records()) out.push_back({r.stamp, r.T_c_w().inverse(), r.map_id});
   return out;
+}
+
+Status SlamSystem::saveMap(const std::string& path) const {
+  try {
+    std::shared_lock lock(impl_->map.mutex());
+    return slam::saveMap(impl_->map, impl_->camera, impl_->levels, path);
+  } catch (const std::exception& e) {
+    return Error{"cannot write the map " + path + ": " + e.what()};
+  }
+}
+
+Status SlamSystem::loadMap(const std::string& path) {
+  Impl& s = *impl_;
+  try {
+    std::unique_lock lock(s.map.mutex());
+    if (s.tracked_any) return Error{"map " + path + ": a map can only be loaded before the first frame"};
+    Map loaded;
+    if (Status st = slam::loadMap(path, s.camera, s.levels, &loaded); !st) return st;
+    s.map.adoptLoaded(std::move(loaded));
+    s.tracker.mapLoaded();
+    SP_INFO(logger, "map " << path << " loaded: " << s.map.goodKeyFrameCount() << " keyframes, " << s.map.pointCount()
+                           << " points in " << s.map.mapsStarted() << " map(s)");
+    return Status::success();
+  } catch (const std::exception& e) {
+    return Error{"map " + path + ": " + e.what()};
+  }
+}
+
+Status SlamSystem::exportCloud(const std::string& path) const {
+  struct Vertex {
+    float x, y, z;
+    std::uint8_t r, g, b;
+  };
+  std::vector<Vertex> vertices;
+  {
+    std::shared_lock lock(impl_->map.mutex());
+    std::unordered_set<const MapPoint*> seen;
+    for (const auto& kf : impl_->map.keyframes()) {
+      if (kf->bad) continue;
+      const Frame& f = kf->frame;
+      for (int i = 0; i < f.size(); ++i) {
+        const auto& p = f.points[i];
+        if (!p || p->bad || p->isTemporary() || !seen.insert(p.get()).second) continue;
+        const cv::Vec3b c = f.colour.empty() ? cv::Vec3b(128, 128, 128) : f.colour[i];
+        vertices.push_back({static_cast<float>(p->position.x()), static_cast<float>(p->position.y()),
+                            static_cast<float>(p->position.z()), c[2], c[1], c[0]});
+      }
+    }
+  }
+  std::FILE* file = std::fopen(path.c_str(), "wb");
+  if (!file) return Error{"cannot write " + path + ": " + std::strerror(errno)};
+  bool ok = std::fprintf(file,
+                         "ply\nformat binary_little_endian 1.0\ncomment stillpoint static map points\n"
+                         "element vertex %zu\nproperty float x\nproperty float y\nproperty float z\n"
+                         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
+                         vertices.size()) > 0;
+  for (const Vertex& v : vertices) {
+    if (!ok) break;
+    ok = std::fwrite(&v.x, sizeof(float), 3, file) == 3 && std::fwrite(&v.r, 1, 3, file) == 3;
+  }
+  ok = (std::fclose(file) == 0) && ok;
+  if (!ok) return Error{"writing " + path + " failed: " + std::strerror(errno)};
+  return Status::success();
 }
 
 std::vector<KeyFrameView> SlamSystem::keyframes() const {
@@ -301,6 +404,7 @@ std::vector<KeyFrameView> SlamSystem::keyframes() const {
   for (const auto& kf : impl_->map.keyframes()) {
     KeyFrameView v;
     v.id = kf->id;
+    v.map_id = kf->map_id;
     v.stamp = kf->frame.stamp;
     v.bad = kf->bad;
     v.segmented = kf->segmented;
@@ -318,6 +422,8 @@ MapStats SlamSystem::mapStats() const {
   std::shared_lock lock(impl_->map.mutex());
   MapStats stats;
   stats.keyframes = impl_->map.goodKeyFrameCount();
+  stats.maps = impl_->map.mapsStarted();
+  stats.no_depth_frames = impl_->no_depth_frames;
   stats.points = impl_->map.pointCount();
   stats.keyframes_in_memory = impl_->map.keyframes().size();
   stats.points_in_memory = impl_->map.pointsInMemory();

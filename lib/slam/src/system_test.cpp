@@ -161,7 +161,7 @@ TEST_F(SlamSystemInputTest, TrackAfterFinishIsAnError) {
   EXPECT_EQ(system->trajectory().size(), 1u);  // still readable after finish()
 }
 
-TEST_F(SlamSystemInputTest, FramesWithoutDepthDoNotInitialise) {
+TEST_F(SlamSystemInputTest, FramesWithoutDepthSaySoAndDoNotInitialise) {
   auto system = makeSystem(camera_);
   ASSERT_TRUE(system);
   // New matrices, never `depth_m = cv::Mat::zeros(...)`: assigning an
@@ -175,11 +175,13 @@ TEST_F(SlamSystemInputTest, FramesWithoutDepthDoNotInitialise) {
   for (const RgbdInput* input : {&zero_depth, &no_depth, &out_of_range}) {
     const auto out = system->track(*input);
     ASSERT_TRUE(out.ok()) << out.error();
-    EXPECT_EQ(out->state, TrackingState::kInitialising);
-    EXPECT_GT(out->features, 0);  // the image itself is fine
+    EXPECT_EQ(out->state, TrackingState::kNoDepth);
+    EXPECT_FALSE(hasPose(out->state));
     EXPECT_EQ(out->tracked, 0);
     EXPECT_EQ(out->keyframes, 0u);
   }
+  EXPECT_EQ(system->mapStats().no_depth_frames, 3u);
+  EXPECT_EQ(system->mapStats().maps, 0u);
   // The first frame with depth starts the map at the origin.
   const auto good = system->track(frames_[1]);
   ASSERT_TRUE(good.ok()) << good.error();

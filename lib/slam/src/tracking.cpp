@@ -38,7 +38,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   geometry_ = GeometryOutput{};
   semantic_marked_ = 0;
   carried_.clear();
-  const bool tracking = state_ == TrackingState::kOk || state_ == TrackingState::kRelocalised;
+  const bool tracking = hasPose(state_);
   if (detector_) detector_->startFrame(current_, clusters_pending, tracking);
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
@@ -49,13 +49,21 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   } else {
     std::shared_lock lock(map_->mutex());
     ok = trackFrame(clusters_pending);
-    ScopedStageTimer keyframe_timer(&times_.keyframe);
-    if (ok && needNewKeyFrame(mapping_idle)) {
+    if (!ok && newMapDue()) {
       lock.unlock();
       std::unique_lock write(map_->mutex());
-      new_keyframe = createKeyFrame();
+      ok = startNewMap();
+      if (ok) new_keyframe = reference_;
+    } else {
+      ScopedStageTimer keyframe_timer(&times_.keyframe);
+      if (ok && needNewKeyFrame(mapping_idle)) {
+        lock.unlock();
+        std::unique_lock write(map_->mutex());
+        new_keyframe = createKeyFrame();
+      }
     }
   }
+  if (ok && state_ == TrackingState::kOk) lookForOlderMaps();
   if (options_.report_fates) reportFates(ok, out);
   if (ok) {
     updateVelocity();
@@ -64,8 +72,8 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
         current_.points[i] = nullptr;
     std::shared_lock lock(map_->mutex());  // keyframe poses change under local BA
-    trajectory_.record(
-        {current_.stamp, reference_->anchor(), renormalized(current_.T_c_w * reference_->T_c_w().inverse())});
+    trajectory_.record({current_.stamp, reference_->anchor(),
+                        renormalized(current_.T_c_w * reference_->T_c_w().inverse()), map_id_});
     out->T_w_c = current_.T_c_w.inverse();
   }
   SP_DEBUG(logger, "frame " << current_.id << " state " << toString(state_) << " inliers " << inliers_
@@ -73,6 +81,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
                               << (new_keyframe ? " NEW KF" : ""));
   out->stages = times_;
   out->state = state_;
+  out->map_id = map_id_;
   out->features = current_.size();
   out->tracked = ok ? inliers_ : 0;
   out->new_keyframe = new_keyframe != nullptr;
@@ -123,11 +132,51 @@ bool Tracker::trackFrame(bool clusters_pending) {
   }
   if (ok) {
     state_ = was_lost ? TrackingState::kRelocalised : TrackingState::kOk;
+    lost_since_.reset();
+    blind_since_.reset();
   } else {
     state_ = TrackingState::kLost;
     has_velocity_ = false;
+    if (!lost_since_) lost_since_ = blind_since_.value_or(current_.stamp);
   }
   return ok;
+}
+
+void Tracker::mapLoaded() {
+  state_ = TrackingState::kLost;
+  map_id_ = map_->activeMapId();
+}
+
+void Tracker::noDepth(Timestamp stamp) {
+  if (!blind_since_) blind_since_ = stamp;
+}
+
+bool Tracker::newMapDue() const {
+  const double after_s = options_.tracking.new_map_after_lost_s;
+  if (options_.localisation || after_s <= 0 || state_ != TrackingState::kLost || !lost_since_) return false;
+  if (secondsBetween(current_.stamp, *lost_since_) < after_s) return false;
+  const auto with_depth = std::count_if(current_.depth.begin(), current_.depth.end(), [](float d) { return d > 0; });
+  return with_depth >= options_.tracking.min_init_features;
+}
+
+bool Tracker::startNewMap() {
+  SP_WARN(logger, "frame " << current_.id << ": lost for " << secondsBetween(current_.stamp, *lost_since_)
+                           << " s and not relocalised: starting map " << map_->activeMapId() + 1
+                           << " (map " << map_->activeMapId() << " is kept)");
+  current_.clearMatches();
+  std::fill(current_.dynamic.begin(), current_.dynamic.end(), kNotDynamic);
+  reference_ = nullptr;
+  local_keyframes_.clear();
+  local_points_.clear();
+  has_velocity_ = false;
+  last_reloc_frame_id_ = -100;
+  reloc_window_next_id_ = -1;
+  if (detector_) detector_->takeSuspects();  // points of the old map
+  if (!initialise()) return false;
+  state_ = TrackingState::kNewMap;
+  lost_since_.reset();
+  blind_since_.reset();
+  return true;
 }
 
 bool Tracker::initialPose() {
@@ -426,7 +475,9 @@ bool Tracker::initialise() {
     return false;
   }
   current_.T_c_w = SE3::Identity();
-  auto kf = std::make_unique<KeyFrame>(0, current_);
+  map_id_ = map_->beginMap();
+  auto kf = std::make_unique<KeyFrame>(map_->nextKeyFrameId(), current_);
+  kf->origin = true;
   KeyFrame* k = map_->addKeyFrame(std::move(kf));
   for (int i = 0; i < k->frame.size(); ++i) {
     if (k->frame.depth[i] <= 0) continue;
@@ -441,7 +492,7 @@ bool Tracker::initialise() {
   local_keyframes_ = {k};
   inliers_ = k->trackedPoints(1);
   state_ = TrackingState::kOk;
-  SP_INFO(logger, "map initialised with " << inliers_ << " points");
+  SP_INFO(logger, "map " << map_id_ << " initialised with " << inliers_ << " points");
   return true;
 }
 

@@ -37,6 +37,15 @@ class Tracker {
   // The most recent tracking.trajectory_records tracked frames (all with -1).
   const std::deque<TrajectoryRecord>& records() const { return trajectory_.records(); }
   TrackingState state() const { return state_; }
+  // The map tracked frames are in (TrackOutput::map_id).
+  std::uint32_t mapId() const { return map_id_; }
+  // A frame with too little depth to track (tracking.min_depth_share) was
+  // left out: tracking does not see it, but the time without a pose counts
+  // towards tracking.new_map_after_lost_s should tracking fail after it.
+  void noDepth(Timestamp stamp);
+  // A map was loaded (exclusive lock held, before the first frame): frames
+  // relocalise against it, as after a loss.
+  void mapLoaded();
   // Where the last frame's movers were, for the next frame's feature budget
   // (tracking.mover_cells_*): CV_8UC1 at 1/8 of the image size, non-zero near
   // its dynamic features; empty when they were too few or tracking failed.
@@ -46,6 +55,11 @@ class Tracker {
   // State machine (tracking.cpp).
   bool trackFrame(bool clusters_pending);
   bool initialise();
+  // Lost for tracking.new_map_after_lost_s, and the frame could start a map.
+  bool newMapDue() const;
+  // Leaves the lost map as it is and starts a new one at the current frame
+  // (map lock held exclusively).
+  bool startNewMap();
   bool initialPose();
   // with_prior: the prediction is a prior of the fit (a real velocity; not
   // the last pose standing in for one).
@@ -65,7 +79,12 @@ class Tracker {
   void reportFates(bool ok, TrackOutput* out) const;  // SlamOptions::report_fates
   // Relocalisation (relocalisation.cpp).
   bool relocalise();
-  std::vector<KeyFrame*> relocalisationCandidates();
+  // A pose for `frame` from its map-point matches: PnP RANSAC (EPnP).
+  bool poseFromMatches(Frame* frame) const;
+  // Maps started after a loss rejoin older ones (map_merge.cpp): call with
+  // no map lock held.
+  void lookForOlderMaps();
+  void mergeInto(std::uint32_t older, const SE3& T_older_newer, KeyFrame* older_keyframe);
   // Keyframe policy (keyframe_policy.cpp).
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
@@ -83,6 +102,18 @@ class Tracker {
   const double close_depth_;
 
   TrackingState state_ = TrackingState::kInitialising;
+  std::uint32_t map_id_ = 0;
+  // Since when no frame has had a pose: the first lost frame, or the first
+  // frame without depth before it (unset while tracking).
+  std::optional<Timestamp> lost_since_, blind_since_;
+  // A lookup that placed the current map in an older one, waiting for a
+  // second that agrees (map_merge.cpp).
+  struct MergeCandidate {
+    std::uint32_t older = 0;
+    SE3 T_older_newer;
+    Timestamp stamp;
+  };
+  std::optional<MergeCandidate> merge_candidate_;
   Frame current_, last_;
   bool has_last_ = false;
   KeyFrame* reference_ = nullptr;

@@ -14,6 +14,7 @@ struct TrajectoryRecord {
   Timestamp stamp;
   std::shared_ptr<const PoseAnchor> reference;
   SE3 T_c_ref;
+  std::uint32_t map_id = 0;
   SE3 T_c_w() const { return renormalized(T_c_ref * reference->T_c_w()); }
 };
 
@@ -29,6 +30,12 @@ class TrajectoryLog {
     if (keep_ > 0 && records_.size() > static_cast<std::size_t>(keep_)) records_.pop_front();
   }
   const std::optional<TrajectoryRecord>& last() const { return last_; }
+  // Records of map `from` are in map `into` now (maps merged).
+  void relabel(std::uint32_t from, std::uint32_t into) {
+    for (TrajectoryRecord& r : records_)
+      if (r.map_id == from) r.map_id = into;
+    if (last_ && last_->map_id == from) last_->map_id = into;
+  }
   const std::deque<TrajectoryRecord>& records() const { return records_; }
 
  private:

@@ -12,9 +12,19 @@
 
 namespace stillpoint::ipc {
 
-enum class TrackingState : std::uint8_t { kInitialising = 0, kOk = 1, kLost = 2, kRelocalised = 3 };
+// kNoDepth: the frame had too little depth to track (no pose); kNewMap: the
+// first pose of a map started after a loss (map_id changed). Poses are
+// valid in kOk, kRelocalised and kNewMap.
+enum class TrackingState : std::uint8_t {
+  kInitialising = 0,
+  kOk = 1,
+  kLost = 2,
+  kRelocalised = 3,
+  kNoDepth = 4,
+  kNewMap = 5,
+};
 const char* toString(TrackingState state);
-// Accepts 0..3; anything else is an error (a newer writer or a corrupt message).
+// Accepts 0..5; anything else is an error (a newer writer or a corrupt message).
 Result<TrackingState> trackingStateFromInt(std::int64_t value);
 
 struct PoseMessage {

@@ -39,7 +39,6 @@ enum class SkipReason {
   kUnreadableColour,  // missing, corrupt/truncated, empty or not 8-bit colour
   kUnreadableDepth,   // missing, corrupt/truncated, empty or not 16-bit single channel
   kWrongSize,         // differs from the expected size or colour and depth differ
-  kEmptyDepth,        // every depth pixel is 0
   kNoDepthMatch,      // association failures; counted at open(), never returned by load()
   kIndexOutOfRange,   // i >= size()
 };

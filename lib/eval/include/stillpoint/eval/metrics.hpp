@@ -70,7 +70,12 @@ struct RelativeError {
 };
 
 struct EvalResult {
-  std::size_t matched = 0;
+  std::size_t matched = 0;  // matched poses in the maps aligned
+  // Maps in the estimate (StampedPose::map_id), each aligned on its own;
+  // `unaligned`: matched poses of maps too short to align (left out).
+  std::size_t maps = 1;
+  std::size_t unaligned = 0;
+  std::size_t matched_in_largest_map = 0;  // `alignment` is that map's
   Alignment alignment;
   // ATE over the matched poses, metres.
   double ate_rmse_m = 0.0;

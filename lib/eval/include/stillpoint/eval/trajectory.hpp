@@ -2,6 +2,7 @@
 // Camera trajectories in the TUM RGB-D benchmark text format:
 //   timestamp tx ty tz qx qy qz qw
 // one pose per line, '#' starts a comment line, blank lines are ignored.
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -14,12 +15,16 @@ namespace stillpoint::eval {
 struct StampedPose {
   Timestamp stamp;
   SE3 T_w_c = SE3::Identity();
+  // The map the pose is in (a SLAM system that started a new map after a
+  // loss); files mark a change with a comment line "# map N".
+  std::uint32_t map_id = 0;
 };
 
 // Poses in strictly increasing time order.
 using Trajectory = std::vector<StampedPose>;
 
-// Reads a TUM trajectory. Fields may be separated by spaces, tabs or commas.
+// Reads a TUM trajectory. Fields may be separated by spaces, tabs or commas;
+// a comment line "# map N" puts the poses after it in map N.
 // Quaternions within 1e-2 of unit norm are normalised; others are rejected.
 // Every error message names the file and, for content errors, the line number
 // ("path:12: ...").

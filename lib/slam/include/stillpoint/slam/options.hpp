@@ -23,6 +23,13 @@ struct TrackingOptions {
   int min_inliers_local_map = 30;      // YAML: map inliers to accept a tracked pose
   int relocalisation_candidates = 30;  // YAML: keyframes tried per lost frame (newest N, then N older in turn)
   int trajectory_records = -1;         // YAML: tracked frames kept for the trajectory: -1 all, 0 none, N the last N
+  // YAML: lost this long (s, frame stamps; frames without depth before the
+  // loss included) with relocalisation failing, tracking starts a new map at
+  // the next frame that can start one and keeps the old map (0: never).
+  double new_map_after_lost_s = 1.0;
+  // YAML: a frame whose share of pixels with valid depth is below this has
+  // no pose and the state kNoDepth (a covered or blinded camera).
+  double min_depth_share = 0.02;
   int min_init_features = 300;         // keypoints with depth needed to start a map
   int min_inliers_after_reloc = 50;    // a relocalised pose needs more support than a tracked one
   double close_depth_baselines = 40.0; // "close" points (depth < this x baseline): ORB-SLAM2's stereo rule
@@ -223,6 +230,10 @@ struct SlamOptions {
   GeometryOptions geometry;
   SemanticOptions semantic;
   bool sequential = false;  // YAML: one thread, deterministic (tests, evaluation)
+  // YAML: track against a loaded map only (SlamSystem::loadMap): no keyframe,
+  // no map point and no new map is made, so memory stays as loaded; a lost
+  // frame tries relocalisation until the camera sees the map again.
+  bool localisation = false;
   // Diagnostics, built only when asked for: TrackOutput::fates and
   // TrackOutput::semantic_labels (stillpoint-replay --render).
   bool report_fates = false;

@@ -16,8 +16,17 @@
 
 namespace stillpoint::slam {
 
-enum class TrackingState { kInitialising, kOk, kLost, kRelocalised };
+// A frame's tracking state. kRelocalised and kNewMap are the first frame
+// tracked again after a loss: found in its map again, or the first keyframe
+// of a new map (TrackOutput::map_id) started when relocalisation had failed
+// for tracking.new_map_after_lost_s. kNoDepth: the frame had too little
+// depth to be tracked (tracking.min_depth_share); it has no pose.
+enum class TrackingState { kInitialising, kOk, kLost, kRelocalised, kNoDepth, kNewMap };
 const char* toString(TrackingState state);
+// The states in which TrackOutput::T_w_c is a pose.
+constexpr bool hasPose(TrackingState s) {
+  return s == TrackingState::kOk || s == TrackingState::kRelocalised || s == TrackingState::kNewMap;
+}
 
 // Where one frame's tracking time went (milliseconds).
 struct StageTimes {
@@ -96,7 +105,11 @@ struct FeatureView {
 
 struct TrackOutput {
   TrackingState state = TrackingState::kInitialising;
-  SE3 T_w_c = SE3::Identity();  // valid when state is kOk or kRelocalised
+  SE3 T_w_c = SE3::Identity();  // valid when hasPose(state)
+  // The map the pose is in: 0 for the first, one more for each map started
+  // after a loss (tracking.new_map_after_lost_s). Poses of different maps are
+  // in different frames.
+  std::uint32_t map_id = 0;
   int features = 0;
   int tracked = 0;  // inlier matches to map points
   // Features matched to the masked features of the newest segmented keyframe
@@ -120,11 +133,14 @@ struct TrackOutput {
 struct TrajectoryPose {
   Timestamp stamp;
   SE3 T_w_c;
+  std::uint32_t map_id = 0;  // TrackOutput::map_id
 };
 
 struct MapStats {
-  std::size_t keyframes = 0;  // in the map
+  std::size_t keyframes = 0;  // in the map (every map)
   std::size_t points = 0;     // in the map
+  std::uint32_t maps = 0;     // maps started (1 + new maps after losses); 0 before the first
+  std::size_t no_depth_frames = 0;  // frames with too little depth to track (TrackingState::kNoDepth)
   // Memory held: keyframes and map points still allocated (culled ones not
   // yet freed included), and tracked frames kept for trajectory().
   std::size_t keyframes_in_memory = 0;
@@ -161,6 +177,7 @@ struct KeyFrameFeature {
 
 struct KeyFrameView {
   std::int64_t id = 0;
+  std::uint32_t map_id = 0;
   Timestamp stamp;
   bool bad = false;        // culled as redundant
   bool segmented = false;  // the semantic module's result was applied

@@ -89,6 +89,21 @@ class SlamSystem {
   // mapping.keep_culled_keyframes (call after finish() for final values).
   std::vector<KeyFrameView> keyframes() const;
 
+  // The maps in memory as a file (every keyframe and map point; a versioned,
+  // checksummed binary format), written next to `path` and renamed over it.
+  // Safe from any thread; after finish() it holds the final map.
+  Status saveMap(const std::string& path) const;
+  // Reads a map file before the first frame: frames then relocalise against
+  // it (with `localisation`, only against it). A truncated, corrupt or
+  // wrong-version file, or one made with another camera, is an error naming
+  // the file; the system is unchanged then.
+  Status loadMap(const std::string& path);
+  // The map points as a coloured point cloud (PLY, binary little-endian:
+  // x y z as float, red green blue as uchar; grey where a point's keyframe
+  // had no colour image). Only the static map: points the modules found
+  // moving were culled from it.
+  Status exportCloud(const std::string& path) const;
+
  private:
   Result<TrackOutput> trackChecked(const RgbdInput& input);
   struct Impl;

@@ -1,0 +1,212 @@
+// Map files on real data: a map made from the excerpt is saved, loaded into a
+// new system and tracked against in localisation mode (every frame finds its
+// place, the map does not grow, poses agree with the mapping run); a saved
+// and reloaded map saves to the same bytes; truncated, corrupt, wrong-version
+// and wrong-camera files are errors naming the file, never a crash.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <map>
+
+#include "stillpoint/core/camera.hpp"
+#include "stillpoint/dataset/tum_dataset.hpp"
+#include "stillpoint/slam/system.hpp"
+
+namespace stillpoint {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string readBytes(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+void writeBytes(const fs::path& p, const std::string& bytes) {
+  std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes;
+}
+
+class MapFile : public ::testing::Test {
+ protected:
+  // One map of the whole excerpt for the suite (mapping takes most of its time).
+  static void SetUpTestSuite() {
+    const std::string dir = std::string(STILLPOINT_DATA_DIR) + "/tum_fr3_teddy_200";
+    if (!fs::exists(dir + "/rgb.txt")) return;
+    auto data = dataset::TumDataset::open(dir);
+    if (!data) return;
+    data_ = new dataset::TumDataset(std::move(*data));
+    scratch_ = new fs::path(fs::temp_directory_path() / ("stillpoint_map_file_" + std::to_string(::getpid())));
+    fs::create_directories(*scratch_);
+    mapped_ = new std::map<std::size_t, SE3>;
+    auto system = makeSystem(false);
+    std::size_t with_pose = 0;
+    *mapped_ = run(system.get(), &with_pose);
+    system->finish();
+    map_path_ = new fs::path(*scratch_ / "teddy.map");
+    map_saved_ = system->saveMap(map_path_->string()).ok();
+    map_points_ = system->mapStats().points;
+  }
+  static void TearDownTestSuite() {
+    if (scratch_) fs::remove_all(*scratch_);
+    delete data_;
+    delete scratch_;
+    delete mapped_;
+    delete map_path_;
+  }
+  void SetUp() override {
+    if (!data_) GTEST_SKIP() << "no sequence in " << STILLPOINT_DATA_DIR;
+    ASSERT_TRUE(map_saved_);
+  }
+  static std::unique_ptr<slam::SlamSystem> makeSystem(bool localisation, const char* camera = "fr3") {
+    slam::SlamOptions options;
+    options.sequential = true;
+    options.localisation = localisation;
+    auto system = slam::SlamSystem::create(*cameraPreset(camera), options);
+    EXPECT_TRUE(system.ok()) << system.error();
+    return system.ok() ? std::move(*system) : nullptr;
+  }
+  // Tracks every frame; the poses by frame index.
+  static std::map<std::size_t, SE3> run(slam::SlamSystem* system, std::size_t* with_pose) {
+    std::map<std::size_t, SE3> poses;
+    *with_pose = 0;
+    for (std::size_t i = 0; i < data_->size(); ++i) {
+      auto frame = data_->load(i);
+      EXPECT_TRUE(frame.ok()) << frame.error();
+      if (!frame) continue;
+      auto out = system->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
+      EXPECT_TRUE(out.ok()) << out.error();
+      if (!out || !slam::hasPose(out->state)) continue;
+      ++*with_pose;
+      poses[i] = out->T_w_c;
+    }
+    return poses;
+  }
+  static inline dataset::TumDataset* data_ = nullptr;
+  static inline fs::path* scratch_ = nullptr;
+  static inline fs::path* map_path_ = nullptr;
+  static inline std::map<std::size_t, SE3>* mapped_ = nullptr;
+  static inline bool map_saved_ = false;
+  static inline std::size_t map_points_ = 0;
+};
+
+TEST_F(MapFile, LocalisationFindsEveryFrameAndTheMapDoesNotGrow) {
+  const std::map<std::size_t, SE3>& mapped = *mapped_;
+  const fs::path path = *map_path_;
+  auto system = makeSystem(true);
+  ASSERT_TRUE(system);
+  ASSERT_TRUE(system->loadMap(path.string()).ok());
+  const slam::MapStats before = system->mapStats();
+  EXPECT_GT(before.keyframes, 10u);
+  std::size_t with_pose = 0;
+  const auto localised = run(system.get(), &with_pose);
+  system->finish();
+  const slam::MapStats after = system->mapStats();
+  EXPECT_EQ(after.keyframes, before.keyframes);
+  EXPECT_EQ(after.points, before.points);
+  EXPECT_EQ(after.maps, before.maps);
+  EXPECT_GE(with_pose * 100, data_->size() * 95) << with_pose << " of " << data_->size();
+  // In the mapping run's frame: the same place, within a few centimetres.
+  double worst = 0;
+  for (const auto& [i, T] : localised)
+    if (mapped.count(i)) worst = std::max(worst, (T.translation() - mapped.at(i).translation()).norm());
+  EXPECT_LT(worst, 0.03);
+  std::printf("localisation: %zu of %zu frames with a pose, largest difference to the mapping run %.4f m\n",
+              with_pose, data_->size(), worst);
+}
+
+TEST_F(MapFile, SavedAgainAfterLoadingIsTheSameFile) {
+  const fs::path path = *map_path_;
+  auto system = makeSystem(false);
+  ASSERT_TRUE(system->loadMap(path.string()).ok());
+  const fs::path again = *scratch_ / "again.map";
+  ASSERT_TRUE(system->saveMap(again.string()).ok());
+  EXPECT_EQ(readBytes(path), readBytes(again));
+  // A map is loaded before the first frame only.
+  auto used = makeSystem(false);
+  auto frame = data_->load(0);
+  ASSERT_TRUE(frame.ok());
+  ASSERT_TRUE(used->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr}).ok());
+  const Status late = used->loadMap(path.string());
+  ASSERT_FALSE(late.ok());
+  EXPECT_NE(late.error().find("before the first frame"), std::string::npos) << late.error();
+}
+
+TEST_F(MapFile, BadFilesAreErrorsNamingTheFile) {
+  const fs::path path = *map_path_;
+  const std::string good = readBytes(path);
+  ASSERT_GT(good.size(), 1000u);
+  struct Case {
+    const char* name;
+    std::string bytes;
+    const char* why;
+  };
+  std::string corrupt = good, version = good, empty;
+  corrupt[good.size() / 2] ^= 0x5a;
+  version[8] = 9;
+  const Case cases[] = {
+      {"truncated.map", good.substr(0, good.size() / 2), "truncated"},
+      {"header.map", good.substr(0, 20), "truncated"},
+      {"corrupt.map", corrupt, "checksum"},
+      {"version.map", version, "format version 9"},
+      {"empty.map", empty, "truncated"},
+      {"text.map", std::string(100, 'x'), "not a stillpoint map"},
+  };
+  for (const Case& c : cases) {
+    const fs::path bad = *scratch_ / c.name;
+    writeBytes(bad, c.bytes);
+    auto system = makeSystem(false);
+    const Status s = system->loadMap(bad.string());
+    ASSERT_FALSE(s.ok()) << c.name;
+    EXPECT_NE(s.error().find(bad.string()), std::string::npos) << s.error();
+    EXPECT_NE(s.error().find(c.why), std::string::npos) << c.name << ": " << s.error();
+    // The system is unchanged: it starts its own map.
+    auto frame = data_->load(0);
+    auto out = system->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
+    ASSERT_TRUE(out.ok());
+    EXPECT_EQ(out->state, slam::TrackingState::kOk) << c.name;
+  }
+  // Another camera's map.
+  auto fr1 = makeSystem(false, "fr1");
+  const Status other = fr1->loadMap(path.string());
+  ASSERT_FALSE(other.ok());
+  EXPECT_NE(other.error().find("another camera"), std::string::npos) << other.error();
+  // Missing file; localisation without a map.
+  EXPECT_FALSE(makeSystem(false)->loadMap((*scratch_ / "none.map").string()).ok());
+  auto lonely = makeSystem(true);
+  auto frame = data_->load(0);
+  const auto out = lonely->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
+  ASSERT_FALSE(out.ok());
+  EXPECT_NE(out.error().find("loaded map"), std::string::npos) << out.error();
+}
+
+TEST_F(MapFile, ExportsTheMapPointsAsAColouredCloud) {
+  // From the loaded map: the colours travel in the map file.
+  auto system = makeSystem(false);
+  ASSERT_TRUE(system->loadMap(map_path_->string()).ok());
+  EXPECT_EQ(system->mapStats().points, map_points_);
+  const fs::path ply = *scratch_ / "map.ply";
+  ASSERT_TRUE(system->exportCloud(ply.string()).ok());
+  const std::string bytes = readBytes(ply);
+  const std::size_t end = bytes.find("end_header\n");
+  ASSERT_NE(end, std::string::npos);
+  const std::size_t count_at = bytes.find("element vertex ");
+  ASSERT_NE(count_at, std::string::npos);
+  const std::size_t vertices = std::stoul(bytes.substr(count_at + 15));
+  EXPECT_EQ(vertices, system->mapStats().points);
+  EXPECT_EQ(bytes.size() - end - 11, vertices * 15);
+  // Colours are the images' (the excerpt is not grey).
+  bool coloured = false;
+  for (std::size_t v = 0; v < vertices && !coloured; ++v) {
+    const unsigned char* c = reinterpret_cast<const unsigned char*>(bytes.data() + end + 11 + v * 15 + 12);
+    coloured = c[0] != c[1] || c[1] != c[2];
+  }
+  EXPECT_TRUE(coloured);
+  EXPECT_FALSE(system->exportCloud((*scratch_ / "no" / "dir" / "map.ply").string()).ok());
+}
+
+}  // namespace
+}  // namespace stillpoint

@@ -1,0 +1,134 @@
+// Recovery on real data: the camera covered for 2 s while it moves (black
+// colour, zero depth), and a view tracking cannot place (mirrored frames). Frames without depth
+// must say so, and once depth is back at least 95 % of the frames must have a
+// pose: found in the map again, or in a new map started after
+// tracking.new_map_after_lost_s.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <set>
+
+#include <opencv2/core.hpp>
+
+#include "stillpoint/core/camera.hpp"
+#include "stillpoint/dataset/tum_dataset.hpp"
+#include "stillpoint/slam/system.hpp"
+
+namespace stillpoint {
+namespace {
+
+class Recovery : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const std::string dir = std::string(STILLPOINT_DATA_DIR) + "/tum_fr3_teddy_200";
+    if (!std::filesystem::exists(dir + "/rgb.txt")) GTEST_SKIP() << "no sequence at " << dir;
+    auto data = dataset::TumDataset::open(dir);
+    ASSERT_TRUE(data.ok()) << data.error();
+    data_ = std::make_unique<dataset::TumDataset>(std::move(*data));
+    camera_ = *cameraPreset("fr3");
+  }
+
+  std::unique_ptr<slam::SlamSystem> makeSystem() {
+    slam::SlamOptions options;
+    options.sequential = true;
+    auto system = slam::SlamSystem::create(camera_, options);
+    EXPECT_TRUE(system.ok()) << system.error();
+    return system.ok() ? std::move(*system) : nullptr;
+  }
+
+  std::unique_ptr<dataset::TumDataset> data_;
+  CameraModel camera_;
+};
+
+TEST_F(Recovery, CameraCoveredForTwoSecondsWhileMoving) {
+  auto system = makeSystem();
+  ASSERT_TRUE(system);
+  constexpr std::size_t kCoverFrom = 60, kCoverTo = 120;  // 60 frames, 2 s at 30 Hz
+  std::size_t no_depth = 0, after = 0, after_with_pose = 0;
+  std::set<std::uint32_t> maps;
+  for (std::size_t i = 0; i < data_->size(); ++i) {
+    auto frame = data_->load(i);
+    ASSERT_TRUE(frame.ok()) << frame.error();
+    slam::RgbdInput input{frame->stamp, frame->gray, frame->depth_m, frame->bgr};
+    const bool covered = i >= kCoverFrom && i < kCoverTo;
+    if (covered) {
+      input.gray = cv::Mat(frame->gray.size(), CV_8UC1, cv::Scalar(0));
+      input.bgr = cv::Mat(frame->bgr.size(), CV_8UC3, cv::Scalar::all(0));
+      input.depth_m = cv::Mat(frame->depth_m.size(), CV_32FC1, cv::Scalar(0));
+    }
+    auto out = system->track(input);
+    ASSERT_TRUE(out.ok()) << out.error();
+    if (i < kCoverFrom) {
+      ASSERT_TRUE(slam::hasPose(out->state)) << "frame " << i << ": " << toString(out->state);
+    }
+    if (covered) {
+      EXPECT_EQ(out->state, slam::TrackingState::kNoDepth) << "frame " << i;
+      no_depth += out->state == slam::TrackingState::kNoDepth;
+    }
+    if (i >= kCoverTo) {
+      ++after;
+      after_with_pose += slam::hasPose(out->state);
+      if (slam::hasPose(out->state)) maps.insert(out->map_id);
+    }
+  }
+  system->finish();
+  EXPECT_EQ(no_depth, kCoverTo - kCoverFrom);
+  EXPECT_EQ(system->mapStats().no_depth_frames, kCoverTo - kCoverFrom);
+  EXPECT_GE(after_with_pose, (after * 95 + 99) / 100) << after_with_pose << " of " << after << " frames after the cover";
+  // The trajectory carries each pose's map.
+  const auto trajectory = system->trajectory();
+  std::size_t in_maps = 0;
+  for (const auto& p : trajectory) in_maps += maps.count(p.map_id) > 0 || p.map_id == 0;
+  EXPECT_EQ(in_maps, trajectory.size());
+  std::printf("covered 2 s: %zu of %zu frames after the cover have a pose, in map(s)", after_with_pose, after);
+  for (std::uint32_t m : maps) std::printf(" %u", m);
+  std::printf("; %u maps started\n", system->mapStats().maps);
+}
+
+TEST_F(Recovery, AViewThatCannotBePlacedStartsANewMapWithinASecond) {
+  // From frame 70 on the images are mirrored: a consistent world the camera
+  // moves through, but one no part of the map matches (ORB descriptors are
+  // not mirror-invariant), so relocalisation cannot succeed and a new map
+  // must start.
+  auto system = makeSystem();
+  ASSERT_TRUE(system);
+  constexpr std::size_t kJump = 70;
+  std::size_t after = 0, after_with_pose = 0, lost_run = 0, longest_lost_run = 0;
+  bool saw_new_map = false;
+  std::uint32_t last_map = 0;
+  for (std::size_t i = 0; i < data_->size(); ++i) {
+    auto frame = data_->load(i);
+    ASSERT_TRUE(frame.ok()) << frame.error();
+    slam::RgbdInput input{frame->stamp, frame->gray, frame->depth_m, frame->bgr};
+    if (i >= kJump) {
+      cv::flip(frame->gray, input.gray, 1);
+      cv::flip(frame->depth_m, input.depth_m, 1);
+      cv::flip(frame->bgr, input.bgr, 1);
+    }
+    auto out = system->track(input);
+    ASSERT_TRUE(out.ok()) << out.error();
+    if (i < kJump) continue;
+    ++after;
+    after_with_pose += slam::hasPose(out->state);
+    lost_run = slam::hasPose(out->state) ? 0 : lost_run + 1;
+    longest_lost_run = std::max(longest_lost_run, lost_run);
+    if (out->state == slam::TrackingState::kNewMap) {
+      saw_new_map = true;
+      EXPECT_EQ(out->map_id, last_map + 1);
+      EXPECT_TRUE(out->new_keyframe);
+    }
+    if (slam::hasPose(out->state)) last_map = out->map_id;
+  }
+  system->finish();
+  EXPECT_TRUE(saw_new_map);
+  // A second at 30 Hz, and the frame that starts the map.
+  EXPECT_LE(longest_lost_run, 32u);
+  EXPECT_GE(system->mapStats().maps, 2u);
+  std::printf("unplaceable view: %zu of %zu frames after the jump have a pose, longest loss %zu frames, %u maps\n",
+              after_with_pose, after, longest_lost_run, system->mapStats().maps);
+}
+
+}  // namespace
+}  // namespace stillpoint
