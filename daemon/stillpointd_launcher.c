@@ -1,4 +1,4 @@
-/* stillpointd: blocks SIGTERM and SIGINT, then runs the service
+/* stillpointd: blocks SIGTERM, SIGINT and SIGUSR1, then runs the service
  * (stillpointd-service, beside this program). The signal mask survives exec,
  * so a stop signal that arrives while the service's ~170 shared libraries
  * load waits for it and ends its start-up cleanly, instead of killing the
@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   sigemptyset(&stop);
   sigaddset(&stop, SIGTERM);
   sigaddset(&stop, SIGINT);
+  sigaddset(&stop, SIGUSR1); /* save the map: not fatal while the service starts */
   sigprocmask(SIG_BLOCK, &stop, NULL);
 
   char path[PATH_MAX];

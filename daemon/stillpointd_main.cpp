@@ -28,6 +28,7 @@ constexpr const char* kUsage =
     "\n"
     "Runs stillpoint as a service: opens the camera named in the config, tracks and publishes\n"
     "poses until SIGTERM/SIGINT (a second signal forces exit) or the end of a recording.\n"
+    "SIGUSR1 writes the map to map.save (it is also written on stop).\n"
     "--config defaults to /etc/stillpoint/stillpointd.yaml. --print-config prints the effective\n"
     "configuration (every field, SLAM options included) and exits. --max-frames overrides\n"
     "source.replay.max_frames, --log-level overrides log_level.\n"
@@ -49,6 +50,7 @@ sigset_t stopSignals() {
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGUSR1);  // save the map (map.save), not a stop
   return signals;
 }
 
@@ -135,7 +137,7 @@ int main(int argc, char** argv) {
   // A signal that came while the config loaded is pending now: it ends
   // start-up here, whatever the signal thread would see first.
   const timespec no_wait{0, 0};
-  if (sigtimedwait(&signals, nullptr, &no_wait) > 0) {
+  if (const int early = sigtimedwait(&signals, nullptr, &no_wait); early > 0 && early != SIGUSR1) {
     writeAll("stillpointd: signal during start-up, exiting\n");
     return 0;
   }
@@ -153,6 +155,10 @@ int main(int argc, char** argv) {
     const timespec poll{0, 50'000'000};
     while (!finished) {
       const int sig = sigtimedwait(&signals, nullptr, &poll);
+      if (sig == SIGUSR1) {
+        if (started && !stopping) service.saveMap();
+        continue;
+      }
       if (sig > 0) {
         if (!started) {
           writeAll("stillpointd: signal during start-up, exiting\n");

@@ -659,6 +659,43 @@ TEST_F(DaemonProcess, RealExcerptPosesMatchGroundTruth) {
   EXPECT_LT(ev->ate_rmse_m, 0.04);
 }
 
+TEST_F(DaemonProcess, RealExcerptMapSavedOnStopThenLocalisedAgainst) {
+  const fs::path seq = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
+  if (!fs::exists(seq / "rgb.txt")) GTEST_SKIP() << "no " << seq;
+  const auto d = dir("map_files");
+  const fs::path map = d / "teddy.map";
+  {
+    Daemon mapping(d, "camera: fr3\nsource: {replay: {path: " + seq.string() + ", paced: false}}\nmap: {save: " +
+                          map.string() + "}\noutput: {status: " + (d / "mapping.txt").string() + "}\n");
+    ASSERT_EQ(mapping.waitExit(300s), 0) << mapping.err();
+  }
+  ASSERT_TRUE(fs::is_regular_file(map));
+  const auto mapped = readStatus(d / "mapping.txt");
+  const std::string r = ring("map_files");
+  Daemon localising(d, "camera: fr3\nsource: {replay: {path: " + seq.string() + ", paced: false}}\nmap: {load: " +
+                           map.string() + ", mode: localisation}\noutput: {status: " + (d / "localising.txt").string() +
+                           "}\nipc: {shm: {name: " + r + ", capacity: 1024}}\n");
+  ASSERT_EQ(localising.waitExit(300s), 0) << localising.err();
+  const auto status = readStatus(d / "localising.txt");
+  // The map did not grow, and nearly every frame found its place in it.
+  EXPECT_EQ(status.at("map_keyframes"), mapped.at("map_keyframes"));
+  EXPECT_EQ(status.at("map_points"), mapped.at("map_points"));
+  EXPECT_EQ(status.at("maps"), "1");
+  const auto poses = readPoses(r, 193, 5s);
+  ASSERT_EQ(poses.size(), 193u);
+  std::size_t with_pose = 0;
+  for (const auto& p : poses) with_pose += p.tracking_state == SP_TRACKING_OK || p.tracking_state == SP_TRACKING_RELOCALISED;
+  EXPECT_GE(with_pose, 184u);  // 95 %
+  std::printf("localisation against the saved map: %zu of 193 frames with a pose, map %s keyframes %s points\n",
+              with_pose, status.at("map_keyframes").c_str(), status.at("map_points").c_str());
+  // A map file that cannot be read is a start-up error naming it.
+  fs::resize_file(map, fs::file_size(map) / 2);
+  Daemon broken(d, "camera: fr3\nsource: {replay: {path: " + seq.string() + ", paced: false}}\nmap: {load: " +
+                       map.string() + "}\n");
+  EXPECT_EQ(broken.waitExit(60s), 1);
+  EXPECT_NE(broken.err().find(map.string()), std::string::npos) << broken.err();
+}
+
 // OpenNI2: a private copy of libOpenNI2.so.0 with our replay driver as its only
 // driver (Debian's loader looks in OpenNI2/Drivers beside the library).
 // The system's .oni player driver (Debian: beside libOpenNI2.so.0).

@@ -234,6 +234,17 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
     readPlacement(s, "semantic", &c->threads.semantic, error);
     s.checkUnknown();
   }
+  if (subsection(top, "map", &node, error) && node.IsDefined()) {
+    Section s(node, "map", error);
+    s.read("load", &c->map.load);
+    s.read("save", &c->map.save);
+    std::string mode = "slam";
+    s.read("mode", &mode);
+    if (error->empty() && mode != "slam" && mode != "localisation")
+      *error = "field 'map.mode': expected slam or localisation, got '" + mode + "'";
+    c->map.localisation = mode == "localisation";
+    s.checkUnknown();
+  }
   if (subsection(top, "output", &node, error) && node.IsDefined()) {
     Section s(node, "output", error);
     s.read("trajectory", &c->output.trajectory);
@@ -254,6 +265,8 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
     return Error{"field 'log_level': '" + c->log_level + "' is not one of debug, info, warn, error, off"};
   if (!(c->shutdown_timeout_s > 0 && c->shutdown_timeout_s <= 300))
     return Error{"field 'shutdown_timeout_s': must be in (0, 300] seconds"};
+  if (c->map.localisation && c->map.load.empty())
+    return Error{"field 'map.mode': localisation needs a map to track against (map.load)"};
   if (!(c->status_period_s >= 0.05 && c->status_period_s <= 60))
     return Error{"field 'status_period_s': must be in [0.05, 60] seconds"};
   if (c->source.type != "replay" && c->source.type != "openni2" && c->source.type != "v4l2")
@@ -290,6 +303,7 @@ Status parse(const YAML::Node& root, DaemonConfig* c, std::string* error) {
   }
   c->slam.geometry.enabled = c->modules.geometry;
   c->slam.semantic.enabled = c->modules.semantic;
+  c->slam.localisation = c->map.localisation;
   // Per-frame poses are kept only for a trajectory file: without one the
   // daemon's memory does not grow with its running time.
   if (c->output.trajectory.empty()) c->slam.tracking.trajectory_records = 0;
@@ -392,6 +406,11 @@ std::string toYaml(const DaemonConfig& c) {
   emitPlacement(out, "mapping", c.threads.mapping);
   emitPlacement(out, "publisher", c.threads.publisher);
   emitPlacement(out, "semantic", c.threads.semantic);
+  out << YAML::EndMap;
+  out << YAML::Key << "map" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "load" << YAML::Value << c.map.load;
+  out << YAML::Key << "save" << YAML::Value << c.map.save;
+  out << YAML::Key << "mode" << YAML::Value << (c.map.localisation ? "localisation" : "slam");
   out << YAML::EndMap;
   out << YAML::Key << "output" << YAML::Value << YAML::BeginMap;
   out << YAML::Key << "trajectory" << YAML::Value << c.output.trajectory;

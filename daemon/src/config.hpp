@@ -72,6 +72,12 @@ struct OutputConfig {
   std::string status;      // key=value summary written on stop ("" = none)
 };
 
+struct MapConfig {
+  std::string load;  // map file read at start-up ("" = none): tracking relocalises against it
+  std::string save;  // map file written on stop and on SIGUSR1 ("" = none)
+  bool localisation = false;  // mode: localisation (tracks against `load` only) | slam
+};
+
 struct DaemonConfig {
   std::string camera_spec = "fr3";  // preset name or camera YAML path
   CameraModel camera;               // resolved from camera_spec
@@ -83,6 +89,7 @@ struct DaemonConfig {
   ThreadMap threads;
   ipc::IpcOptions ipc;
   OutputConfig output;
+  MapConfig map;
   std::string log_level = "info";
   double shutdown_timeout_s = 5.0;  // a stop that takes longer forces exit (status 1)
   double status_period_s = 1.0;     // STATUS= and status messages

@@ -68,6 +68,8 @@ class LatencyHistogram {
   double max_ = 0;
 };
 
+double msSince(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
+
 ipc::TrackingState toIpc(slam::TrackingState s) {
   switch (s) {
     case slam::TrackingState::kInitialising: return ipc::TrackingState::kInitialising;
@@ -136,6 +138,19 @@ struct Daemon::Impl {
 Daemon::Daemon(DaemonConfig config) : impl_(std::make_unique<Impl>()) { impl_->config = std::move(config); }
 Daemon::~Daemon() = default;
 
+void Daemon::saveMap() {
+  if (impl_->config.map.save.empty()) {
+    SP_WARN(logger, "SIGUSR1: no map.save file configured, nothing saved");
+    return;
+  }
+  if (!impl_->system) return;
+  const auto t0 = Clock::now();
+  if (Status s = impl_->system->saveMap(impl_->config.map.save); !s)
+    SP_ERROR(logger, s.error());
+  else
+    SP_INFO(logger, "map saved to " << impl_->config.map.save << " in " << msSince(t0) << " ms");
+}
+
 void Daemon::requestStop() {
   std::lock_guard lock(impl_->mutex);
   if (!impl_->stop_requested) {
@@ -187,6 +202,12 @@ Status Daemon::start() {
       return Error{"field 'modules.semantic_model_card' (card " + c.semantic_model.card_path + ", model " +
                    c.semantic_model.model_path + "): " + status.error()};
     return status;
+  }
+  if (!c.map.load.empty()) {
+    const auto t0 = Clock::now();
+    if (Status s = d.system->loadMap(c.map.load); !s) return Error{"field 'map.load': " + s.error()};
+    SP_INFO(logger, "map " << c.map.load << " loaded in " << msSince(t0) << " ms"
+                           << (c.map.localisation ? ", localisation only" : ""));
   }
   if (c.modules.semantic)
     SP_INFO(logger, "semantic module: " << c.semantic_model.name << " (" << c.semantic_model.reason << "), model "
@@ -330,6 +351,10 @@ ipc::StatusMessage Daemon::Impl::statusMessage() const {
 
 Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms) {
   Status result;
+  if (!config.map.save.empty()) {
+    if (Status s = system->saveMap(config.map.save); !s) result = s;
+    else SP_INFO(logger, "map saved to " << config.map.save);
+  }
   if (!config.output.trajectory.empty()) {
     eval::Trajectory trajectory;
     for (const auto& p : system->trajectory()) trajectory.push_back({p.stamp, p.T_w_c, p.map_id});

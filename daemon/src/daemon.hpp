@@ -31,6 +31,9 @@ class Daemon {
   int run();
   // Thread-safe, idempotent (the signal thread calls it).
   void requestStop();
+  // Writes the map to map.save now (SIGUSR1); logs the outcome. Thread-safe
+  // after start(); nothing when map.save is not set.
+  void saveMap();
 
  private:
   struct Impl;
