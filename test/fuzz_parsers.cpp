@@ -27,6 +27,7 @@
 #include "stillpoint/ipc/shm_writer.hpp"
 #include "stillpoint_shm.h"
 #include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/log.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/trajectory.hpp"
 #include "stillpoint/ipc/options.hpp"
@@ -148,6 +149,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  log::setLevel(log::Level::kError);  // loaders log what they read; the cases are thousands
   const fs::path source = STILLPOINT_SOURCE_DIR, data = STILLPOINT_DATA_DIR;
   const fs::path work = fs::temp_directory_path() / ("stillpoint_fuzz_" + std::to_string(::getpid()));
   fs::create_directories(work);
