@@ -41,6 +41,7 @@ constexpr const char* kUsage =
     "                         [--frame-log FRAMES.txt] [--render DIR] [--render-every N]\n"
     "                         [--render-video FILE.mp4] [--model-card CARD.yaml]\n"
     "                         [--load-map MAP] [--localisation] [--save-map MAP] [--export-cloud CLOUD.ply]\n"
+    "                         [--export-dense-cloud CLOUD.ply]\n"
     "       stillpoint-replay --help | --version | --options-reference\n"
     "\n"
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
@@ -64,7 +65,8 @@ constexpr const char* kUsage =
     "--load-map reads a map file (from --save-map) before the first frame: tracking relocalises\n"
     "against it; --localisation tracks against it only (no keyframes, points or maps are made).\n"
     "--save-map writes the maps after the run; --export-cloud writes the map points as a coloured\n"
-    "PLY point cloud.\n"
+    "PLY point cloud; --export-dense-cloud the keyframes' depth fused into a static cloud (1 cm\n"
+    "voxels; moving and movable pixels, and voxels other keyframes saw through, left out).\n"
     "--frame-log writes one line per frame: 'index timestamp state track_ms geometry_ms features\n"
     "in_pose geometry_dynamic semantic_dynamic keyframe(0|1)' (state: ok, relocalised, new_map,\n"
     "lost, no_depth, initialising, or skipped for a frame that could not be read or tracked).\n"
@@ -78,7 +80,7 @@ constexpr const char* kUsage =
 
 struct Args {
   std::string dataset, camera, output, config, modules, features_out, keyframes_out, keyframe_trajectory, log_level = "warn";
-  std::string frame_log, render_dir, render_video, model_card, load_map, save_map, export_cloud;
+  std::string frame_log, render_dir, render_video, model_card, load_map, save_map, export_cloud, export_dense;
   bool localisation = false;
   long render_every = 1;
   bool sequential = false, paced = false, known_movers = false;
@@ -119,6 +121,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       if (!value(&args->save_map)) return false;
     } else if (a == "--export-cloud") {
       if (!value(&args->export_cloud)) return false;
+    } else if (a == "--export-dense-cloud") {
+      if (!value(&args->export_dense)) return false;
     } else if (a == "--localisation") {
       args->localisation = true;
     } else if (a == "--model-card") {
@@ -248,6 +252,7 @@ int main(int argc, char** argv) {
   if (args.sequential) options.sequential = true;
   if (!args.model_card.empty()) options.semantic.model_card = args.model_card;
   if (args.localisation) options.localisation = true;
+  if (!args.export_dense.empty()) options.mapping.dense_views = true;
   // The keyframe file lists every keyframe made, culled ones included.
   if (!args.keyframes_out.empty()) options.mapping.keep_culled_keyframes = true;
   options.geometry.report_features = !args.features_out.empty();
@@ -269,7 +274,8 @@ int main(int argc, char** argv) {
     }
   }
   for (const std::string* path :
-       {&args.output, &args.keyframe_trajectory, &args.keyframes_out, &args.frame_log, &args.save_map, &args.export_cloud}) {
+       {&args.output, &args.keyframe_trajectory, &args.keyframes_out, &args.frame_log, &args.save_map, &args.export_cloud,
+        &args.export_dense}) {
     if (path->empty()) continue;
     std::FILE* f = std::fopen(path->c_str(), "a");
     if (!f) {
@@ -522,6 +528,12 @@ int main(int argc, char** argv) {
   }
   if (!args.export_cloud.empty()) {
     if (Status s = (*system)->exportCloud(args.export_cloud); !s) {
+      std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
+      return 1;
+    }
+  }
+  if (!args.export_dense.empty()) {
+    if (Status s = (*system)->exportDenseCloud(args.export_dense); !s) {
       std::fprintf(stderr, "stillpoint-replay: %s\n", s.error().c_str());
       return 1;
     }

@@ -25,6 +25,7 @@
 #include <string>
 #include <vector>
 
+#include "dense_cloud.hpp"
 #include "frame.hpp"
 #include "stillpoint/core/result.hpp"
 
@@ -147,6 +148,10 @@ class KeyFrame {
   // The semantic module's result was applied (its features in movable masks
   // are flagged dynamic and hold no map point).
   bool segmented = false;
+  // Its depth and colour at a quarter of the resolution, moving and movable
+  // pixels marked (mapping.dense_views; null otherwise). Replaced, never
+  // changed in place, under the exclusive lock.
+  std::shared_ptr<const DenseView> dense;
 
   int trackedPoints(int min_observations) const;
   void addObservation(const std::shared_ptr<MapPoint>& point, int index);

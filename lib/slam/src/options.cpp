@@ -165,6 +165,8 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("mapping", "ba_max_keyframes", o.mapping.ba_max_keyframes, "keyframes in the bundle adjustment window, >= 2");
   v("mapping", "keep_culled_keyframes", o.mapping.keep_culled_keyframes,
     "keep culled keyframes in memory for inspection (memory grows); false frees them");
+  v("mapping", "dense_views", o.mapping.dense_views,
+    "keyframes keep depth and colour at 1/4 resolution (~150 KB each) for the dense static cloud");
   v("geometry", "enabled", o.geometry.enabled, "the geometry module (depth clusters, moving features out of the pose)");
   v("geometry", "clusters", o.geometry.clustering.clusters_at_vga, "K-Means clusters at 640x480, scaled by pixel count, 2..255");
   v("geometry", "deadline_ms", o.geometry.deadline_ms,

@@ -191,6 +191,7 @@ SlamOptions everythingChanged() {
   o.semantic.confirm_with_geometry = "always";
   o.sequential = true;
   o.localisation = true;
+  o.mapping.dense_views = true;
   return o;
 }
 
@@ -209,6 +210,7 @@ void expectSameOptions(const SlamOptions& a, const SlamOptions& b) {
   EXPECT_EQ(a.semantic.confirm_with_geometry, b.semantic.confirm_with_geometry);
   EXPECT_EQ(a.sequential, b.sequential);
   EXPECT_EQ(a.localisation, b.localisation);
+  EXPECT_EQ(a.mapping.dense_views, b.mapping.dense_views);
 }
 
 TEST_F(OptionsFileTest, EveryKeyRoundTrips) {

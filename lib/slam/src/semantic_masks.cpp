@@ -115,6 +115,17 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   }
   if (features_removed > 0) kf->updateConnections();
   kf->segmented = true;
+  if (kf->dense && n_regions > 0) {
+    // Movable objects leave the dense cloud too.
+    auto view = std::make_shared<DenseView>(*kf->dense);
+    view->moving = view->moving.clone();
+    const int step = DenseView::kStep;
+    for (int row = 0; row < view->moving.rows; ++row)
+      for (int col = 0; col < view->moving.cols; ++col)
+        if (row * step < r.labels.rows && col * step < r.labels.cols && r.labels.at<std::uint8_t>(row * step, col * step))
+          view->moving.at<std::uint8_t>(row, col) = 1;
+    kf->dense = std::move(view);
+  }
   if (options_.report_fates) {
     std::lock_guard lock(labels_mutex_);
     latest_labels_ = std::make_shared<const cv::Mat>(r.labels);

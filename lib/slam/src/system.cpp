@@ -283,6 +283,30 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   out.extract_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stages.extract = out.extract_ms;
   out.track_ms = std::chrono::duration<double, std::milli>(t2 - t0).count();
+  if (kf && s.options.mapping.dense_views && !input.depth_m.empty()) {
+    // Pixels left out of the dense cloud: the depth clusters the geometry
+    // module found moving, and known movers; semantic masks join later.
+    cv::Mat moving;
+    const GeometryOutput& g = out.geometry;
+    if (g.labels && !g.labels->labels.empty()) {
+      moving = cv::Mat::zeros(input.depth_m.size(), CV_8U);
+      const int step = std::max(1, g.labels->step);
+      for (int r = 0; r < g.labels->labels.rows; ++r)
+        for (int c = 0; c < g.labels->labels.cols; ++c) {
+          const int label = g.labels->labels.at<std::int16_t>(r, c);
+          if (label >= 0 && label < static_cast<int>(g.scores.size()) && g.scores[label].dynamic)
+            moving(cv::Rect(c * step, r * step, step, step) & cv::Rect(0, 0, moving.cols, moving.rows)).setTo(1);
+        }
+    }
+    if (!input.movers.empty()) {
+      cv::Mat known = input.movers != 0;
+      if (moving.empty()) moving = known;
+      else moving |= known;
+    }
+    auto view = std::make_shared<const DenseView>(makeDenseView(input.depth_m, input.bgr, moving));
+    std::unique_lock lock(s.map.mutex());
+    kf->dense = std::move(view);
+  }
   if (kf && s.semantic) {
     if (input.bgr.empty()) {
       ++s.semantic_no_colour;
@@ -361,12 +385,31 @@ Status SlamSystem::loadMap(const std::string& path) {
   }
 }
 
+Status SlamSystem::exportDenseCloud(const std::string& path, double voxel_m) const {
+  if (!impl_->options.mapping.dense_views)
+    return Error{"the dense cloud needs keyframes' depth views (mapping.dense_views: true)"};
+  if (!(voxel_m >= 0.001 && voxel_m <= 1.0)) return Error{"the dense cloud's voxel must be 0.001..1 m"};
+  std::vector<PosedView> views;
+  {
+    std::shared_lock lock(impl_->map.mutex());
+    for (const auto& kf : impl_->map.keyframes())
+      if (!kf->bad && kf->dense && kf->map_id == impl_->map.activeMapId()) views.push_back({kf->dense, kf->T_c_w()});
+  }
+  try {
+    DenseCloudOptions options;
+    options.voxel_m = voxel_m;
+    const DenseCloud cloud = fuseDenseCloud(views, impl_->camera, options);
+    SP_INFO(logger, "dense cloud: " << views.size() << " keyframes, " << cloud.voxels << " voxels, " << cloud.carved
+                                    << " seen through by other keyframes and carved, " << cloud.points.size()
+                                    << " points -> " << path);
+    return writePly(path, cloud.points, "stillpoint dense static cloud");
+  } catch (const std::exception& e) {
+    return Error{"dense cloud " + path + ": " + e.what()};
+  }
+}
+
 Status SlamSystem::exportCloud(const std::string& path) const {
-  struct Vertex {
-    float x, y, z;
-    std::uint8_t r, g, b;
-  };
-  std::vector<Vertex> vertices;
+  std::vector<ColouredPoint> points;
   {
     std::shared_lock lock(impl_->map.mutex());
     std::unordered_set<const MapPoint*> seen;
@@ -377,25 +420,12 @@ Status SlamSystem::exportCloud(const std::string& path) const {
         const auto& p = f.points[i];
         if (!p || p->bad || p->isTemporary() || !seen.insert(p.get()).second) continue;
         const cv::Vec3b c = f.colour.empty() ? cv::Vec3b(128, 128, 128) : f.colour[i];
-        vertices.push_back({static_cast<float>(p->position.x()), static_cast<float>(p->position.y()),
-                            static_cast<float>(p->position.z()), c[2], c[1], c[0]});
+        points.push_back({static_cast<float>(p->position.x()), static_cast<float>(p->position.y()),
+                          static_cast<float>(p->position.z()), c[2], c[1], c[0]});
       }
     }
   }
-  std::FILE* file = std::fopen(path.c_str(), "wb");
-  if (!file) return Error{"cannot write " + path + ": " + std::strerror(errno)};
-  bool ok = std::fprintf(file,
-                         "ply\nformat binary_little_endian 1.0\ncomment stillpoint static map points\n"
-                         "element vertex %zu\nproperty float x\nproperty float y\nproperty float z\n"
-                         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
-                         vertices.size()) > 0;
-  for (const Vertex& v : vertices) {
-    if (!ok) break;
-    ok = std::fwrite(&v.x, sizeof(float), 3, file) == 3 && std::fwrite(&v.r, 1, 3, file) == 3;
-  }
-  ok = (std::fclose(file) == 0) && ok;
-  if (!ok) return Error{"writing " + path + " failed: " + std::strerror(errno)};
-  return Status::success();
+  return writePly(path, points, "stillpoint static map points");
 }
 
 std::vector<KeyFrameView> SlamSystem::keyframes() const {

@@ -64,7 +64,11 @@ struct KeyframeOptions {
 struct MappingOptions {
   bool local_ba = true;                // YAML: local bundle adjustment after each keyframe
   int ba_max_keyframes = 20;           // YAML: the optimised window (best covisible keyframes)
-  bool keep_culled_keyframes = false;  // YAML: keep culled keyframes in memory (inspection); false frees them
+  bool keep_culled_keyframes = false;
+  // YAML: keyframes keep their depth and colour at a quarter of the
+  // resolution (about 150 KB each) for the dense static cloud
+  // (SlamSystem::exportDenseCloud).
+  bool dense_views = false;  // YAML: keep culled keyframes in memory (inspection); false frees them
   int ba_iterations = 10;              // Levenberg-Marquardt iterations per local bundle adjustment, 1..100
   double redundant_ratio = 0.9;        // keyframe culling: this share of its points seen by 3 others
   int redundant_min_observers = 3;

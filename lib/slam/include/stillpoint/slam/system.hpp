@@ -103,6 +103,11 @@ class SlamSystem {
   // had no colour image). Only the static map: points the modules found
   // moving were culled from it.
   Status exportCloud(const std::string& path) const;
+  // The dense static cloud (PLY as above): the keyframes' depth views of the
+  // map being tracked fused in voxels of `voxel_m`, without the pixels the
+  // modules found moving or movable, and without voxels other keyframes saw
+  // through (a mover that was missed). Needs mapping.dense_views.
+  Status exportDenseCloud(const std::string& path, double voxel_m = 0.01) const;
 
  private:
   Result<TrackOutput> trackChecked(const RgbdInput& input);
