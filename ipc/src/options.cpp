@@ -24,6 +24,11 @@ Status IpcOptions::validate() const {
   if (dds.domain_id > 230) return Error{"ipc.dds.domain_id must be in [0, 230]"};
   if (dds.pose_topic.empty() || dds.status_topic.empty() || dds.pose_topic == dds.status_topic)
     return Error{"ipc.dds.pose_topic and ipc.dds.status_topic must be non-empty and differ"};
+  if (ros2.domain_id > 230) return Error{"ipc.ros2.domain_id must be in [0, 230]"};
+  // ROS 2 maps topic /a/b to DDS topic rt/a/b.
+  if (ros2.pose_topic.rfind("rt/", 0) != 0 || ros2.pose_topic.size() < 4)
+    return Error{"ipc.ros2.pose_topic must be a DDS topic name of ROS 2's form, rt/<name> (ROS 2 topic /<name>)"};
+  if (ros2.frame_id.empty()) return Error{"ipc.ros2.frame_id must not be empty"};
   return Status::success();
 }
 
@@ -90,7 +95,7 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
   IpcOptions o;
   if (!node.IsDefined() || node.IsNull()) return o;
   if (!node.IsMap()) return Error{"'ipc' must be a map"};
-  Reader top{node, "ipc.", {"shm", "lcm", "dds"}, {}};
+  Reader top{node, "ipc.", {"shm", "lcm", "dds", "ros2"}, {}};
   top.get("queue_capacity", o.queue_capacity);
   top.checkUnknown();
   if (!top.error.empty()) return Error{top.error};
@@ -111,6 +116,13 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
     r.get("config", o.dds.config);
     r.get("pose_topic", o.dds.pose_topic);
     r.get("status_topic", o.dds.status_topic);
+  });
+  if (s) s = section(node, "ros2", "ipc.ros2", [&](Reader& r) {
+    r.get("enabled", o.ros2.enabled);
+    r.get("domain_id", o.ros2.domain_id);
+    r.get("config", o.ros2.config);
+    r.get("pose_topic", o.ros2.pose_topic);
+    r.get("frame_id", o.ros2.frame_id);
   });
   if (!s) return Error{s.error()};
   if (Status v = o.validate(); !v) return Error{v.error()};

@@ -19,6 +19,11 @@ Result<std::vector<std::unique_ptr<Transport>>> makeTransports(const IpcOptions&
     if (!t) return Error{t.error()};
     out.push_back(std::move(t.value()));
   }
+  if (options.ros2.enabled) {
+    auto t = makeRos2Transport(options.ros2);
+    if (!t) return Error{t.error()};
+    out.push_back(std::move(t.value()));
+  }
   return out;
 }
 

@@ -36,11 +36,25 @@ struct DdsOptions {
   std::string status_topic = "stillpoint_status";
 };
 
+// Poses as ROS 2 topics (geometry_msgs/msg/PoseStamped on `pose_topic`) over
+// Cyclone DDS, with ROS 2's type names and QoS a ROS 2 node matches
+// (reliable: both reliable and best-effort readers match). Positions and
+// orientations in REP-103 axes (x forward, y left, z up) in `frame_id`; only
+// frames that have a pose are published.
+struct Ros2Options {
+  bool enabled = false;
+  std::uint32_t domain_id = 0;  // ROS_DOMAIN_ID
+  std::string config;           // Cyclone DDS XML or URI, as for dds
+  std::string pose_topic = "rt/stillpoint/pose";  // ROS 2 topic /stillpoint/pose
+  std::string frame_id = "map";
+};
+
 struct IpcOptions {
   std::uint32_t queue_capacity = 8;  // publisher hand-off queue, drop-oldest
   ShmOptions shm;
   LcmOptions lcm;
   DdsOptions dds;
+  Ros2Options ros2;
 
   Status validate() const;
 };

@@ -29,6 +29,8 @@ class Transport {
 Result<std::unique_ptr<Transport>> makeShmTransport(const ShmOptions& options);
 Result<std::unique_ptr<Transport>> makeLcmTransport(const LcmOptions& options);
 Result<std::unique_ptr<Transport>> makeDdsTransport(const DdsOptions& options);
+// ROS 2 geometry_msgs/msg/PoseStamped over Cyclone DDS (Ros2Options).
+Result<std::unique_ptr<Transport>> makeRos2Transport(const Ros2Options& options);
 // Every transport enabled in `options`, in the order shm, lcm, dds.
 Result<std::vector<std::unique_ptr<Transport>>> makeTransports(const IpcOptions& options);
 

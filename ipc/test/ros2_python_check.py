@@ -1,0 +1,122 @@
+"""A ROS 2-typed reader that is not stillpoint's: PyPI cyclonedds with the
+ROS 2 message types written here from their .msg definitions, a reliable
+reader (ROS 2's default QoS) on rt/stillpoint/pose, and every sample decoded
+again by PyPI rosbags as geometry_msgs/msg/PoseStamped. Writes the poses as a
+TUM trajectory (header stamps) for the ATE.
+
+usage: ros2_python_check.py CONFIG_URI TOPIC MIN_SAMPLES TIMEOUT_S OUT_TRAJ READY_FILE
+"""
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+
+from cyclonedds.core import Qos, Policy
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import int32, uint32, float64
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+from rosbags.typesys import Stores, get_typestore
+
+
+@dataclass
+class Time_(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32
+    nanosec: uint32
+
+
+@dataclass
+class Header_(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time_
+    frame_id: str
+
+
+@dataclass
+class Point_(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Quaternion_(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64
+    y: float64
+    z: float64
+    w: float64
+
+
+@dataclass
+class Pose_(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point_
+    orientation: Quaternion_
+
+
+@dataclass
+class PoseStamped_(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_"):
+    header: Header_
+    pose: Pose_
+
+
+def main():
+    config, topic, min_samples, timeout_s, out_path, ready = sys.argv[1:7]
+    min_samples, timeout_s = int(min_samples), float(timeout_s)
+    domain = Domain(0, config)
+    participant = DomainParticipant(0)
+    qos = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(100))
+    reader = DataReader(participant, Topic(participant, topic, PoseStamped_), qos=qos)
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    open(ready, "w").close()
+    poses, bad = [], 0
+    deadline = time.time() + timeout_s
+    quiet_since = time.time()
+    while time.time() < deadline:
+        got = reader.take(N=64)
+        if got:
+            quiet_since = time.time()
+        for sample in got:
+            if not isinstance(sample, PoseStamped_):
+                continue  # the writer going away (an invalid sample: no data)
+            raw = sample.serialize()  # CDR with its encapsulation header, as on the wire
+            msg = typestore.deserialize_cdr(raw, "geometry_msgs/msg/PoseStamped")
+            q = msg.pose.orientation
+            ok = (msg.header.frame_id == sample.header.frame_id == "map"
+                  and abs(math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) - 1) < 1e-6
+                  and msg.pose.position.x == sample.pose.position.x
+                  and msg.header.stamp.nanosec == sample.header.stamp.nanosec)
+            bad += not ok
+            poses.append(msg)
+        if len(poses) >= min_samples and time.time() - quiet_since > 2.0:
+            break
+        time.sleep(0.01)
+    # Back to the camera's optical axes (REP-103 x forward, y left, z up from
+    # optical z forward, x right, y down: p_ros = C p_opt, R_ros = C R_opt C^T),
+    # so that relative errors compare with the ground truth's optical frames.
+    C = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]
+    def matmul(a, b):
+        return [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+    Ct = [[C[j][i] for j in range(3)] for i in range(3)]
+    with open(out_path, "w") as f:
+        for m in poses:
+            p, q = m.pose.position, m.pose.orientation
+            x, y, z, w = q.x, q.y, q.z, q.w
+            R = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+            Ro = matmul(matmul(Ct, R), C)
+            po = [sum(Ct[i][k] * v for k, v in enumerate((p.x, p.y, p.z))) for i in range(3)]
+            qw = math.sqrt(max(0.0, 1 + Ro[0][0] + Ro[1][1] + Ro[2][2])) / 2
+            qx = math.copysign(math.sqrt(max(0.0, 1 + Ro[0][0] - Ro[1][1] - Ro[2][2])) / 2, Ro[2][1] - Ro[1][2])
+            qy = math.copysign(math.sqrt(max(0.0, 1 - Ro[0][0] + Ro[1][1] - Ro[2][2])) / 2, Ro[0][2] - Ro[2][0])
+            qz = math.copysign(math.sqrt(max(0.0, 1 - Ro[0][0] - Ro[1][1] + Ro[2][2])) / 2, Ro[1][0] - Ro[0][1])
+            f.write(f"{m.header.stamp.sec}.{m.header.stamp.nanosec:09d} {po[0]} {po[1]} {po[2]} {qx} {qy} {qz} {qw}\n")
+    print(f"ros2 reader: {len(poses)} PoseStamped samples, {bad} that rosbags decoded differently or malformed")
+    del domain
+    return 0 if len(poses) >= min_samples and bad == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
