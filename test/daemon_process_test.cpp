@@ -696,6 +696,43 @@ TEST_F(DaemonProcess, RealExcerptMapSavedOnStopThenLocalisedAgainst) {
   EXPECT_NE(broken.err().find(map.string()), std::string::npos) << broken.err();
 }
 
+TEST_F(DaemonProcess, RealExcerptStatusCarriesTheTrackingRate) {
+  // Status messages over DDS (loopback only), read by stillpoint-echo while
+  // the excerpt plays at its recorded 30 Hz: the tracking thread's loop rate.
+  const fs::path seq = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
+  if (!fs::exists(seq / "rgb.txt")) GTEST_SKIP() << "no " << seq;
+  const auto d = dir("loop_rate");
+  fs::create_directories(d);
+  const std::string tag = std::to_string(::getpid());
+  const std::string ipc = "ipc: {shm: {enabled: false}, dds: {enabled: true, config: \"file://" STILLPOINT_SOURCE_DIR
+                          "/ipc/test/cyclonedds-loopback.xml\", pose_topic: sp_rate_pose_" + tag +
+                          ", status_topic: sp_rate_status_" + tag + "}}\n";
+  std::ofstream(d / "echo.yaml") << ipc;
+  const std::string echo_out = (d / "echo.txt").string();
+  std::thread echo([&] {
+    const std::string cmd = std::string(STILLPOINT_ECHO) + " --dds --config " + (d / "echo.yaml").string() +
+                            " --seconds 9 > " + echo_out + " 2>&1";
+    (void)std::system(cmd.c_str());
+  });
+  std::this_thread::sleep_for(1s);  // the reader is up and discovered
+  Daemon daemon(d, "camera: fr3\nsource: {replay: {path: " + seq.string() + ", paced: true}}\nstatus_period_s: 0.5\n" + ipc);
+  const int rc = daemon.waitExit(120s);
+  echo.join();
+  ASSERT_EQ(rc, 0) << daemon.err();
+  // "status ... tracking=29.9Hz/..." lines: while the excerpt plays, about 30.
+  std::ifstream in(echo_out);
+  int near_30 = 0, statuses = 0;
+  for (std::string line; std::getline(in, line);) {
+    const auto at = line.find("tracking=");
+    if (at == std::string::npos) continue;
+    ++statuses;
+    const double hz = std::strtod(line.c_str() + at + 9, nullptr);
+    near_30 += hz > 20 && hz < 40;
+  }
+  EXPECT_GE(statuses, 5) << readFile(echo_out);
+  EXPECT_GE(near_30, 3) << readFile(echo_out);
+}
+
 // OpenNI2: a private copy of libOpenNI2.so.0 with our replay driver as its only
 // driver (Debian's loader looks in OpenNI2/Drivers beside the library).
 // The system's .oni player driver (Debian: beside libOpenNI2.so.0).

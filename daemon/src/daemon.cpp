@@ -122,6 +122,7 @@ struct Daemon::Impl {
       frames_processed{0}, reconnects{0}, keyframes{0};
   std::atomic<int> last_state{-1};
   std::atomic<std::uint32_t> map_id{0};
+  std::atomic<double> tracking_rate_hz{0};
   std::atomic<bool> device_gone{false};
   std::atomic<int> semantic_tid{0};  // the segmentation thread (nice 10 by default)
   LatencyHistogram latency;
@@ -337,6 +338,7 @@ ipc::StatusMessage Daemon::Impl::statusMessage() const {
   m.map_id = map_id;
   ipc::ThreadStats tracking;
   tracking.name = "tracking";
+  tracking.loop_rate_hz = tracking_rate_hz;  // frames tracked per second over the last status period
   tracking.latency_ms_median = latency.quantile(0.5);
   tracking.latency_ms_max = latency.max();
   m.threads.push_back(tracking);
@@ -438,7 +440,9 @@ int Daemon::run() {
       }
       if (now >= next_status) {
         const double dt = std::chrono::duration<double>(now - last_status_time).count();
-        const std::string line = d.statusLine((processed - frames_at_status) / std::max(dt, 1e-3));
+        const double fps = (processed - frames_at_status) / std::max(dt, 1e-3);
+        d.tracking_rate_hz = fps;
+        const std::string line = d.statusLine(fps);
         d.notifier.status(line);
         SP_DEBUG(logger, "status: " << line);
         d.publisher->publishStatus(d.statusMessage());
