@@ -169,6 +169,15 @@ void drawLegend(cv::Mat& image, cv::Point top_left, const std::vector<LegendEntr
   }
 }
 
+Status writePng(const std::string& png_path, const cv::Mat& image) {
+  try {
+    if (!cv::imwrite(png_path, image)) return Error{png_path + ": could not write image"};
+  } catch (const cv::Exception& e) {
+    return Error{png_path + ": could not write image: " + e.what()};
+  }
+  return Status::success();
+}
+
 // Pads a range by `fraction` of its span, and gives an empty range a span.
 Range padded(Range r, double fraction, double min_span) {
   if (!(r.span() > min_span)) {
@@ -299,17 +308,8 @@ Status writeTrajectoryPlot(const std::string& png_path, const Trajectory& gt,
   drawTopView(image, top_area, gt, est_aligned, "estimate (aligned)");
   drawErrorPanel(image, bottom_area, est_aligned, ate_errors);
 
-  try {
-    if (!cv::imwrite(png_path, image)) return Error{png_path + ": could not write image"};
-  } catch (const cv::Exception& e) {
-    return Error{png_path + ": could not write image: " + e.what()};
-  }
-  return Status::success();
+  return writePng(png_path, image);
 }
-
-}  // namespace stillpoint::eval
-
-namespace stillpoint::eval {
 
 Status writeSeriesPlot(const std::string& png_path, const SeriesPlot& plot) {
   if (plot.width < 400 || plot.height < 300) return Error{png_path + ": plot must be at least 400x300 pixels"};
@@ -367,12 +367,7 @@ Status writeSeriesPlot(const std::string& png_path, const SeriesPlot& plot) {
     legend.push_back({plot.reference_label, kBlack, LegendEntry::Style::kDashed});
   }
   if (!legend.empty()) drawLegend(image, {axes.area.x + 10, axes.area.y + 10}, legend);
-  try {
-    if (!cv::imwrite(png_path, image)) return Error{png_path + ": could not write image"};
-  } catch (const cv::Exception& e) {
-    return Error{png_path + ": could not write image: " + e.what()};
-  }
-  return Status::success();
+  return writePng(png_path, image);
 }
 
 }  // namespace stillpoint::eval
