@@ -11,21 +11,14 @@
 #include <type_traits>
 #include <unordered_map>
 
+#include "stillpoint/core/checksum.hpp"
+
 namespace stillpoint::slam {
 namespace {
 
 constexpr char kMagic[8] = {'S', 'T', 'P', 'M', 'A', 'P', '\r', '\n'};
 constexpr std::size_t kHeaderSize = 40;
 constexpr int kThumbWidth = 40, kThumbHeight = 30;
-
-std::uint64_t fnv1a(const char* data, std::size_t n) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (std::size_t i = 0; i < n; ++i) {
-    h ^= static_cast<unsigned char>(data[i]);
-    h *= 1099511628211ull;
-  }
-  return h;
-}
 
 class Writer {
  public:
@@ -167,7 +160,7 @@ Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& level
   header.put<std::uint32_t>(kMapFormatVersion);
   header.put<std::uint32_t>(0);
   header.put<std::uint64_t>(payload.size());
-  header.put<std::uint64_t>(fnv1a(payload.data(), payload.size()));
+  header.put<std::uint64_t>(fnv1a64(payload.data(), payload.size()));
   header.put<std::uint64_t>(0);
   // Written next to the target and renamed: a crash mid-write leaves the old file.
   const std::string tmp = path + ".tmp";
@@ -207,7 +200,7 @@ Status loadMap(const std::string& path, const CameraModel& camera, const LevelIn
     return error("truncated or padded: the header says " + std::to_string(payload_size) + " bytes of map, the file has " +
                  std::to_string(file.size() - kHeaderSize));
   const char* payload = file.data() + kHeaderSize;
-  if (fnv1a(payload, payload_size) != checksum) return error("checksum mismatch (corrupt file)");
+  if (fnv1a64(payload, payload_size) != checksum) return error("checksum mismatch (corrupt file)");
 
   Reader r(payload, payload_size);
   std::int32_t width = 0, height = 0, num_levels = 0;
