@@ -27,7 +27,7 @@ constexpr const char* kUsage =
     "usage: stillpoint-synth overlay INPUT_DIR OUTPUT_DIR --camera fr1|fr2|fr3|CAMERA.yaml\n"
     "                        (--config MOVERS.yaml | --preset NAME) [common options]\n"
     "       stillpoint-synth room OUTPUT_DIR (--config ROOM.yaml | --preset NAME)\n"
-    "                        [--motion static|xyz|rpy|halfsphere] [--frames N] [--size WxH] [common options]\n"
+    "                        [--motion static|xyz|rpy|halfsphere|loop] [--frames N] [--size WxH] [common options]\n"
     "       stillpoint-synth score SEQUENCE_DIR FEATURES.txt [--min-features N] [--min-speed M_S] [--per-frame]\n"
     "       stillpoint-synth edit INPUT_DIR OUTPUT_DIR [--cover START:SECONDS ...] [--cut START:SECONDS ...]\n"
     "                        [--there-and-back] [--camera fr1|fr2|fr3|CAMERA.yaml (its depth_factor)]\n"

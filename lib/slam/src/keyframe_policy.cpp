@@ -53,7 +53,9 @@ KeyFrame* Tracker::createKeyFrame() {
       copy.outlier[i] = 0;
     }
   }
-  KeyFrame* kf = map_->addKeyFrame(std::make_unique<KeyFrame>(id, copy));
+  auto made = std::make_unique<KeyFrame>(id, copy);
+  made->bow = staticWords(made->frame);
+  KeyFrame* kf = map_->addKeyFrame(std::move(made));
   for (int i = 0; i < kf->frame.size(); ++i) {
     const auto p = kf->frame.points[i];
     if (!p) continue;

@@ -37,10 +37,12 @@ void LocalMapper::process(KeyFrame* kf) {
                                  << " keyframes, " << s.points << " points, cost " << s.initial_cost << " -> "
                                  << s.final_cost << ", " << s.outliers_removed << " outliers");
   }
+  const std::int64_t id = kf->id;  // kf may be culled now
   {
     std::unique_lock lock(map_->mutex());
     cullKeyFrames(kf);
   }
+  if (keyframe_done_) keyframe_done_(id);
   total_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 

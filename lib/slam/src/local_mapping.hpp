@@ -5,6 +5,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <deque>
+#include <functional>
 #include <list>
 #include <mutex>
 #include <thread>
@@ -58,6 +59,10 @@ class LocalMapper {
   std::size_t pending() const;
   void finish();  // drains the queue, joins the worker
 
+  // Called with each keyframe's id once it is processed (on the mapping
+  // thread): loop closing takes it from there. Set before start().
+  void setKeyFrameDone(std::function<void(std::int64_t)> done) { keyframe_done_ = std::move(done); }
+
   // Readable from any thread (stillpointd's status line).
   int baRuns() const { return ba_runs_.load(); }
   double totalMs() const { return total_ms_.load(); }
@@ -85,6 +90,7 @@ class LocalMapper {
   void applySemantic(const SemanticResult& result);  // map lock held exclusively
 
   SlamOptions options_;
+  std::function<void(std::int64_t)> keyframe_done_;
   double close_depth_;
   Map* map_;
   std::list<std::shared_ptr<MapPoint>> recent_points_;

@@ -144,7 +144,77 @@ void Map::adoptLoaded(Map&& loaded) {
   next_frame_id_ = loaded.next_frame_id_;
   active_map_id_ = loaded.active_map_id_;
   maps_started_ = loaded.maps_started_;
+  keyframes_by_word_.clear();
+  for (const auto& kf : keyframes_)
+    if (!kf->bad) indexKeyFrame(kf.get());
   ++epoch_;
+}
+
+void Map::replacePoint(const std::shared_ptr<MapPoint>& old, const std::shared_ptr<MapPoint>& by) {
+  if (!old || !by || old == by || old->bad || by->bad) return;
+  const auto observations = old->observations;
+  for (const auto& [kf, idx] : observations) {
+    if (kf->frame.points[idx] != old) continue;
+    if (by->observations.count(kf)) {
+      kf->frame.points[idx] = nullptr;
+    } else {
+      kf->frame.points[idx] = by;
+      by->observations[kf] = idx;
+    }
+  }
+  by->visible += old->visible;
+  by->found += old->found;
+  old->observations.clear();
+  old->bad = true;
+  old->reference = nullptr;
+  by->updateFromObservations();
+}
+
+void Map::indexKeyFrame(KeyFrame* kf) {
+  unindexKeyFrame(kf);
+  for (const auto& [word, weight] : kf->bow.entries) keyframes_by_word_[word].push_back(kf);
+}
+
+void Map::unindexKeyFrame(KeyFrame* kf) {
+  for (const auto& [word, weight] : kf->bow.entries) {
+    auto it = keyframes_by_word_.find(word);
+    if (it == keyframes_by_word_.end()) continue;
+    std::erase(it->second, kf);
+    if (it->second.empty()) keyframes_by_word_.erase(it);
+  }
+}
+
+std::vector<Map::PlaceMatch> Map::similarKeyFrames(const features::BowVector& bow,
+                                                   const std::function<bool(const KeyFrame*)>& accept,
+                                                   double min_score, std::size_t max) const {
+  // Words in common first (cheap, from the index), the score only for the
+  // keyframes that share at least 80 % as many as the best of them.
+  std::unordered_map<KeyFrame*, int> shared;
+  for (const auto& [word, weight] : bow.entries) {
+    const auto it = keyframes_by_word_.find(word);
+    if (it == keyframes_by_word_.end()) continue;
+    for (KeyFrame* kf : it->second) ++shared[kf];
+  }
+  int most = 0;
+  for (auto it = shared.begin(); it != shared.end();) {
+    if (it->first->bad || !accept(it->first)) {
+      it = shared.erase(it);
+      continue;
+    }
+    most = std::max(most, it->second);
+    ++it;
+  }
+  std::vector<PlaceMatch> out;
+  for (const auto& [kf, words] : shared) {
+    if (words < 0.8 * most) continue;
+    const double score = features::bowScore(bow, kf->bow);
+    if (score >= min_score) out.push_back({kf, score});
+  }
+  std::sort(out.begin(), out.end(), [](const PlaceMatch& a, const PlaceMatch& b) {
+    return a.score != b.score ? a.score > b.score : a.keyframe->id < b.keyframe->id;
+  });
+  if (out.size() > max) out.resize(max);
+  return out;
 }
 
 std::uint32_t Map::beginMap() {
@@ -158,7 +228,9 @@ KeyFrame* Map::addKeyFrame(std::unique_ptr<KeyFrame> kf) {
   next_keyframe_id_ = kf->id + 1;
   kf->map_id = active_map_id_;
   keyframes_.push_back(std::move(kf));
-  return keyframes_.back().get();
+  KeyFrame* added = keyframes_.back().get();
+  for (const auto& [word, weight] : added->bow.entries) keyframes_by_word_[word].push_back(added);
+  return added;
 }
 
 KeyFrame* Map::keyFrame(std::int64_t id) const {
@@ -193,6 +265,7 @@ void Map::erasePoint(const std::shared_ptr<MapPoint>& point) {
 
 void Map::setKeyFrameBad(KeyFrame* kf) {
   if (kf->origin || kf->bad) return;
+  unindexKeyFrame(kf);
   for (auto& [other, w] : kf->connections) {
     other->connections.erase(kf);
     std::erase(other->ordered_neighbours, kf);

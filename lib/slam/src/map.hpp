@@ -19,15 +19,18 @@
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <shared_mutex>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "dense_cloud.hpp"
 #include "frame.hpp"
 #include "stillpoint/core/result.hpp"
+#include "stillpoint/features/vocabulary.hpp"
 
 namespace stillpoint::slam {
 
@@ -145,6 +148,10 @@ class KeyFrame {
   // local mapping culls those that stay dynamic.
   std::vector<std::shared_ptr<MapPoint>> dynamic_suspects;
 
+  // Its view as words (place recognition; empty without a vocabulary). Set
+  // before the keyframe enters the map, or by Map::indexKeyFrame.
+  features::BowVector bow;
+
   // The semantic module's result was applied (its features in movable masks
   // are flagged dynamic and hold no map point).
   bool segmented = false;
@@ -205,15 +212,34 @@ class Map {
     ++epoch_;
   }
   // Changes whenever the world frame of some keyframes moves as a whole (a
-  // merge): a bundle adjustment that read poses before must not write them
-  // back.
+  // merge, a loop closure, a global BA's result): a bundle adjustment that
+  // read poses before must not write them back, and tracking re-expresses
+  // its last pose relative to its reference keyframe.
   std::uint64_t epoch() const { return epoch_; }
+  void worldMoved() { ++epoch_; }  // exclusive lock
+  // `by` takes over every observation of `old` (a keyframe that sees both
+  // keeps `by`'s); `old` leaves the map. Exclusive lock.
+  void replacePoint(const std::shared_ptr<MapPoint>& old, const std::shared_ptr<MapPoint>& by);
   // Takes over a map read from a file (map_io.cpp), exclusive lock held; this
   // map must be empty.
   void adoptLoaded(Map&& loaded);
   // Map files (map_io.cpp).
   friend Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& levels, const std::string& path);
   friend Status loadMap(const std::string& path, const CameraModel& camera, const LevelInfo& levels, Map* map);
+  // Place recognition over the keyframes in the map (not culled, with a
+  // KeyFrame::bow): those `accept` takes whose views share the most words
+  // with `bow`, scoring at least `min_score` (features::bowScore), best
+  // first, at most `max`. Shared lock.
+  struct PlaceMatch {
+    KeyFrame* keyframe;
+    double score;
+  };
+  std::vector<PlaceMatch> similarKeyFrames(const features::BowVector& bow,
+                                           const std::function<bool(const KeyFrame*)>& accept, double min_score,
+                                           std::size_t max) const;
+  // Indexes a keyframe whose bow was set after it entered the map (a loaded
+  // map); exclusive lock.
+  void indexKeyFrame(KeyFrame* kf);
   std::size_t pointCount() const;  // live (not bad) points
   std::size_t pointsInMemory() const;  // map points not yet freed (bad ones included)
   std::int64_t nextFrameId() { return next_frame_id_++; }
@@ -228,6 +254,9 @@ class Map {
   std::uint32_t active_map_id_ = 0;
   std::uint32_t maps_started_ = 0;
   std::uint64_t epoch_ = 0;
+  // Word -> the keyframes in the map whose view has it.
+  std::unordered_map<features::WordId, std::vector<KeyFrame*>> keyframes_by_word_;
+  void unindexKeyFrame(KeyFrame* kf);
 };
 
 }  // namespace stillpoint::slam

@@ -38,18 +38,26 @@ void Tracker::lookForOlderMaps() {
   SE3 T_older_newer = SE3::Identity();
   {
     std::shared_lock lock(map_->mutex());
-    // The older maps' keyframes whose view looks most like this one.
-    std::vector<std::pair<double, KeyFrame*>> ranked;
-    for (const auto& kf : map_->keyframes()) {
-      if (kf->bad || kf->map_id == map_id_ || kf->frame.thumbnail.empty() || current_.thumbnail.empty()) continue;
-      ranked.emplace_back(current_.thumbnail.dot(kf->frame.thumbnail), kf.get());
-    }
-    if (ranked.empty()) return;  // nothing of the older maps is left in memory
-    const std::size_t n = std::min(kCandidates, ranked.size());
-    std::partial_sort(ranked.begin(), ranked.begin() + n, ranked.end(),
-                      [](const auto& a, const auto& b) { return a.first != b.first ? a.first > b.first : a.second->id < b.second->id; });
+    // The older maps' keyframes whose view looks most like this one: by
+    // their words, or without a vocabulary by their small views.
     std::vector<KeyFrame*> candidates;
-    for (std::size_t k = 0; k < n; ++k) candidates.push_back(ranked[k].second);
+    if (vocabulary_) {
+      for (const Map::PlaceMatch& m : map_->similarKeyFrames(
+               staticWords(current_), [this](const KeyFrame* kf) { return kf->map_id != map_id_; }, 0.0, kCandidates))
+        candidates.push_back(m.keyframe);
+    } else {
+      std::vector<std::pair<double, KeyFrame*>> ranked;
+      for (const auto& kf : map_->keyframes()) {
+        if (kf->bad || kf->map_id == map_id_ || kf->frame.thumbnail.empty() || current_.thumbnail.empty()) continue;
+        ranked.emplace_back(current_.thumbnail.dot(kf->frame.thumbnail), kf.get());
+      }
+      const std::size_t n = std::min(kCandidates, ranked.size());
+      std::partial_sort(ranked.begin(), ranked.begin() + n, ranked.end(), [](const auto& a, const auto& b) {
+        return a.first != b.first ? a.first > b.first : a.second->id < b.second->id;
+      });
+      for (std::size_t k = 0; k < n; ++k) candidates.push_back(ranked[k].second);
+    }
+    if (candidates.empty()) return;  // nothing of the older maps is left in memory
     for (KeyFrame* kf : candidates) {
       Frame probe = current_;
       probe.clearMatches();

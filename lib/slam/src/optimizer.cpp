@@ -4,6 +4,7 @@
 #include <ceres/rotation.h>
 
 #include <array>
+#include <functional>
 #include <mutex>
 #include <random>
 #include <set>
@@ -454,8 +455,14 @@ int optimizeFramePose(Frame* frame, const SE3* prior, const Eigen::Matrix<double
   return r.inliers;
 }
 
-LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
-                                   const std::atomic<bool>* abort) {
+namespace {
+// The bundle adjustment of the keyframes `select` picks (shared lock held)
+// and every point they see; other keyframes that see those points are held
+// fixed, and so are map origins. Snapshot, solve without the lock, write
+// back unless the world moved meanwhile (Map::epoch).
+LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
+                          const std::function<std::vector<KeyFrame*>()>& select, int iterations,
+                          const std::atomic<bool>* abort) {
   LocalBaStats stats;
   struct Obs {
     int camera;  // index into poses
@@ -470,15 +477,13 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
   std::vector<std::shared_ptr<MapPoint>> points;
   std::vector<std::array<double, 3>> positions;
   std::vector<Obs> observations;
-  const CameraModel* camera = kf->frame.camera;
   std::uint64_t epoch = 0;
 
   {  // Snapshot under a shared lock.
     std::shared_lock lock(map->mutex());
-    if (kf->bad) return stats;
+    const std::vector<KeyFrame*> local = select();
+    if (local.empty()) return stats;
     epoch = map->epoch();
-    std::vector<KeyFrame*> local{kf};
-    for (KeyFrame* n : kf->bestNeighbours(max_keyframes - 1)) local.push_back(n);
     std::unordered_map<KeyFrame*, int> camera_index;
     for (KeyFrame* k : local) {
       camera_index[k] = static_cast<int>(cameras.size());
@@ -535,8 +540,16 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
       if (fixed[c] && problem.HasParameterBlock(poses[c].data())) problem.SetParameterBlockConstant(poses[c].data());
     ceres::Solver::Options options;
     // Local windows have few cameras: a dense reduced camera system is the
-    // fastest (Debian's Ceres has no fixed-size Schur specialisations).
+    // fastest (Debian's Ceres has no fixed-size Schur specialisations). A
+    // whole map's needs a sparse one.
     options.linear_solver_type = ceres::DENSE_SCHUR;
+    if (cameras.size() > 60) {
+      options.linear_solver_type = ceres::SPARSE_SCHUR;
+      if (!ceres::IsSparseLinearAlgebraLibraryTypeAvailable(options.sparse_linear_algebra_library_type)) {
+        options.linear_solver_type = ceres::ITERATIVE_SCHUR;
+        options.preconditioner_type = ceres::SCHUR_JACOBI;
+      }
+    }
     options.max_num_iterations = pass == 0 ? std::max(1, iterations / 2) : iterations;
     options.num_threads = 1;
     options.logging_type = ceres::SILENT;
@@ -578,6 +591,105 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
     }
   }
   return stats;
+}
+}  // namespace
+
+LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
+                                   const std::atomic<bool>* abort) {
+  return bundleAdjust(
+      map, kf->frame.camera,
+      [&]() -> std::vector<KeyFrame*> {
+        if (kf->bad) return {};
+        std::vector<KeyFrame*> local{kf};
+        for (KeyFrame* n : kf->bestNeighbours(max_keyframes - 1)) local.push_back(n);
+        return local;
+      },
+      iterations, abort);
+}
+
+LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id, int iterations,
+                                    const std::atomic<bool>* abort) {
+  return bundleAdjust(
+      map, camera,
+      [&] {
+        std::vector<KeyFrame*> all;
+        for (const auto& kf : map->keyframes())
+          if (!kf->bad && kf->map_id == map_id) all.push_back(kf.get());
+        return all;
+      },
+      iterations, abort);
+}
+
+namespace {
+// Error of a relative pose: log(T_ij_measured^-1 * T_i * T_j^-1), rotation
+// as an angle-axis, then translation; T_* are world-to-camera poses.
+struct RelativePoseError {
+  explicit RelativePoseError(const SE3& T_i_j) {
+    const SE3 inv = T_i_j.inverse();
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) R_inv[3 * c + r] = inv.linear()(r, c);  // column major
+      t_inv[r] = inv.translation()[r];
+    }
+  }
+  template <typename T>
+  bool operator()(const T* pose_i, const T* pose_j, T* residual) const {
+    T Ri[9], Rj[9];
+    ceres::AngleAxisToRotationMatrix(pose_i, Ri);  // column major
+    ceres::AngleAxisToRotationMatrix(pose_j, Rj);
+    auto at = [](const T* R, int r, int c) { return R[3 * c + r]; };
+    // T_i * T_j^-1: rotation Ri Rj^T, translation t_i - Ri Rj^T t_j.
+    T R[9], t[3];
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) {
+        R[3 * c + r] = T(0);
+        for (int k = 0; k < 3; ++k) R[3 * c + r] += at(Ri, r, k) * at(Rj, c, k);
+      }
+    for (int r = 0; r < 3; ++r) {
+      t[r] = pose_i[3 + r];
+      for (int k = 0; k < 3; ++k) t[r] -= at(R, r, k) * pose_j[3 + k];
+    }
+    // The measured inverse in front.
+    T E[9], e[3];
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) {
+        E[3 * c + r] = T(0);
+        for (int k = 0; k < 3; ++k) E[3 * c + r] += T(R_inv[3 * k + r]) * at(R, k, c);
+      }
+      e[r] = T(t_inv[r]);
+      for (int k = 0; k < 3; ++k) e[r] += T(R_inv[3 * k + r]) * t[k];
+    }
+    ceres::RotationMatrixToAngleAxis(E, residual);
+    for (int r = 0; r < 3; ++r) residual[3 + r] = e[r];
+    return true;
+  }
+  double R_inv[9], t_inv[3];
+};
+}  // namespace
+
+std::vector<SE3> optimizePoseGraph(const std::vector<SE3>& initial, const std::vector<char>& fixed,
+                                   const std::vector<PoseGraphEdge>& edges, int iterations) {
+  std::vector<std::array<double, 6>> poses(initial.size());
+  for (std::size_t i = 0; i < initial.size(); ++i) toParameters(initial[i], poses[i].data());
+  ceres::Problem problem;
+  for (const PoseGraphEdge& e : edges) {
+    if (e.i == e.j || e.i >= initial.size() || e.j >= initial.size()) continue;
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<RelativePoseError, 6, 6, 6>(new RelativePoseError(e.T_i_j)),
+                             nullptr, poses[e.i].data(), poses[e.j].data());
+  }
+  for (std::size_t i = 0; i < initial.size(); ++i)
+    if (fixed[i] && problem.HasParameterBlock(poses[i].data())) problem.SetParameterBlockConstant(poses[i].data());
+  ceres::Solver::Options options;
+  options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  if (!ceres::IsSparseLinearAlgebraLibraryTypeAvailable(options.sparse_linear_algebra_library_type))
+    options.linear_solver_type = ceres::DENSE_QR;
+  options.max_num_iterations = iterations;
+  options.num_threads = 1;
+  options.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &problem, &summary);
+  std::vector<SE3> out(initial.size());
+  for (std::size_t i = 0; i < initial.size(); ++i) out[i] = renormalized(fromParameters(poses[i].data()));
+  return out;
 }
 
 }  // namespace stillpoint::slam

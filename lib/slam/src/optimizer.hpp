@@ -113,4 +113,20 @@ struct LocalBaStats {
 LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
                                    const std::atomic<bool>* abort = nullptr);
 
+// The same over every keyframe of one map (its origin fixed): the global BA
+// after a loop closure. Results are dropped when the world moved meanwhile.
+LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id, int iterations,
+                                    const std::atomic<bool>* abort = nullptr);
+
+// A pose graph: poses (world to camera) tied by measured relative poses
+// T_i_j = T_i_w * T_j_w^-1; the fixed ones do not move. Returns the poses
+// that best agree with every measurement (least squares over the SE3 error
+// of each edge): the essential-graph optimisation of a loop closure.
+struct PoseGraphEdge {
+  std::size_t i = 0, j = 0;
+  SE3 T_i_j;
+};
+std::vector<SE3> optimizePoseGraph(const std::vector<SE3>& initial, const std::vector<char>& fixed,
+                                   const std::vector<PoseGraphEdge>& edges, int iterations = 20);
+
 }  // namespace stillpoint::slam

@@ -135,9 +135,15 @@ Status SemanticOptions::validate() const {
   return Status::success();
 }
 
+Status PlaceOptions::validate() const {
+  if (loop_consistency < 1 || loop_consistency > 10) return Error{"place.loop_consistency must be in [1, 10]"};
+  if (loop_min_inliers < 12) return Error{"place.loop_min_inliers must be >= 12"};
+  return Status::success();
+}
+
 Status SlamOptions::validate() const {
   for (const Status& s : {orb.validate(), tracking.validate(), keyframes.validate(), mapping.validate(),
-                          geometry.validate(), semantic.validate()})
+                          geometry.validate(), semantic.validate(), place.validate()})
     if (!s) return s;
   return Status::success();
 }
@@ -183,6 +189,11 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "threads", o.semantic.threads, "OpenCV inference threads (0: leave OpenCV's setting)");
   v("semantic", "confirm_with_geometry", o.semantic.confirm_with_geometry,
     "card, always or never: whether masks need the geometry module's agreement (card: as the model card says)");
+  v("place", "vocabulary", o.place.vocabulary, "vocabulary file (stillpoint-vocab train); empty: the one shipped in models/");
+  v("place", "loop_closing", o.place.loop_closing, "detect and close loops in their own thread (needs a vocabulary)");
+  v("place", "global_ba", o.place.global_ba, "after a loop, a full bundle adjustment in the background");
+  v("place", "loop_consistency", o.place.loop_consistency, "consecutive keyframes that must confirm a loop, 1..10");
+  v("place", "loop_min_inliers", o.place.loop_min_inliers, "3D-3D matches a loop's rigid motion must explain, >= 12");
   v("", "sequential", o.sequential, "one thread, deterministic (tests, evaluation)");
   v("", "localisation", o.localisation, "track against a loaded map only: no new keyframes, points or maps");
 }

@@ -38,6 +38,15 @@ bool Tracker::poseFromMatches(Frame* frame) const {
   return true;
 }
 
+features::BowVector Tracker::staticWords(const Frame& frame) const {
+  if (!vocabulary_ || frame.descriptors.empty()) return {};
+  cv::Mat rows;
+  rows.reserve(frame.size());
+  for (int i = 0; i < frame.size(); ++i)
+    if (!frame.dynamic[i]) rows.push_back(frame.descriptors.row(i));
+  return vocabulary_->transform(rows);
+}
+
 bool Tracker::relocalise() {
   // Most recent keyframes first: after a short loss the camera is usually
   // still near where it was. Then as many of the older ones, a window that
@@ -46,6 +55,7 @@ bool Tracker::relocalise() {
   // frames, at a bounded cost per frame, instead of staying lost until it
   // reaches recently mapped ground.
   const auto n = static_cast<std::size_t>(options_.tracking.relocalisation_candidates);
+  if (vocabulary_) return relocalise(placeCandidates(n));
   std::vector<KeyFrame*> candidates, older;  // newest first
   // Only the map being tracked: an older map (left after a loss) has its own frame.
   for (auto it = map_->keyframes().rbegin(); it != map_->keyframes().rend(); ++it) {
@@ -60,6 +70,29 @@ bool Tracker::relocalise() {
     for (std::size_t k = 0; k < count; ++k) candidates.push_back(older[(start + k) % older.size()]);
     reloc_window_next_id_ = candidates.back()->id;
   }
+  return relocalise(candidates);
+}
+
+std::vector<KeyFrame*> Tracker::placeCandidates(std::size_t n) const {
+  // The few newest keyframes (after a short loss the camera is still near
+  // them), then the keyframes of the map whose views share the most words
+  // with this one, wherever they are: a camera back at a place mapped long
+  // ago finds it at once.
+  constexpr std::size_t kNewest = 3;
+  std::vector<KeyFrame*> candidates;
+  for (auto it = map_->keyframes().rbegin(); it != map_->keyframes().rend() && candidates.size() < kNewest; ++it)
+    if (!(*it)->bad && (*it)->map_id == map_->activeMapId()) candidates.push_back(it->get());
+  const features::BowVector words = staticWords(current_);
+  const auto similar = map_->similarKeyFrames(
+      words, [this](const KeyFrame* kf) { return kf->map_id == map_->activeMapId(); }, 0.0, n);
+  for (const Map::PlaceMatch& m : similar) {
+    if (m.score < 0.5 * similar.front().score) break;
+    if (std::find(candidates.begin(), candidates.end(), m.keyframe) == candidates.end()) candidates.push_back(m.keyframe);
+  }
+  return candidates;
+}
+
+bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
   for (KeyFrame* kf : candidates) {
     current_.clearMatches();
     if (searchByDescriptor(&current_, *kf, 0.75f) < 15) continue;

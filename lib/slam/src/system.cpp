@@ -14,6 +14,7 @@
 
 #include "frame.hpp"
 #include "local_mapping.hpp"
+#include "loop_closing.hpp"
 #include "map.hpp"
 #include "map_io.hpp"
 #include "segmentation_latency.hpp"
@@ -37,6 +38,8 @@ double depthShare(const cv::Mat& depth_m, const CameraModel& cam) {
   }
   return samples ? static_cast<double>(valid) / samples : 0.0;
 }
+
+constexpr const char* kDefaultVocabulary = "orb_words_10x4_tum.vocab";
 
 std::pair<double, double> medianP95(std::vector<double> v) {
   if (v.empty()) return {0.0, 0.0};
@@ -71,6 +74,13 @@ Result<semantic::ResolvedModel> resolveModel(const SemanticOptions& o) {
   return semantic::ResolvedModel{*card, "card " + card_path.string()};
 }
 }  // namespace
+
+std::string defaultVocabularyPath() {
+  std::error_code ec;
+  const std::filesystem::path in_tree = std::filesystem::path(STILLPOINT_SOURCE_MODELS_DIR) / kDefaultVocabulary;
+  if (std::filesystem::is_regular_file(in_tree, ec)) return in_tree.string();
+  return (std::filesystem::path(STILLPOINT_INSTALL_MODELS_DIR) / kDefaultVocabulary).string();
+}
 
 const char* toString(TrackingState state) {
   switch (state) {
@@ -113,6 +123,10 @@ struct SlamSystem::Impl {
   LevelInfo levels;
   Map map;
   std::unique_ptr<geometry::ClusteringWorker> clustering;
+  std::unique_ptr<features::Vocabulary> vocabulary;
+  std::string vocabulary_path;
+  // Before the mapper, which hands it keyframes: destroyed after it.
+  std::unique_ptr<LoopCloser> loops;
   Tracker tracker;
   LocalMapper mapper;
   // After the mapper: its results go into the mapper's mailbox, so it is
@@ -139,6 +153,7 @@ SlamSystem::~SlamSystem() {
   if (!impl_) return;
   if (impl_->semantic) impl_->semantic->finish();
   impl_->mapper.finish();
+  if (impl_->loops) impl_->loops->finish();
 }
 
 Result<SemanticModelChoice> checkSemanticModel(const SemanticOptions& options) {
@@ -186,6 +201,31 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
   if (!segmenter && options.semantic.enabled) return Error{"semantic.enabled is set but no segmenter was given"};
   auto system = std::unique_ptr<SlamSystem>(new SlamSystem(std::make_unique<Impl>(camera, options)));
   Impl& s = *system->impl_;
+  {
+    // Place recognition: a named vocabulary must load; without one named,
+    // the shipped one is used when it is there.
+    const bool named = !options.place.vocabulary.empty();
+    const std::string path = named ? options.place.vocabulary : defaultVocabularyPath();
+    auto vocabulary = features::Vocabulary::load(path);
+    if (vocabulary) {
+      s.vocabulary = std::make_unique<features::Vocabulary>(std::move(*vocabulary));
+      s.vocabulary_path = path;
+      s.tracker.setVocabulary(s.vocabulary.get());
+    } else if (named) {
+      return Error{"place.vocabulary: " + vocabulary.error()};
+    } else {
+      SP_WARN(logger, "no place-recognition vocabulary (" << vocabulary.error()
+                                                          << "): relocalisation ranks keyframes by small views, loops "
+                                                             "are not closed");
+    }
+  }
+  if (s.vocabulary && options.place.loop_closing && !options.localisation) {
+    s.loops = std::make_unique<LoopCloser>(options, s.camera, &s.map);
+    if (!options.sequential) {
+      s.loops->start();
+      s.mapper.setKeyFrameDone([loops = s.loops.get()](std::int64_t id) { loops->enqueue(id); });
+    }
+  }
   if (segmenter) {
     const std::string& confirm = options.semantic.confirm_with_geometry;
     const bool required = confirm == "always" || (confirm == "card" && segmenter->card().confirm_with_geometry);
@@ -329,10 +369,13 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
     }
   }
   if (kf) {
-    if (s.options.sequential)
+    if (s.options.sequential) {
+      const std::int64_t id = kf->id;
       s.mapper.process(kf);
-    else
+      if (s.loops) s.loops->process(id);
+    } else {
       s.mapper.enqueue(kf);
+    }
   }
   {
     std::shared_lock lock(s.map.mutex());
@@ -348,6 +391,7 @@ void SlamSystem::finish(bool discard_pending_segmentation) {
   s.latency.finish(discard_pending_segmentation, [&s](const SemanticJob& job) { s.applySegmentation(job); });
   if (impl_->semantic) impl_->semantic->finish(discard_pending_segmentation);  // segments what is queued
   impl_->mapper.finish();                          // then applies it
+  if (impl_->loops) impl_->loops->finish();        // then the loops it found
   impl_->finished = true;
 }
 
@@ -376,6 +420,14 @@ Status SlamSystem::loadMap(const std::string& path) {
     Map loaded;
     if (Status st = slam::loadMap(path, s.camera, s.levels, &loaded); !st) return st;
     s.map.adoptLoaded(std::move(loaded));
+    // Its keyframes' words (the file keeps descriptors, not words: a map
+    // outlives a vocabulary change).
+    if (s.vocabulary)
+      for (const auto& kf : s.map.keyframes())
+        if (!kf->bad) {
+          kf->bow = s.tracker.staticWords(kf->frame);
+          s.map.indexKeyFrame(kf.get());
+        }
     s.tracker.mapLoaded();
     SP_INFO(logger, "map " << path << " loaded: " << s.map.goodKeyFrameCount() << " keyframes, " << s.map.pointCount()
                            << " points in " << s.map.mapsStarted() << " map(s)");
@@ -461,6 +513,15 @@ MapStats SlamSystem::mapStats() const {
   stats.local_ba_runs = impl_->mapper.baRuns();
   stats.local_mapping_ms_total = impl_->mapper.totalMs();
   stats.dynamic_points_culled = impl_->mapper.dynamicPointsCulled();
+  stats.vocabulary = impl_->vocabulary_path;
+  if (impl_->loops) {
+    const LoopStats l = impl_->loops->stats();
+    stats.loops_detected = l.detected;
+    stats.loops_rejected = l.rejected;
+    stats.loops_closed = l.closed;
+    stats.global_ba_runs = l.global_ba_runs;
+    stats.global_ba_dropped = l.global_ba_dropped;
+  }
   if (impl_->clustering) stats.geometry_deadline_misses = impl_->clustering->deadlineMisses();
   if (impl_->semantic) {
     const SemanticStats& st = impl_->mapper.semanticStats();

@@ -39,6 +39,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   semantic_marked_ = 0;
   carried_.clear();
   const bool tracking = hasPose(state_);
+  followWorldMoves();
   if (detector_) detector_->startFrame(current_, clusters_pending, tracking);
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
@@ -72,8 +73,9 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
         current_.points[i] = nullptr;
     std::shared_lock lock(map_->mutex());  // keyframe poses change under local BA
-    trajectory_.record({current_.stamp, reference_->anchor(),
-                        renormalized(current_.T_c_w * reference_->T_c_w().inverse()), map_id_});
+    T_last_reference_ = renormalized(current_.T_c_w * reference_->T_c_w().inverse());
+    seen_epoch_ = map_->epoch();
+    trajectory_.record({current_.stamp, reference_->anchor(), T_last_reference_, map_id_});
     out->T_w_c = current_.T_c_w.inverse();
   }
   SP_DEBUG(logger, "frame " << current_.id << " state " << toString(state_) << " inliers " << inliers_
@@ -92,6 +94,15 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
+}
+
+void Tracker::followWorldMoves() {
+  if (!has_last_ || !reference_ || !hasPose(state_)) return;
+  std::shared_lock lock(map_->mutex());
+  if (map_->epoch() == seen_epoch_ || reference_->bad) return;
+  last_.T_c_w = renormalized(T_last_reference_ * reference_->T_c_w());
+  seen_epoch_ = map_->epoch();
+  if (detector_) detector_->forgetHistory();
 }
 
 void Tracker::reportFates(bool ok, TrackOutput* out) const {

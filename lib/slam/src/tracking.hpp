@@ -46,6 +46,12 @@ class Tracker {
   // A map was loaded (exclusive lock held, before the first frame): frames
   // relocalise against it, as after a loss.
   void mapLoaded();
+  // Place recognition's vocabulary (null: none; keyframes are then found by
+  // their small views). Set before the first frame; outlives the tracker.
+  void setVocabulary(const features::Vocabulary* vocabulary) { vocabulary_ = vocabulary; }
+  // The words of a frame's static features (dynamic ones take no part in
+  // recognising a place); empty without a vocabulary.
+  features::BowVector staticWords(const Frame& frame) const;
   // Where the last frame's movers were, for the next frame's feature budget
   // (tracking.mover_cells_*): CV_8UC1 at 1/8 of the image size, non-zero near
   // its dynamic features; empty when they were too few or tracking failed.
@@ -76,9 +82,16 @@ class Tracker {
   void updateVelocity();
   void updateProbation();
   void markMoverCells(bool tracked);
-  void reportFates(bool ok, TrackOutput* out) const;  // SlamOptions::report_fates
+  void reportFates(bool ok, TrackOutput* out) const;
+  // A loop closure or global BA moved the world since the last frame:
+  // re-express the last pose through its reference keyframe.
+  void followWorldMoves();  // SlamOptions::report_fates
   // Relocalisation (relocalisation.cpp).
   bool relocalise();
+  bool relocalise(const std::vector<KeyFrame*>& candidates);
+  // Keyframes of the tracked map to relocalise against, by place
+  // recognition (at most n of them, and the newest few).
+  std::vector<KeyFrame*> placeCandidates(std::size_t n) const;
   // A pose for `frame` from its map-point matches: PnP RANSAC (EPnP).
   bool poseFromMatches(Frame* frame) const;
   // Maps started after a loss rejoin older ones (map_merge.cpp): call with
@@ -100,6 +113,7 @@ class Tracker {
   Map* map_;
   std::unique_ptr<DynamicDetector> detector_;  // null: geometry module off
   const double close_depth_;
+  const features::Vocabulary* vocabulary_ = nullptr;
 
   TrackingState state_ = TrackingState::kInitialising;
   std::uint32_t map_id_ = 0;
@@ -116,6 +130,11 @@ class Tracker {
   std::optional<MergeCandidate> merge_candidate_;
   Frame current_, last_;
   bool has_last_ = false;
+  // The last frame's pose relative to its reference keyframe, and the map
+  // epoch it was taken in: when a loop closure or a global BA moves the
+  // world, the last pose is re-expressed through the keyframe.
+  SE3 T_last_reference_ = SE3::Identity();
+  std::uint64_t seen_epoch_ = 0;
   KeyFrame* reference_ = nullptr;
   Timestamp last_keyframe_stamp_;
   std::int64_t last_keyframe_frame_id_ = 0;

@@ -180,7 +180,8 @@ Result<CameraMotion> parseCameraMotion(const std::string& name) {
   if (name == "xyz") return CameraMotion::kXyz;
   if (name == "rpy") return CameraMotion::kRpy;
   if (name == "halfsphere") return CameraMotion::kHalfsphere;
-  return Error{"unknown camera motion '" + name + "' (static, xyz, rpy, halfsphere)"};
+  if (name == "loop") return CameraMotion::kLoop;
+  return Error{"unknown camera motion '" + name + "' (static, xyz, rpy, halfsphere, loop)"};
 }
 
 const char* toString(CameraMotion motion) {
@@ -189,6 +190,7 @@ const char* toString(CameraMotion motion) {
     case CameraMotion::kXyz: return "xyz";
     case CameraMotion::kRpy: return "rpy";
     case CameraMotion::kHalfsphere: return "halfsphere";
+    case CameraMotion::kLoop: return "loop";
   }
   return "?";
 }

@@ -27,6 +27,8 @@ SE3 lookAt(const Vec3& centre, const Vec3& target) {
   return T;
 }
 
+constexpr double kLoopPeriodS = 20.0;  // one lap of the `loop` motion
+
 int tiles(double length_m) { return std::max(1, static_cast<int>(std::ceil(length_m / 0.5))); }
 
 }  // namespace
@@ -77,6 +79,16 @@ SE3 roomCameraPose(CameraMotion motion, double t) {
       const double el = 0.25 + 0.2 * std::sin(w * t / 8.0);
       const Vec3 p = centre + r * Vec3(std::sin(az) * std::cos(el), -std::cos(az) * std::cos(el), std::sin(el));
       return lookAt(p, centre);
+    }
+    case CameraMotion::kLoop: {
+      // Round the middle of the room every kLoopPeriodS, looking out at the
+      // walls and ahead: each lap revisits the places of the one before,
+      // the test of loop closing.
+      const Vec3 centre(0.0, 1.5, 1.3);
+      const double a = w * t / kLoopPeriodS;
+      const Vec3 p = centre + Vec3(1.1 * std::cos(a), 0.9 * std::sin(a), 0.08 * std::sin(3 * a));
+      const Vec3 out(std::cos(a + 0.5), std::sin(a + 0.5), -0.25);
+      return lookAt(p, p + out);
     }
   }
   return base;

@@ -64,11 +64,11 @@ struct KeyframeOptions {
 struct MappingOptions {
   bool local_ba = true;                // YAML: local bundle adjustment after each keyframe
   int ba_max_keyframes = 20;           // YAML: the optimised window (best covisible keyframes)
-  bool keep_culled_keyframes = false;
+  bool keep_culled_keyframes = false;  // YAML: keep culled keyframes in memory (inspection); false frees them
   // YAML: keyframes keep their depth and colour at a quarter of the
   // resolution (about 150 KB each) for the dense static cloud
   // (SlamSystem::exportDenseCloud).
-  bool dense_views = false;  // YAML: keep culled keyframes in memory (inspection); false frees them
+  bool dense_views = false;
   int ba_iterations = 10;              // Levenberg-Marquardt iterations per local bundle adjustment, 1..100
   double redundant_ratio = 0.9;        // keyframe culling: this share of its points seen by 3 others
   int redundant_min_observers = 3;
@@ -226,6 +226,23 @@ struct SemanticOptions {
   Status validate() const;
 };
 
+// Place recognition (a vocabulary of binary words: relocalisation, map
+// merging) and loop closing (docs/place-recognition.md).
+struct PlaceOptions {
+  // YAML: the vocabulary file (stillpoint-vocab train); empty: the one
+  // shipped in models/ (defaultVocabularyPath()). Without one, relocalisation
+  // and map merging rank keyframes by small views and loops are not closed.
+  std::string vocabulary;
+  bool loop_closing = true;  // YAML: close loops in their own thread (pose graph, then a global BA)
+  bool global_ba = true;     // YAML: a full bundle adjustment in the background after each loop
+  // Loop detection: a keyframe's best neighbours' lowest score sets the bar
+  // its loop candidates must reach; a candidate must be confirmed by this
+  // many consecutive keyframes (covisibility consistency).
+  int loop_consistency = 3;
+  int loop_min_inliers = 40;  // 3D-3D matches consistent with the loop's rigid motion
+  Status validate() const;
+};
+
 struct SlamOptions {
   features::OrbOptions orb;  // YAML: num_features, num_levels, scale_factor; the rest tuned
   TrackingOptions tracking;
@@ -233,6 +250,7 @@ struct SlamOptions {
   MappingOptions mapping;
   GeometryOptions geometry;
   SemanticOptions semantic;
+  PlaceOptions place;
   bool sequential = false;  // YAML: one thread, deterministic (tests, evaluation)
   // YAML: track against a loaded map only (SlamSystem::loadMap): no keyframe,
   // no map point and no new map is made, so memory stays as loaded; a lost
@@ -243,6 +261,10 @@ struct SlamOptions {
   bool report_fates = false;
   Status validate() const;
 };
+
+// The vocabulary shipped with stillpoint (models/ in the source tree, else
+// the installed copy); place.vocabulary empty means this one.
+std::string defaultVocabularyPath();
 
 // Reads options from a YAML file; unknown keys, duplicate keys and bad values
 // are errors naming the file, line and key.

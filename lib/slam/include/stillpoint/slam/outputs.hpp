@@ -149,6 +149,12 @@ struct MapStats {
   int local_ba_runs = 0;
   double local_mapping_ms_total = 0;
   int dynamic_points_culled = 0;          // map points removed by the geometry module
+  // Place recognition and loop closing (docs/place-recognition.md).
+  std::string vocabulary;                 // the file in use; empty: none
+  int loops_detected = 0;                 // consistent candidates
+  int loops_rejected = 0;                 // of those, failed the geometric check
+  int loops_closed = 0;
+  int global_ba_runs = 0, global_ba_dropped = 0;
   std::int64_t geometry_deadline_misses = 0;
   // Semantic module (all 0 when it is off).
   int semantic_keyframes_segmented = 0;  // results applied to keyframes

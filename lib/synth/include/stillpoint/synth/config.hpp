@@ -18,7 +18,7 @@ struct BlurOptions {
   double exposure_s = 0.02;  // shutter time centred on the frame time
 };
 
-enum class CameraMotion { kStatic, kXyz, kRpy, kHalfsphere };
+enum class CameraMotion { kStatic, kXyz, kRpy, kHalfsphere, kLoop };
 Result<CameraMotion> parseCameraMotion(const std::string& name);
 const char* toString(CameraMotion motion);
 

@@ -25,7 +25,8 @@ Result<Room> buildRoom(const RoomOptions& options, const std::string& base_dir, 
 // Camera pose T_w_c at time t (s) for a TUM-like motion:
 // static (tripod, sub-millimetre tremor), xyz (translations along the camera
 // axes, fixed orientation), rpy (rotations about the camera axes, fixed
-// position), halfsphere (orbit on a sphere around a point it keeps looking at).
+// position), halfsphere (orbit on a sphere around a point it keeps looking at),
+// loop (laps round the room looking out at the walls, 20 s each: revisits).
 SE3 roomCameraPose(CameraMotion motion, double t);
 
 // TUM fr3 intrinsics scaled to width x height, no distortion.

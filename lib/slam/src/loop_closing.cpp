@@ -1,0 +1,392 @@
+#include "loop_closing.hpp"
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <chrono>
+#include <random>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "matcher.hpp"
+#include "optimizer.hpp"
+#include "stillpoint/core/log.hpp"
+#include "stillpoint/features/descriptor.hpp"
+
+namespace stillpoint::slam {
+namespace {
+log::Logger logger("loops");
+
+constexpr int kMinKeyFrames = 10;      // in the map before loops are looked for
+constexpr int kKeyFramesBetween = 10;  // after a loop, before the next
+constexpr int kRansacIterations = 300;
+constexpr int kCandidateNeighbours = 10;  // the older side's keyframes whose points check a loop
+constexpr int kStrongCovisibility = 100;  // covisibility edges of the essential graph
+constexpr int kGlobalBaIterations = 10;
+constexpr std::size_t kVerifiedPerKeyFrame = 3;
+
+// The rigid motion (no scale) taking `from` onto `to` (least squares).
+SE3 rigidFit(const std::vector<Vec3>& from, const std::vector<Vec3>& to) {
+  Eigen::Matrix3Xd a(3, from.size()), b(3, to.size());
+  for (std::size_t i = 0; i < from.size(); ++i) a.col(static_cast<Eigen::Index>(i)) = from[i], b.col(static_cast<Eigen::Index>(i)) = to[i];
+  SE3 T = SE3::Identity();
+  T.matrix() = Eigen::umeyama(a, b, false);
+  return T;
+}
+
+}  // namespace
+
+LoopCloser::LoopCloser(const SlamOptions& options, const CameraModel& camera, Map* map)
+    : options_(options), camera_(camera), map_(map) {}
+
+LoopCloser::~LoopCloser() { finish(); }
+
+LoopStats LoopCloser::stats() const {
+  std::lock_guard lock(mutex_);
+  return stats_;
+}
+
+void LoopCloser::start() {
+  worker_ = std::jthread([this](std::stop_token stop) { run(stop); });
+}
+
+void LoopCloser::enqueue(std::int64_t keyframe_id) {
+  {
+    std::lock_guard lock(mutex_);
+    if (closed_) return;
+    if (queue_.size() >= kQueueCapacity) queue_.pop_front();
+    queue_.push_back(keyframe_id);
+  }
+  cv_.notify_all();
+}
+
+void LoopCloser::finish() {
+  {
+    std::lock_guard lock(mutex_);
+    closed_ = true;
+  }
+  cv_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+void LoopCloser::run(std::stop_token stop) {
+  for (;;) {
+    std::int64_t id = -1;
+    {
+      std::unique_lock lock(mutex_);
+      cv_.wait(lock, stop, [this] { return !queue_.empty() || closed_; });
+      if (queue_.empty()) return;  // closed (or stopped) and drained
+      id = queue_.front();
+      queue_.pop_front();
+    }
+    process(id);
+  }
+}
+
+void LoopCloser::process(std::int64_t keyframe_id) {
+  Loop loop;
+  if (!detect(keyframe_id, &loop)) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  correct(loop);
+  const double correct_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  SP_INFO(logger, "keyframe " << loop.keyframe << ": loop with keyframe " << loop.candidate << " closed in "
+                              << correct_ms << " ms");
+  if (!options_.place.global_ba) return;
+  std::uint32_t map_id = 0;
+  {
+    std::shared_lock lock(map_->mutex());
+    const KeyFrame* kf = map_->keyFrame(loop.keyframe);
+    if (!kf) return;
+    map_id = kf->map_id;
+  }
+  const auto t1 = std::chrono::steady_clock::now();
+  const std::uint64_t epoch_before = [this] {
+    std::shared_lock lock(map_->mutex());
+    return map_->epoch();
+  }();
+  const LocalBaStats s = globalBundleAdjustment(map_, &camera_, map_id, kGlobalBaIterations, &abort_);
+  bool applied = false;
+  {
+    std::unique_lock lock(map_->mutex());
+    // Applied when nothing moved the world meanwhile; then tracking must
+    // re-express its last pose in the refined map, as after a loop.
+    applied = map_->epoch() == epoch_before && s.keyframes > 0;
+    if (applied) map_->worldMoved();
+  }
+  std::lock_guard lock(mutex_);
+  ++(applied ? stats_.global_ba_runs : stats_.global_ba_dropped);
+  const double ba_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
+  SP_INFO(logger, "global BA over " << s.keyframes << " keyframes and " << s.points << " points in " << ba_ms
+                                    << " ms" << (applied ? "" : " (dropped: the map moved meanwhile)"));
+}
+
+bool LoopCloser::detect(std::int64_t keyframe_id, Loop* loop) {
+  std::shared_lock lock(map_->mutex());
+  KeyFrame* kf = map_->keyFrame(keyframe_id);
+  if (!kf || kf->bad || kf->bow.empty()) return false;
+  if ((last_loop_keyframe_ >= 0 && keyframe_id < last_loop_keyframe_ + kKeyFramesBetween) ||
+      map_->goodKeyFrameCount(kf->map_id) < static_cast<std::size_t>(kMinKeyFrames)) {
+    groups_.clear();
+    return false;
+  }
+  // The bar: the least similar of the keyframes it shares points with.
+  std::set<std::int64_t> connected{keyframe_id};
+  double min_score = 1.0;
+  bool any = false;
+  for (const KeyFrame* n : kf->ordered_neighbours) {
+    if (n->bad) continue;
+    connected.insert(n->id);
+    if (n->bow.empty()) continue;
+    min_score = std::min(min_score, features::bowScore(kf->bow, n->bow));
+    any = true;
+  }
+  if (!any) {
+    groups_.clear();
+    return false;
+  }
+  const auto similar = map_->similarKeyFrames(
+      kf->bow,
+      [&](const KeyFrame* c) { return c->map_id == kf->map_id && c->id < keyframe_id && !connected.count(c->id); },
+      min_score, 8);
+  // Covisibility consistency: a candidate's group (it and its neighbours)
+  // continues a group of the previous keyframe's when they share a keyframe.
+  std::vector<Group> next;
+  std::vector<KeyFrame*> confirmed;
+  for (const Map::PlaceMatch& m : similar) {
+    Group g;
+    g.members.insert(m.keyframe->id);
+    for (const KeyFrame* n : m.keyframe->ordered_neighbours)
+      if (!n->bad) g.members.insert(n->id);
+    for (const Group& old : groups_) {
+      const bool shares = std::any_of(g.members.begin(), g.members.end(), [&](std::int64_t id) { return old.members.count(id) > 0; });
+      if (shares) g.count = std::max(g.count, old.count + 1);
+    }
+    if (g.count + 1 >= options_.place.loop_consistency) confirmed.push_back(m.keyframe);
+    next.push_back(std::move(g));
+  }
+  groups_ = std::move(next);
+  // The best few: each check costs a descriptor matching of two keyframes.
+  if (confirmed.size() > kVerifiedPerKeyFrame) confirmed.resize(kVerifiedPerKeyFrame);
+  for (const KeyFrame* c : confirmed) {
+    const bool ok = verify(*kf, *c, loop);
+    std::lock_guard stats_lock(mutex_);
+    ++stats_.detected;
+    if (ok) return true;
+    ++stats_.rejected;
+    SP_DEBUG(logger, "keyframe " << keyframe_id << ": loop candidate " << c->id << " failed the geometric check");
+  }
+  return false;
+}
+
+bool LoopCloser::verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loop) const {
+  const Frame& a = kf.frame;
+  const Frame& b = candidate.frame;
+  const auto min_inliers = static_cast<std::size_t>(options_.place.loop_min_inliers);
+  // 3D-3D pairs: static features with depth on both sides.
+  std::vector<std::pair<int, int>> pairs;
+  std::vector<Vec3> in_a, in_b;
+  for (const auto& [i, j] : matchByDescriptor(a, b, 0.75f, false, true)) {
+    if (a.depth[i] <= 0 || b.depth[j] <= 0 || a.dynamic[i] || b.dynamic[j]) continue;
+    pairs.emplace_back(i, j);
+    in_a.push_back(camera_.unproject(Vec2(a.un[i].x, a.un[i].y), a.depth[i]));
+    in_b.push_back(camera_.unproject(Vec2(b.un[j].x, b.un[j].y), b.depth[j]));
+  }
+  if (pairs.size() < min_inliers) return false;
+  // A pair agrees with T_a_b when each side reprojects into the other's
+  // image (with its depth as the virtual right coordinate) under the gate.
+  auto agrees = [&](const SE3& T_a_b, const SE3& T_b_a, std::size_t k) {
+    bool behind_a = false, behind_b = false;
+    const double ca = reprojectionChi2(camera_, T_a_b, in_b[k], observationOf(a, pairs[k].first), &behind_a);
+    const double cb = reprojectionChi2(camera_, T_b_a, in_a[k], observationOf(b, pairs[k].second), &behind_b);
+    return !behind_a && !behind_b && ca < kChi2Stereo && cb < kChi2Stereo;
+  };
+  auto inliersOf = [&](const SE3& T_a_b) {
+    const SE3 T_b_a = T_a_b.inverse();
+    std::vector<std::size_t> out;
+    for (std::size_t k = 0; k < pairs.size(); ++k)
+      if (agrees(T_a_b, T_b_a, k)) out.push_back(k);
+    return out;
+  };
+  std::mt19937 rng(static_cast<std::uint32_t>(kf.id * 7919 + candidate.id));
+  std::uniform_int_distribution<std::size_t> pick(0, pairs.size() - 1);
+  std::vector<std::size_t> best;
+  for (int it = 0; it < kRansacIterations; ++it) {
+    const std::size_t s0 = pick(rng), s1 = pick(rng), s2 = pick(rng);
+    if (s0 == s1 || s1 == s2 || s0 == s2) continue;
+    // Three points spread out, not on a line: a well-posed motion.
+    const Vec3 u = in_b[s1] - in_b[s0], v = in_b[s2] - in_b[s0];
+    if (u.norm() < 0.05 || v.norm() < 0.05 || u.cross(v).norm() < 0.05 * u.norm() * v.norm()) continue;
+    const SE3 T = rigidFit({in_b[s0], in_b[s1], in_b[s2]}, {in_a[s0], in_a[s1], in_a[s2]});
+    std::vector<std::size_t> inliers = inliersOf(T);
+    if (inliers.size() > best.size()) best = std::move(inliers);
+  }
+  if (best.size() < min_inliers) return false;
+  // Refit on the inliers (twice: the set may grow).
+  SE3 T_a_b = SE3::Identity();
+  for (int round = 0; round < 2; ++round) {
+    std::vector<Vec3> from, to;
+    for (std::size_t k : best) from.push_back(in_b[k]), to.push_back(in_a[k]);
+    T_a_b = renormalized(rigidFit(from, to));
+    std::vector<std::size_t> refit = inliersOf(T_a_b);
+    if (refit.size() < min_inliers) return false;
+    best = std::move(refit);
+  }
+  // The older place's map points, projected into the keyframe where the
+  // loop puts it, must be found there by descriptor: a wrong loop that a
+  // repetitive texture let through finds few.
+  const SE3 T_a_w = T_a_b * b.T_c_w;
+  std::vector<const KeyFrame*> older{&candidate};
+  for (const KeyFrame* n : candidate.bestNeighbours(kCandidateNeighbours)) older.push_back(n);
+  std::unordered_set<const MapPoint*> seen;
+  std::vector<int> best_distance(a.size(), features::kDescriptorBytes * 8 + 1);
+  std::vector<std::shared_ptr<MapPoint>> found(a.size());
+  for (const KeyFrame* k : older) {
+    for (const auto& p : k->frame.points) {
+      if (!p || p->bad || p->isTemporary() || !seen.insert(p.get()).second) continue;
+      if (p->geometry.dynamic_score.load() > 0.5f) continue;
+      const Vec3 pc = T_a_w * p->position;
+      if (pc.z() < camera_.min_depth || pc.z() > camera_.max_depth) continue;
+      const Vec2 uv = camera_.project(pc);
+      if (uv.x() < 0 || uv.y() < 0 || uv.x() >= camera_.width || uv.y() >= camera_.height) continue;
+      for (int i : a.grid.query(a.keys, a.un, static_cast<float>(uv.x()), static_cast<float>(uv.y()), 8.0f, 0, -1)) {
+        if (a.dynamic[i]) continue;
+        const int d = features::hammingDistance(a.descriptor(i), p->descriptor.data());
+        if (d < kMatchThresholdLow && d < best_distance[i]) best_distance[i] = d, found[i] = p;
+      }
+    }
+  }
+  loop->fused.clear();
+  for (int i = 0; i < a.size(); ++i)
+    if (found[i]) loop->fused.emplace_back(i, found[i]);
+  if (loop->fused.size() < min_inliers) return false;
+  loop->keyframe = kf.id;
+  loop->candidate = candidate.id;
+  loop->T_kf_candidate = T_a_b;
+  SP_DEBUG(logger, "keyframe " << kf.id << ": loop with " << candidate.id << ", " << best.size() << " 3D-3D inliers of "
+                               << pairs.size() << ", " << loop->fused.size() << " map points found");
+  return true;
+}
+
+void LoopCloser::correct(const Loop& loop) {
+  std::unique_lock lock(map_->mutex());
+  KeyFrame* kf = map_->keyFrame(loop.keyframe);
+  KeyFrame* candidate = map_->keyFrame(loop.candidate);
+  if (!kf || kf->bad || !candidate || candidate->bad || kf->map_id != candidate->map_id) return;
+  const std::uint32_t map_id = kf->map_id;
+  const SE3 T_kf_w_corrected = renormalized(loop.T_kf_candidate * candidate->T_c_w());
+  const double moved_m = (T_kf_w_corrected.inverse().translation() - kf->frame.cameraCentre()).norm();
+
+  // The keyframe's side of the loop and where the loop puts it.
+  std::vector<KeyFrame*> ks;
+  std::unordered_map<KeyFrame*, std::size_t> index;
+  for (const auto& k : map_->keyframes())
+    if (!k->bad && k->map_id == map_id) index[k.get()] = ks.size(), ks.push_back(k.get());
+  std::vector<SE3> before(ks.size());
+  for (std::size_t n = 0; n < ks.size(); ++n) before[n] = ks[n]->T_c_w();
+  std::vector<KeyFrame*> group{kf};
+  for (KeyFrame* n : kf->ordered_neighbours)
+    if (!n->bad && n->map_id == map_id) group.push_back(n);
+  std::vector<SE3> initial = before;
+  const SE3 T_kf_w = kf->T_c_w();
+  for (KeyFrame* g : group) initial[index.at(g)] = renormalized(g->T_c_w() * T_kf_w.inverse() * T_kf_w_corrected);
+
+  // Each point follows one keyframe (its anchor): the group's points the
+  // group keyframe that moves them, the others their reference.
+  std::unordered_map<MapPoint*, KeyFrame*> anchor;
+  for (KeyFrame* g : group)
+    for (const auto& p : g->frame.points)
+      if (p && !p->bad && !p->isTemporary()) anchor.emplace(p.get(), g);
+  std::vector<std::shared_ptr<MapPoint>> points;
+  {
+    std::unordered_set<MapPoint*> listed;
+    for (KeyFrame* k : ks)
+      for (const auto& p : k->frame.points) {
+        if (!p || p->bad || p->isTemporary() || !listed.insert(p.get()).second) continue;
+        points.push_back(p);
+        if (anchor.count(p.get())) continue;
+        KeyFrame* r = p->reference && index.count(p->reference) ? p->reference : k;
+        anchor.emplace(p.get(), r);
+      }
+  }
+  // Move the group first, so the fused points are compared where they belong.
+  for (const auto& p : points) {
+    KeyFrame* g = anchor.at(p.get());
+    const std::size_t n = index.at(g);
+    if (std::find(group.begin(), group.end(), g) == group.end()) continue;
+    p->position = initial[n].inverse() * (before[n] * p->position);
+  }
+  std::vector<std::set<KeyFrame*, KeyFrameIdLess>> links_before(group.size());
+  for (std::size_t g = 0; g < group.size(); ++g) {
+    group[g]->T_c_w() = initial[index.at(group[g])];
+    for (const auto& [n, w] : group[g]->connections) links_before[g].insert(n);
+  }
+  // Fuse: the keyframe's features take the older side's points.
+  int fused = 0;
+  for (const auto& [i, older] : loop.fused) {
+    if (older->bad) continue;
+    const std::shared_ptr<MapPoint> current = kf->frame.points[i];
+    if (current == older) continue;
+    if (current && !current->bad) {
+      map_->replacePoint(current, older);
+      ++fused;
+    } else if (!older->observations.count(kf)) {
+      kf->addObservation(older, i);
+      ++fused;
+    }
+  }
+  for (KeyFrame* g : group) g->updateConnections();
+
+  // The essential graph: the spanning tree and strong covisibility as they
+  // were before the loop, the new links across it as they are now.
+  std::vector<PoseGraphEdge> edges;
+  auto relative = [](const SE3& T_i_w, const SE3& T_j_w) { return renormalized(T_i_w * T_j_w.inverse()); };
+  for (std::size_t n = 0; n < ks.size(); ++n) {
+    KeyFrame* k = ks[n];
+    if (k->parent && index.count(k->parent)) {
+      const std::size_t p = index.at(k->parent);
+      edges.push_back({n, p, relative(before[n], before[p])});
+    }
+    for (const auto& [other, w] : k->connections) {
+      if (w < kStrongCovisibility || other->id >= k->id || !index.count(other)) continue;
+      const std::size_t o = index.at(other);
+      edges.push_back({n, o, relative(before[n], before[o])});
+    }
+  }
+  for (std::size_t g = 0; g < group.size(); ++g)
+    for (const auto& [other, w] : group[g]->connections) {
+      if (links_before[g].count(other) || !index.count(other) ||
+          std::find(group.begin(), group.end(), other) != group.end())
+        continue;
+      edges.push_back({index.at(group[g]), index.at(other), relative(group[g]->T_c_w(), other->T_c_w())});
+    }
+  edges.push_back({index.at(kf), index.at(candidate), loop.T_kf_candidate});
+  std::vector<char> fixed(ks.size(), 0);
+  bool any_fixed = false;
+  for (std::size_t n = 0; n < ks.size(); ++n) any_fixed |= (fixed[n] = ks[n]->origin) != 0;
+  if (!any_fixed) fixed[index.at(candidate)] = 1;
+  const std::vector<SE3> optimised = optimizePoseGraph(initial, fixed, edges);
+
+  for (const auto& p : points) {
+    if (p->bad) continue;  // fused away
+    const std::size_t n = index.at(anchor.at(p.get()));
+    p->position = optimised[n].inverse() * (initial[n] * p->position);
+  }
+  for (std::size_t n = 0; n < ks.size(); ++n) ks[n]->T_c_w() = optimised[n];
+  for (const auto& p : points)
+    if (!p->bad) p->updateFromObservations();
+  map_->worldMoved();
+  last_loop_keyframe_ = kf->id;
+  groups_.clear();
+  std::lock_guard stats_lock(mutex_);
+  ++stats_.closed;
+  stats_.last_correction_m = moved_m;
+  const Eigen::AngleAxisd rotation(loop.T_kf_candidate.linear());
+  SP_INFO(logger, "keyframe " << kf->id << " (t " << kf->frame.stamp.toSecondsString() << ") moved " << moved_m
+                              << " m onto keyframe " << candidate->id << " (t " << candidate->frame.stamp.toSecondsString()
+                              << "), relative pose t " << loop.T_kf_candidate.translation().transpose() << " r "
+                              << (rotation.angle() * rotation.axis()).transpose() << ": "
+                              << group.size() << " keyframes corrected, " << fused << " points fused, " << edges.size()
+                              << " graph edges over " << ks.size() << " keyframes");
+}
+
+}  // namespace stillpoint::slam
