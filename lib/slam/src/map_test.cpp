@@ -165,5 +165,43 @@ TEST(MapPoint, ReferenceIsDroppedWithItsObservation) {
   EXPECT_FALSE(p->bad);
 }
 
+// Keyframes are found by the words of their views; culled ones and those
+// the filter refuses are not, and the best match comes first.
+TEST(PlaceRecognition, SimilarKeyFramesRanksByScoreAndForgetsCulledOnes) {
+  Map map;
+  std::unique_lock lock(map.mutex());
+  map.beginMap();
+  auto words = [](std::initializer_list<features::WordId> ids) {
+    features::BowVector v;
+    for (features::WordId w : ids) v.entries.emplace_back(w, 1.0f / static_cast<float>(ids.size()));
+    return v;
+  };
+  std::vector<KeyFrame*> kfs;
+  for (int k = 0; k < 4; ++k) {
+    auto kf = keyFrame(k, 4, SE3::Identity());
+    kf->origin = k == 0;
+    kf->bow = k == 0 ? words({1, 2, 3, 4}) : k == 1 ? words({1, 2, 3, 9}) : k == 2 ? words({1, 7, 8, 9}) : words({20, 21});
+    kfs.push_back(map.addKeyFrame(std::move(kf)));
+  }
+  const features::BowVector query = words({1, 2, 3, 4});
+  auto all = [](const KeyFrame*) { return true; };
+  auto found = map.similarKeyFrames(query, all, 0.0, 10);
+  ASSERT_FALSE(found.empty());
+  EXPECT_EQ(found[0].keyframe, kfs[0]);
+  EXPECT_DOUBLE_EQ(found[0].score, 1.0);
+  for (const auto& m : found) EXPECT_NE(m.keyframe, kfs[3]);  // no word in common
+  // Only those sharing nearly as many words as the best are scored.
+  EXPECT_EQ(found.size(), 1u);
+  found = map.similarKeyFrames(query, [&](const KeyFrame* kf) { return kf != kfs[0]; }, 0.0, 10);
+  ASSERT_FALSE(found.empty());
+  EXPECT_EQ(found[0].keyframe, kfs[1]);
+  EXPECT_NEAR(found[0].score, 0.75, 1e-6);
+  EXPECT_TRUE(map.similarKeyFrames(query, [&](const KeyFrame* kf) { return kf != kfs[0]; }, 0.8, 10).empty());
+  map.setKeyFrameBad(kfs[1]);
+  found = map.similarKeyFrames(query, [&](const KeyFrame* kf) { return kf != kfs[0]; }, 0.0, 10);
+  ASSERT_FALSE(found.empty());
+  EXPECT_EQ(found[0].keyframe, kfs[2]);
+}
+
 }  // namespace
 }  // namespace stillpoint::slam

@@ -192,8 +192,6 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("place", "vocabulary", o.place.vocabulary, "vocabulary file (stillpoint-vocab train); empty: the one shipped in models/");
   v("place", "loop_closing", o.place.loop_closing, "detect and close loops in their own thread (needs a vocabulary)");
   v("place", "global_ba", o.place.global_ba, "after a loop, a full bundle adjustment in the background");
-  v("place", "loop_consistency", o.place.loop_consistency, "consecutive keyframes that must confirm a loop, 1..10");
-  v("place", "loop_min_inliers", o.place.loop_min_inliers, "3D-3D matches a loop's rigid motion must explain, >= 12");
   v("", "sequential", o.sequential, "one thread, deterministic (tests, evaluation)");
   v("", "localisation", o.localisation, "track against a loaded map only: no new keyframes, points or maps");
 }

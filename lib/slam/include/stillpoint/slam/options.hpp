@@ -235,11 +235,11 @@ struct PlaceOptions {
   std::string vocabulary;
   bool loop_closing = true;  // YAML: close loops in their own thread (pose graph, then a global BA)
   bool global_ba = true;     // YAML: a full bundle adjustment in the background after each loop
-  // Loop detection: a keyframe's best neighbours' lowest score sets the bar
-  // its loop candidates must reach; a candidate must be confirmed by this
-  // many consecutive keyframes (covisibility consistency).
+  // Tuned (not in YAML): a loop candidate must be confirmed by this many
+  // consecutive keyframes (covisibility consistency), and its rigid motion
+  // must explain this many 3D-3D matches and find as many map points.
   int loop_consistency = 3;
-  int loop_min_inliers = 40;  // 3D-3D matches consistent with the loop's rigid motion
+  int loop_min_inliers = 40;
   Status validate() const;
 };
 
