@@ -1,6 +1,6 @@
 // A deterministic mutation fuzzer for every parser of files a user or an
 // attacker controls: camera YAML, SLAM options, the daemon config, the ipc
-// config, model cards, TUM list files, trajectories, map files, and the shared-memory
+// config, model cards, TUM list files, trajectories, map files, vocabularies, and the shared-memory
 // pose ring as its C reader maps it. Each target starts
 // from real seed files (the shipped configs, the bundled excerpt's lists)
 // and runs a fixed number of mutations from a fixed seed, so a failure is
@@ -27,9 +27,11 @@
 #include "stillpoint/ipc/shm_writer.hpp"
 #include "stillpoint_shm.h"
 #include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/checksum.hpp"
 #include "stillpoint/core/log.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/trajectory.hpp"
+#include "stillpoint/features/vocabulary.hpp"
 #include "stillpoint/ipc/options.hpp"
 #include "stillpoint/semantic/model_card.hpp"
 #include "stillpoint/slam/options.hpp"
@@ -244,6 +246,41 @@ int main(int argc, char** argv) {
                        options.geometry.enabled = false;
                        auto system = slam::SlamSystem::create(*cameraPreset("fr3"), options);
                        if (system) (void)(*system)->loadMap((dir / "fuzz.map").string());
+                     }});
+
+  // Vocabulary files: a small real one (trained on random descriptors). Half
+  // of the cases get the checksum fixed up, so mutations reach the tree checks.
+  std::string vocab_seed;
+  {
+    std::mt19937 rng(5);
+    std::vector<cv::Mat> images;
+    for (int k = 0; k < 4; ++k) {
+      cv::Mat d(60, 32, CV_8UC1);
+      for (int r = 0; r < d.rows; ++r)
+        for (int c = 0; c < d.cols; ++c) d.at<std::uint8_t>(r, c) = static_cast<std::uint8_t>(rng() & 0xff);
+      images.push_back(d);
+    }
+    auto vocab = features::Vocabulary::train(images, {.branching = 4, .depth = 3});
+    if (vocab && vocab->save((work / "seed.vocab").string())) vocab_seed = readFile(work / "seed.vocab");
+  }
+  int vocab_case = 0;
+  targets.push_back({"vocabulary-file", vocab_seed.empty() ? std::vector<std::string>{} : std::vector<std::string>{vocab_seed},
+                     [&vocab_case](const fs::path& dir, const std::string& bytes) {
+                       std::string file = bytes;
+                       if (++vocab_case % 2 == 0 && file.size() >= 8) {
+                         const std::uint64_t h = fnv1a64(file.data(), file.size() - 8);
+                         std::memcpy(&file[file.size() - 8], &h, 8);
+                       }
+                       writeFile(dir / "fuzz.vocab", file);
+                       auto vocab = features::Vocabulary::load((dir / "fuzz.vocab").string());
+                       if (vocab) {
+                         // A loaded vocabulary must answer lookups within its words.
+                         cv::Mat probe(3, 32, CV_8UC1, cv::Scalar(0x5a));
+                         std::vector<features::WordId> words;
+                         (void)vocab->transform(probe, &words);
+                         for (features::WordId w : words)
+                           if (w >= vocab->info().words) throw std::runtime_error("word out of range");
+                       }
                      }});
 
   // The ring: a real one from the writer (a few records, capacity 8) as the
