@@ -43,6 +43,7 @@ bool Tracker::needNewKeyFrame(bool mapping_idle) const {
 }
 
 KeyFrame* Tracker::createKeyFrame() {
+  catchUpWithWorld();  // a loop closure may have moved the map since the pose
   releaseCulledKeyFrames();  // the exclusive lock is held anyway
   const std::int64_t id = map_->nextKeyFrameId();
   Frame copy = current_;

@@ -19,6 +19,10 @@ log::Logger logger("loops");
 
 constexpr int kMinKeyFrames = 10;      // in the map before loops are looked for
 constexpr int kKeyFramesBetween = 10;  // after a loop, before the next
+// A loop's older side was seen at least this long before: a camera that went
+// away and came back. A view seen again within seconds is the local map's
+// business (a missing covisibility link is no drift to correct).
+constexpr double kMinLoopSeconds = 5.0;
 constexpr int kRansacIterations = 300;
 constexpr int kCandidateNeighbours = 10;  // the older side's keyframes whose points check a loop
 constexpr int kStrongCovisibility = 100;  // covisibility edges of the essential graph
@@ -146,7 +150,10 @@ bool LoopCloser::detect(std::int64_t keyframe_id, Loop* loop) {
   }
   const auto similar = map_->similarKeyFrames(
       kf->bow,
-      [&](const KeyFrame* c) { return c->map_id == kf->map_id && c->id < keyframe_id && !connected.count(c->id); },
+      [&](const KeyFrame* c) {
+        return c->map_id == kf->map_id && c->id < keyframe_id && !connected.count(c->id) &&
+               secondsBetween(kf->frame.stamp, c->frame.stamp) >= kMinLoopSeconds;
+      },
       min_score, 8);
   // Covisibility consistency: a candidate's group (it and its neighbours)
   // continues a group of the previous keyframe's when they share a keyframe.
@@ -233,32 +240,61 @@ bool LoopCloser::verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loo
   }
   // The older place's map points, projected into the keyframe where the
   // loop puts it, must be found there by descriptor: a wrong loop that a
-  // repetitive texture let through finds few.
-  const SE3 T_a_w = T_a_b * b.T_c_w;
+  // repetitive texture let through finds few. The keyframe's pose is then
+  // refitted on them by reprojection (the 3D-3D fit carries the depth
+  // noise of both sides), and searched and refitted once more.
   std::vector<const KeyFrame*> older{&candidate};
   for (const KeyFrame* n : candidate.bestNeighbours(kCandidateNeighbours)) older.push_back(n);
-  std::unordered_set<const MapPoint*> seen;
-  std::vector<int> best_distance(a.size(), features::kDescriptorBytes * 8 + 1);
-  std::vector<std::shared_ptr<MapPoint>> found(a.size());
-  for (const KeyFrame* k : older) {
-    for (const auto& p : k->frame.points) {
-      if (!p || p->bad || p->isTemporary() || !seen.insert(p.get()).second) continue;
-      if (p->geometry.dynamic_score.load() > 0.5f) continue;
+  std::vector<std::shared_ptr<MapPoint>> older_points;
+  {
+    std::unordered_set<const MapPoint*> seen;
+    for (const KeyFrame* k : older)
+      for (const auto& p : k->frame.points)
+        if (p && !p->bad && !p->isTemporary() && p->geometry.dynamic_score.load() <= 0.5f && seen.insert(p.get()).second)
+          older_points.push_back(p);
+  }
+  SE3 T_a_w = T_a_b * b.T_c_w;
+  std::vector<std::shared_ptr<MapPoint>> found;
+  auto search = [&](float radius) {
+    std::vector<int> best_distance(a.size(), features::kDescriptorBytes * 8 + 1);
+    found.assign(a.size(), nullptr);
+    for (const auto& p : older_points) {
       const Vec3 pc = T_a_w * p->position;
       if (pc.z() < camera_.min_depth || pc.z() > camera_.max_depth) continue;
       const Vec2 uv = camera_.project(pc);
       if (uv.x() < 0 || uv.y() < 0 || uv.x() >= camera_.width || uv.y() >= camera_.height) continue;
-      for (int i : a.grid.query(a.keys, a.un, static_cast<float>(uv.x()), static_cast<float>(uv.y()), 8.0f, 0, -1)) {
+      for (int i : a.grid.query(a.keys, a.un, static_cast<float>(uv.x()), static_cast<float>(uv.y()), radius, 0, -1)) {
         if (a.dynamic[i]) continue;
         const int d = features::hammingDistance(a.descriptor(i), p->descriptor.data());
         if (d < kMatchThresholdLow && d < best_distance[i]) best_distance[i] = d, found[i] = p;
       }
     }
-  }
+  };
+  auto refit = [&]() {
+    PoseProblem problem;
+    problem.camera = &camera_;
+    std::vector<int> features;
+    for (int i = 0; i < a.size(); ++i) {
+      if (!found[i]) continue;
+      problem.points_w.push_back(found[i]->position);
+      problem.observations.push_back(observationOf(a, i));
+      features.push_back(i);
+    }
+    if (problem.points_w.size() < min_inliers) return 0;
+    const PoseResult r = optimizePose(problem, T_a_w);
+    for (std::size_t k = 0; k < features.size(); ++k)
+      if (!r.inlier[k]) found[features[k]] = nullptr;
+    T_a_w = r.T_c_w;
+    return r.inliers;
+  };
+  search(8.0f);
+  if (static_cast<std::size_t>(refit()) < min_inliers) return false;
+  search(4.0f);
+  if (static_cast<std::size_t>(refit()) < min_inliers) return false;
   loop->fused.clear();
   for (int i = 0; i < a.size(); ++i)
     if (found[i]) loop->fused.emplace_back(i, found[i]);
-  if (loop->fused.size() < min_inliers) return false;
+  T_a_b = renormalized(T_a_w * b.T_c_w.inverse());
   loop->keyframe = kf.id;
   loop->candidate = candidate.id;
   loop->T_kf_candidate = T_a_b;
@@ -364,7 +400,9 @@ void LoopCloser::correct(const Loop& loop) {
   bool any_fixed = false;
   for (std::size_t n = 0; n < ks.size(); ++n) any_fixed |= (fixed[n] = ks[n]->origin) != 0;
   if (!any_fixed) fixed[index.at(candidate)] = 1;
+  const auto graph_t0 = std::chrono::steady_clock::now();
   const std::vector<SE3> optimised = optimizePoseGraph(initial, fixed, edges);
+  const double graph_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - graph_t0).count();
 
   for (const auto& p : points) {
     if (p->bad) continue;  // fused away
@@ -386,7 +424,7 @@ void LoopCloser::correct(const Loop& loop) {
                               << "), relative pose t " << loop.T_kf_candidate.translation().transpose() << " r "
                               << (rotation.angle() * rotation.axis()).transpose() << ": "
                               << group.size() << " keyframes corrected, " << fused << " points fused, " << edges.size()
-                              << " graph edges over " << ks.size() << " keyframes");
+                              << " graph edges over " << ks.size() << " keyframes (solved in " << graph_ms << " ms)");
 }
 
 }  // namespace stillpoint::slam

@@ -38,6 +38,7 @@ void Tracker::lookForOlderMaps() {
   SE3 T_older_newer = SE3::Identity();
   {
     std::shared_lock lock(map_->mutex());
+    catchUpWithWorld();
     // The older maps' keyframes whose view looks most like this one: by
     // their words, or without a vocabulary by their small views.
     std::vector<KeyFrame*> candidates;
@@ -121,6 +122,7 @@ void Tracker::mergeInto(std::uint32_t older, const SE3& T_older_newer, KeyFrame*
   current_.T_c_w = renormalized(current_.T_c_w * T_newer_older);
   if (has_last_) last_.T_c_w = renormalized(last_.T_c_w * T_newer_older);
   map_->mergedInto(older);
+  notePoseWorld();
   map_id_ = older;
   trajectory_.relabel(newer, older);
   if (detector_) detector_->forgetHistory();

@@ -47,14 +47,17 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     std::unique_lock lock(map_->mutex());
     ok = initialise();
     if (ok) new_keyframe = reference_;
+    if (ok) notePoseWorld();
   } else {
     std::shared_lock lock(map_->mutex());
     ok = trackFrame(clusters_pending);
+    if (ok) notePoseWorld();
     if (!ok && newMapDue()) {
       lock.unlock();
       std::unique_lock write(map_->mutex());
       ok = startNewMap();
       if (ok) new_keyframe = reference_;
+      if (ok) notePoseWorld();
     } else {
       ScopedStageTimer keyframe_timer(&times_.keyframe);
       if (ok && needNewKeyFrame(mapping_idle)) {
@@ -73,6 +76,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
         current_.points[i] = nullptr;
     std::shared_lock lock(map_->mutex());  // keyframe poses change under local BA
+    catchUpWithWorld();
     T_last_reference_ = renormalized(current_.T_c_w * reference_->T_c_w().inverse());
     seen_epoch_ = map_->epoch();
     trajectory_.record({current_.stamp, reference_->anchor(), T_last_reference_, map_id_});
@@ -94,6 +98,18 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
+}
+
+void Tracker::notePoseWorld() {
+  if (!reference_) return;
+  pose_epoch_ = map_->epoch();
+  reference_at_pose_ = reference_->anchor()->T_c_w();
+}
+
+void Tracker::catchUpWithWorld() {
+  if (!reference_ || map_->epoch() == pose_epoch_) return;
+  current_.T_c_w = renormalized(current_.T_c_w * reference_at_pose_.inverse() * reference_->anchor()->T_c_w());
+  notePoseWorld();
 }
 
 void Tracker::followWorldMoves() {

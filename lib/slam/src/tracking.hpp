@@ -135,6 +135,13 @@ class Tracker {
   // world, the last pose is re-expressed through the keyframe.
   SE3 T_last_reference_ = SE3::Identity();
   std::uint64_t seen_epoch_ = 0;
+  // The same for the current frame between its pose and its record: the
+  // map lock is released in between (a keyframe insertion takes the
+  // exclusive one), and a loop closure may move the world there.
+  std::uint64_t pose_epoch_ = 0;
+  SE3 reference_at_pose_ = SE3::Identity();
+  void notePoseWorld();     // a map lock held
+  void catchUpWithWorld();  // a map lock held
   KeyFrame* reference_ = nullptr;
   Timestamp last_keyframe_stamp_;
   std::int64_t last_keyframe_frame_id_ = 0;
