@@ -21,7 +21,7 @@ sed 's/^WatchdogSec=.*/WatchdogSec=soon/' stillpointd.service > broken.service
 bad=$(systemd-analyze verify ./broken.service 2>&1 || true)
 [[ -n $bad ]] || { echo "negative control: verify printed nothing for WatchdogSec=soon" >&2; exit 1; }
 
-for key in Type=notify WatchdogSec= Restart=on-failure DynamicUser=yes "AmbientCapabilities=CAP_SYS_NICE CAP_IPC_LOCK" CPUAffinity=; do
+for key in Wants=network-online.target After=network-online.target Type=notify WatchdogSec= Restart=on-failure DynamicUser=yes "AmbientCapabilities=CAP_SYS_NICE CAP_IPC_LOCK" CPUAffinity=; do
   grep -q "^$key" stillpointd.service || { echo "unit lacks $key" >&2; exit 1; }
 done
 systemd-analyze security --offline=true ./stillpointd.service 2>&1 | grep "Overall exposure level" || true

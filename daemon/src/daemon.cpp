@@ -327,7 +327,16 @@ std::string Daemon::Impl::statusLine(double fps) const {
                 "%zu points",
                 state.c_str(), fps, frames_processed.load(), frames_lost.load(), queue->dropped(), map_id.load(),
                 std::max(1u, map.maps), map.keyframes, map.points);
-  return buf;
+  std::string line = buf;
+  if (map.loops_closed > 0) line += ", " + std::to_string(map.loops_closed) + " loops closed";
+  if (publisher) {
+    const ipc::PublisherStats ps = publisher->stats();
+    if (!ps.down.empty()) {
+      line += ", ipc down:";
+      for (const std::string& name : ps.down) line += " " + name;
+    }
+  }
+  return line;
 }
 
 ipc::StatusMessage Daemon::Impl::statusMessage() const {
@@ -348,6 +357,12 @@ ipc::StatusMessage Daemon::Impl::statusMessage() const {
   frames.capacity = static_cast<std::uint32_t>(queue->capacity());
   frames.dropped = queue->dropped();
   m.queues.push_back(frames);
+  // A network transport not up yet shows as a queue "<name> down" with the
+  // messages it missed (the schema stays as it is).
+  if (publisher) {
+    const ipc::PublisherStats ps = publisher->stats();
+    for (const std::string& name : ps.down) m.queues.push_back({name + " down", 0, 0, ps.unsent_down});
+  }
   return m;
 }
 

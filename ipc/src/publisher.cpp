@@ -24,9 +24,23 @@ Publisher::Publisher(std::vector<std::unique_ptr<Transport>> transports, std::ui
 
 Result<std::unique_ptr<Publisher>> Publisher::create(const IpcOptions& options, Mode mode) {
   if (Status s = options.validate(); !s) return Error{s.error()};
-  auto transports = makeTransports(options);
-  if (!transports) return Error{transports.error()};
-  return std::make_unique<Publisher>(std::move(transports.value()), options.queue_capacity, mode);
+  // The ring is local and its errors are the configuration's (a path taken,
+  // another writer): fatal. The network transports are retried until they
+  // come up.
+  std::vector<std::unique_ptr<Transport>> transports;
+  if (options.shm.enabled) {
+    auto t = makeShmTransport(options.shm);
+    if (!t) return Error{t.error()};
+    transports.push_back(std::move(t.value()));
+  }
+  constexpr auto kRetry = std::chrono::seconds(5);
+  if (options.lcm.enabled)
+    transports.push_back(makeRetryingTransport("lcm", [o = options.lcm] { return makeLcmTransport(o); }, kRetry));
+  if (options.dds.enabled)
+    transports.push_back(makeRetryingTransport("dds", [o = options.dds] { return makeDdsTransport(o); }, kRetry));
+  if (options.ros2.enabled)
+    transports.push_back(makeRetryingTransport("ros2", [o = options.ros2] { return makeRos2Transport(o); }, kRetry));
+  return std::make_unique<Publisher>(std::move(transports), options.queue_capacity, mode);
 }
 
 Publisher::~Publisher() {
@@ -64,10 +78,19 @@ void Publisher::publishPose(const PoseMessage& pose) { push(Item(pose)); }
 void Publisher::publishStatus(StatusMessage status) { push(Item(std::move(status))); }
 
 void Publisher::send(Item& item) {
-  std::uint64_t errors = 0;
+  std::uint64_t errors = 0, unsent_down = 0;
+  std::vector<std::string> down;
+  for (auto& t : transports_) {
+    t->retry();
+    if (!t->up()) down.emplace_back(t->name());
+  }
   if (auto* pose = std::get_if<PoseMessage>(&item)) {
     pose->publish_stamp = wallClockNow();
     for (auto& t : transports_) {
+      if (!t->up()) {
+        ++unsent_down;
+        continue;
+      }
       if (Status s = t->publishPose(*pose); !s) {
         ++errors;
         static log::RateLimiter limiter(std::chrono::seconds(5));
@@ -78,6 +101,10 @@ void Publisher::send(Item& item) {
     auto& status = std::get<StatusMessage>(item);
     status.publish_stamp = wallClockNow();
     for (auto& t : transports_) {
+      if (!t->up()) {
+        ++unsent_down;
+        continue;
+      }
       if (Status s = t->publishStatus(status); !s) {
         ++errors;
         static log::RateLimiter limiter(std::chrono::seconds(5));
@@ -88,6 +115,8 @@ void Publisher::send(Item& item) {
   std::lock_guard lock(mutex_);
   ++stats_.sent;
   stats_.send_errors += errors;
+  stats_.unsent_down += unsent_down;
+  stats_.down = std::move(down);
 }
 
 void Publisher::flush() {

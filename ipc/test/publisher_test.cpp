@@ -104,6 +104,48 @@ TEST(Publisher, TransportErrorsAreCountedNotFatal) {
   EXPECT_EQ(pub.stats().sent, 2u);
 }
 
+// A network transport that cannot come up (no route yet) is down, not fatal:
+// the publisher skips it, counts what it missed, names it in its stats, and
+// takes it up once it can be made.
+TEST(Publisher, ATransportThatCannotComeUpIsRetriedUntilItIsUp) {
+  Recorder r;
+  int attempts = 0;
+  std::vector<std::unique_ptr<Transport>> transports;
+  transports.push_back(makeRetryingTransport(
+      "late",
+      [&]() -> Result<std::unique_ptr<Transport>> {
+        if (++attempts < 3) return Error{"no route to host"};
+        return std::unique_ptr<Transport>(std::make_unique<FakeTransport>(&r));
+      },
+      std::chrono::seconds(0)));
+  EXPECT_EQ(attempts, 1);
+  EXPECT_FALSE(transports[0]->up());
+  Publisher pub(std::move(transports), 4, Publisher::Mode::kInline);
+  pub.publishPose(pose(1));  // second attempt fails: still down
+  PublisherStats s = pub.stats();
+  ASSERT_EQ(s.down.size(), 1u);
+  EXPECT_EQ(s.down[0], "late");
+  EXPECT_EQ(s.unsent_down, 1u);
+  EXPECT_EQ(s.send_errors, 0u);
+  pub.publishPose(pose(2));  // third attempt: up, and this one is sent
+  s = pub.stats();
+  EXPECT_TRUE(s.down.empty());
+  EXPECT_EQ(attempts, 3);
+  std::lock_guard lock(r.mutex);
+  EXPECT_EQ(r.frames, std::vector<std::uint64_t>{2});
+}
+
+TEST(Publisher, ATransportIsNotRetriedBeforeItsPeriod) {
+  int attempts = 0;
+  auto t = makeRetryingTransport(
+      "late", [&]() -> Result<std::unique_ptr<Transport>> { ++attempts; return Error{"no route"}; },
+      std::chrono::hours(1));
+  for (int k = 0; k < 5; ++k) t->retry();
+  EXPECT_EQ(attempts, 1);
+  EXPECT_FALSE(t->up());
+  EXPECT_FALSE(t->publishPose(pose(1)));
+}
+
 TEST(Publisher, CreateRejectsInvalidOptions) {
   IpcOptions o;
   o.shm.capacity = 3;

@@ -202,7 +202,8 @@ cap_amb=$(ns awk '/^CapAmb:/ { print $2 }' "/proc/$main_pid/status")
 log "start: states ${states[*]}; READY=1 then running; start -> running ${t_running} s seen from outside, exec -> active ${ready_s} s (systemd); user $user (uid $uid), CapAmb=$cap_amb"
 
 # --- 2. StatusText -------------------------------------------------------------
-status_re='^([a-z ,]+), ([0-9.]+) fps, ([0-9]+) frames, ([0-9]+) lost, ([0-9]+) dropped$'
+# The line goes on after `dropped` (map, keyframes, points, then optional parts).
+status_re='^([a-z_ ,]+), ([0-9.]+) fps, ([0-9]+) frames, ([0-9]+) lost, ([0-9]+) dropped, map ([0-9]+) of ([0-9]+), ([0-9]+) keyframes ([0-9]+) points(, .*)?$'
 wait_status() {  # wait_status MIN_FRAMES TIMEOUT_S: a StatusText with fps > 0 and >= MIN_FRAMES frames
   local deadline=$((SECONDS + $2)) text
   while ((SECONDS < deadline)); do

@@ -8,6 +8,7 @@
 #include <deque>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <variant>
 #include <vector>
@@ -22,6 +23,10 @@ struct PublisherStats {
   std::uint64_t dropped = 0;       // oldest messages discarded because the queue was full
   std::uint64_t sent = 0;          // messages handed to all transports
   std::uint64_t send_errors = 0;   // transport calls that returned an error
+  // Network transports that could not come up yet (retried every 5 s), and
+  // the messages they missed meanwhile.
+  std::vector<std::string> down;
+  std::uint64_t unsent_down = 0;
   std::uint32_t queue_depth = 0;
   std::uint32_t queue_capacity = 0;
 };

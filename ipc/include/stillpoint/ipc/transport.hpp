@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -24,7 +25,17 @@ class Transport {
   virtual Status publishStatus(const StatusMessage& status) = 0;
   // Readers currently matched (DDS); -1 when the transport cannot know (shm, LCM).
   virtual int matchedReaders() const { return -1; }
+  // A network transport that could not come up (no route, no interface yet)
+  // is down: the publisher skips it and calls retry() now and then.
+  virtual bool up() const { return true; }
+  virtual void retry() {}
 };
+
+// A transport made by `make`, retried every `period` while it cannot be made
+// (a robot that boots before its network): never fatal, down until then.
+std::unique_ptr<Transport> makeRetryingTransport(std::string name,
+                                                 std::function<Result<std::unique_ptr<Transport>>()> make,
+                                                 std::chrono::steady_clock::duration period);
 
 Result<std::unique_ptr<Transport>> makeShmTransport(const ShmOptions& options);
 Result<std::unique_ptr<Transport>> makeLcmTransport(const LcmOptions& options);
