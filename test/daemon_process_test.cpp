@@ -512,6 +512,29 @@ TEST_F(DaemonProcess, NotifiesSystemdReadyWatchdogStatusStopping) {
   EXPECT_GT(stopping, first_watchdog);
 }
 
+// The shipped default: an OpenNI2 camera, not plugged in. The service comes
+// up and waits for it: READY=1, a status saying so, the watchdog fed, and a
+// clean stop.
+TEST_F(DaemonProcess, WaitsForACameraThatIsNotThereYet) {
+  const auto d = dir("nocamera");
+  fs::create_directories(d);
+  NotifySocket sock(d / "notify.sock");
+  ASSERT_TRUE(sock.ok());
+  Daemon daemon(d,
+                "camera: " + g_camera + "\nstatus_period_s: 0.2\nsource: {type: openni2, openni2: {uri: \"\"}}\n"
+                "ipc: {shm: {name: " + ring("nocamera") + "}}\n",
+                {"NOTIFY_SOCKET=" + sock.path(), "WATCHDOG_USEC=200000"});
+  sock.collect(2500ms);
+  daemon.signal(SIGTERM);
+  sock.collect(500ms);
+  ASSERT_EQ(daemon.waitExit(5s), 0) << daemon.err();
+  EXPECT_NE(daemon.err().find("waiting for the camera"), std::string::npos) << daemon.err();
+  EXPECT_EQ(sock.count("READY=1"), 1);
+  EXPECT_TRUE(sock.any("STATUS=waiting for camera")) << "no waiting status";
+  EXPECT_GE(sock.count("WATCHDOG=1"), 5);  // 2.5 s at 100 ms: fed while waiting
+  EXPECT_EQ(sock.count("STOPPING=1"), 1);
+}
+
 TEST_F(DaemonProcess, NoWatchdogWhileTrackingIdles) {
   const auto d = dir("idle");
   fs::create_directories(d);

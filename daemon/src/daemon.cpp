@@ -118,6 +118,9 @@ struct Daemon::Impl {
   const Clock::time_point start_time = Clock::now();
 
   std::atomic<bool> ready_sent{false};
+  // A camera (OpenNI2 device) absent at start-up: the service comes up and
+  // waits for it (sourceLoop opens it), READY=1 at once, the watchdog fed.
+  std::atomic<bool> waiting_for_camera{false};
   std::atomic<std::uint64_t> frames_received{0}, frames_bad{0}, frames_tracked{0}, frames_lost{0},
       frames_processed{0}, reconnects{0}, keyframes{0};
   std::atomic<int> last_state{-1};
@@ -173,8 +176,18 @@ Status Daemon::start() {
   if (c.source.type == "openni2") d.source = std::make_unique<platform::OpenNI2Source>(c.source.openni2, c.camera);
   else if (c.source.type == "v4l2") d.source = std::make_unique<platform::V4l2Source>(c.source.v4l2, c.camera);
   else d.source = std::make_unique<platform::ReplaySource>(c.source.replay, c.camera);
-  if (Status s = d.source->open(); !s) return Error{"source: " + s.error()};
-  SP_INFO(logger, "source: " << d.source->describe());
+  if (Status s = d.source->open(); !s) {
+    // A device that is not plugged in yet is waited for; a recording that is
+    // not there (a replay folder, an .oni file) is a configuration error.
+    const std::string& uri = c.source.openni2.uri;
+    const bool recording = uri.size() >= 4 && (uri.compare(uri.size() - 4, 4, ".oni") == 0 ||
+                                                uri.compare(uri.size() - 4, 4, ".ONI") == 0);
+    if (c.source.type != "openni2" || recording) return Error{"source: " + s.error()};
+    SP_WARN(logger, "source: " << s.error() << "; waiting for the camera");
+    d.waiting_for_camera = true;
+  } else {
+    SP_INFO(logger, "source: " << d.source->describe());
+  }
   // Test hook (test/daemon_process_test.cpp): a start-up as slow as loading a
   // network on a loaded CPU, to signal the daemon during it. Never set in production.
   if (const char* slow = std::getenv("STILLPOINTD_TEST_SLOW_START_MS"))
@@ -227,6 +240,25 @@ void Daemon::Impl::sourceLoop(std::stop_token stop) {
   // A camera can report many bad frames a second (e.g. a stalled depth stream
   // of the v4l2 source): warn at most every 2 s; frames_bad counts them all.
   log::RateLimiter bad_frames(2s);
+  // Reopens the source with a growing backoff (0.1 -> 2 s) until it opens or
+  // a stop is requested; false on a stop.
+  auto reopen = [&](log::RateLimiter* warn_limit) {
+    for (;;) {
+      std::unique_lock lock(mutex);
+      if (wake.wait_for(lock, backoff, [&] { return stop_requested; })) return false;
+      lock.unlock();
+      backoff = std::min<std::chrono::milliseconds>(backoff * 2, 2000ms);
+      Status s = source->open();
+      if (s) return true;
+      if (warn_limit) SP_WARN_EVERY(logger, *warn_limit, "source: still waiting for the camera: " << s.error());
+      else SP_WARN(logger, "source: reopen failed: " << s.error());
+    }
+  };
+  if (waiting_for_camera) {
+    log::RateLimiter waiting(30s);
+    if (reopen(&waiting)) SP_INFO(logger, "source: camera found: " << source->describe());
+    waiting_for_camera = false;
+  }
   while (!stop.stop_requested()) {
     platform::CameraFrame frame;
     const platform::SourceResult r = source->next(frame, 100ms);
@@ -248,19 +280,10 @@ void Daemon::Impl::sourceLoop(std::stop_token stop) {
       device_gone = true;
       SP_WARN(logger, "source: camera gone (" << r.message << "); reconnecting");
       source->close();
-      for (;;) {
-        std::unique_lock lock(mutex);
-        if (wake.wait_for(lock, backoff, [&] { return stop_requested; })) break;
-        lock.unlock();
-        backoff = std::min<std::chrono::milliseconds>(backoff * 2, 2000ms);
-        if (Status s = source->open(); s) {
-          ++reconnects;
-          device_gone = false;
-          SP_INFO(logger, "source: reconnected");
-          break;
-        } else {
-          SP_WARN(logger, "source: reopen failed: " << s.error());
-        }
+      if (reopen(nullptr)) {
+        ++reconnects;
+        device_gone = false;
+        SP_INFO(logger, "source: reconnected");
       }
     }
   }
@@ -316,7 +339,7 @@ void Daemon::Impl::trackingLoop() {
 
 std::string Daemon::Impl::statusLine(double fps) const {
   std::string state;
-  if (!ready_sent) state = "waiting for camera";
+  if (!ready_sent || waiting_for_camera) state = "waiting for camera";
   else if (device_gone) state = "camera gone, reconnecting";
   else if (last_state < 0) state = "starting";
   else state = slam::toString(static_cast<slam::TrackingState>(last_state.load()));
@@ -420,6 +443,11 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
 
 int Daemon::run() {
   Impl& d = *impl_;
+  if (d.waiting_for_camera && !d.ready_sent.exchange(true)) {
+    // Up and waiting for its camera: started, not failed (its status says so).
+    d.notifier.ready();
+    d.notifier.status("waiting for camera");
+  }
   std::jthread source_thread([&d](std::stop_token stop) { d.sourceLoop(stop); });
   std::jthread tracking_thread([&d] { d.trackingLoop(); });
 
@@ -449,7 +477,8 @@ int Daemon::run() {
       const auto now = Clock::now();
       const std::uint64_t processed = d.frames_processed;
       if (watchdog_period.count() > 0 && now >= next_watchdog) {
-        if (processed > frames_at_ping) d.notifier.watchdog();
+        // Waiting for a camera that is not there yet is no stall.
+        if (processed > frames_at_ping || d.waiting_for_camera) d.notifier.watchdog();
         frames_at_ping = processed;
         next_watchdog = now + watchdog_period;
       }
