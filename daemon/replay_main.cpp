@@ -68,7 +68,8 @@ constexpr const char* kUsage =
     "PLY point cloud; --export-dense-cloud the keyframes' depth fused into a static cloud (1 cm\n"
     "voxels; moving and movable pixels, and voxels other keyframes saw through, left out).\n"
     "--frame-log writes one line per frame: 'index timestamp state track_ms geometry_ms features\n"
-    "in_pose geometry_dynamic semantic_dynamic keyframe(0|1)' (state: ok, relocalised, new_map,\n"
+    "in_pose geometry_dynamic semantic_dynamic keyframe(0|1) health dynamic_share outlier_share\n"
+    "reprojection_rms_px conditioning' (health: good, degraded, unreliable, lost; docs/pose-health.md) (state: ok, relocalised, new_map,\n"
     "lost, no_depth, initialising, or skipped for a frame that could not be read or tracked).\n"
     "--render DIR writes a picture of every frame (every N-th with --render-every): the colour\n"
     "image with each feature drawn by its fate (in the pose, dynamic by geometry, dynamic by a\n"
@@ -321,7 +322,7 @@ int main(int argc, char** argv) {
       return 1;
     }
     std::fputs("# index timestamp state track_ms geometry_ms features in_pose geometry_dynamic semantic_dynamic "
-               "keyframe\n",
+               "keyframe health dynamic_share outlier_share reprojection_rms_px conditioning\n",
                frame_log);
   }
   cv::VideoWriter video;
@@ -396,7 +397,7 @@ int main(int argc, char** argv) {
     if (!frame) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, frame.error().c_str());
       ++skipped;
-      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0\n", i, data->stamp(i).toSecondsString().c_str());
+      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0\n", i, data->stamp(i).toSecondsString().c_str());
       continue;
     }
     if (frames == 0) first_stamp = frame->stamp;
@@ -428,14 +429,16 @@ int main(int argc, char** argv) {
     if (!out) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, out.error().c_str());
       ++skipped;
-      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0\n", i, frame->stamp.toSecondsString().c_str());
+      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0\n", i, frame->stamp.toSecondsString().c_str());
       continue;
     }
     const bool has_pose = slam::hasPose(out->state);
     if (frame_log)
-      std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d\n", i, frame->stamp.toSecondsString().c_str(),
+      std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d %s %.3f %.3f %.3f %.4f\n", i, frame->stamp.toSecondsString().c_str(),
                    slam::toString(out->state), out->track_ms, out->stages.geometry, out->features, out->tracked,
-                   out->geometry.dynamic_features, out->semantic_features, out->new_keyframe ? 1 : 0);
+                   out->geometry.dynamic_features, out->semantic_features, out->new_keyframe ? 1 : 0, slam::toString(out->quality.health),
+                   out->quality.dynamic_share, out->quality.outlier_share, out->quality.reprojection_rms_px,
+                   out->quality.conditioning);
     if (rendering && has_pose) rendered_poses.push_back({frame->stamp, out->T_w_c});
     if (rendering && i % static_cast<std::size_t>(args.render_every) == 0) {
       render::FrameInput in;

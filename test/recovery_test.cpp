@@ -62,9 +62,15 @@ TEST_F(Recovery, CameraCoveredForTwoSecondsWhileMoving) {
     ASSERT_TRUE(out.ok()) << out.error();
     if (i < kCoverFrom) {
       ASSERT_TRUE(slam::hasPose(out->state)) << "frame " << i << ": " << toString(out->state);
+      // A static scene, well tracked: nothing to distrust.
+      EXPECT_EQ(out->quality.health, slam::PoseHealth::kGood)
+          << "frame " << i << ": " << toString(out->quality.health) << ", " << out->quality.inliers << " inliers, "
+          << out->quality.dynamic_share << " dynamic, " << out->quality.reprojection_rms_px << " px, conditioning "
+          << out->quality.conditioning;
     }
     if (covered) {
       EXPECT_EQ(out->state, slam::TrackingState::kNoDepth) << "frame " << i;
+      EXPECT_EQ(out->quality.health, slam::PoseHealth::kLost) << "frame " << i;
       no_depth += out->state == slam::TrackingState::kNoDepth;
     }
     if (i >= kCoverTo) {

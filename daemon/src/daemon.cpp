@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <limits>
 #include <optional>
 #include <thread>
 #include <vector>
@@ -316,7 +317,16 @@ void Daemon::Impl::trackingLoop() {
     pose.dynamic_rejected_features = static_cast<std::uint32_t>(std::max(0, out->geometry.dynamic_features));
     pose.keyframes = static_cast<std::uint32_t>(out->keyframes);
     pose.map_id = out->map_id;
+    pose.health = static_cast<ipc::PoseHealth>(out->quality.health);
+    pose.dynamic_share = out->quality.dynamic_share;
+    pose.reprojection_rms_px = out->quality.reprojection_rms_px;
+    pose.conditioning = out->quality.conditioning;
     const bool has_pose = slam::hasPose(out->state);
+    if (!has_pose) {
+      // Nothing a consumer could take for a pose.
+      pose.position.fill(std::numeric_limits<double>::quiet_NaN());
+      pose.orientation.fill(std::numeric_limits<double>::quiet_NaN());
+    }
     if (has_pose) {
       const Eigen::Quaterniond q(out->T_w_c.rotation());
       const Eigen::Vector3d t = out->T_w_c.translation();

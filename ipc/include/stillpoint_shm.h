@@ -97,10 +97,10 @@ extern "C" {
 #endif
 
 #define SP_SHM_MAGIC 0x48535053u /* "SPSH" in little-endian byte order */
-#define SP_SHM_SCHEMA_VERSION 1u
+#define SP_SHM_SCHEMA_VERSION 2u
 #define SP_SHM_HEADER_SIZE 128u
-#define SP_SHM_SLOT_SIZE 128u
-#define SP_SHM_POSE_WORDS 14
+#define SP_SHM_SLOT_SIZE 192u
+#define SP_SHM_POSE_WORDS 16
 #define SP_SHM_DEFAULT_NAME "stillpoint_pose"
 #define SP_SHM_DIR "/dev/shm/"
 #define SP_SHM_LOCK_SUFFIX ".lock" /* writers' lock file, mode 0600: SP_SHM_DIR <name> SP_SHM_LOCK_SUFFIX */
@@ -116,10 +116,15 @@ enum {
   SP_TRACKING_NEW_MAP = 5   /* first pose of a new map (map_id changed) after a loss */
 };
 
+/* How far to trust a pose record (docs/pose-health.md). */
+enum { SP_HEALTH_GOOD = 0, SP_HEALTH_DEGRADED = 1, SP_HEALTH_UNRELIABLE = 2, SP_HEALTH_LOST = 3 };
+
 /* Writer state in the header. */
 enum { SP_SHM_WRITER_RUNNING = 1, SP_SHM_WRITER_CLOSED = 2 };
 
-/* Pose record, schema version 1. Exactly SP_SHM_POSE_WORDS 64-bit words. */
+/* Pose record, schema version 2. Exactly SP_SHM_POSE_WORDS 64-bit words. A record
+ * without a pose (tracking_state not OK, RELOCALISED or NEW_MAP) has NaN in
+ * position and orientation. */
 typedef struct sp_pose_record {
   uint64_t sequence;         /* 1-based position in this writer generation's stream */
   int64_t sensor_stamp_ns;   /* capture time of the frame */
@@ -132,12 +137,16 @@ typedef struct sp_pose_record {
   uint32_t dynamic_rejected_features;
   uint32_t keyframes;
   uint64_t map_id;           /* changes when the map is reset */
+  uint32_t health;           /* SP_HEALTH_* */
+  float dynamic_share;       /* features kept out as moving / (those + inliers) */
+  float reprojection_rms_px; /* of the inliers */
+  float conditioning;        /* 0..1: how well the inliers pin all six degrees of freedom */
 } sp_pose_record;
 
 typedef struct sp_shm_slot {
   uint64_t seq; /* 0 empty, 2n-1 writing record n, 2n holds record n */
   uint64_t words[SP_SHM_POSE_WORDS];
-  uint64_t reserved;
+  uint64_t reserved[7];
 } sp_shm_slot;
 
 typedef struct sp_shm_header {

@@ -39,6 +39,10 @@ stillpoint_dds_Pose toDds(const PoseMessage& p) {
   m.dynamic_rejected_features = p.dynamic_rejected_features;
   m.keyframes = p.keyframes;
   m.map_id = p.map_id;
+  m.health = static_cast<std::uint8_t>(p.health);
+  m.dynamic_share = p.dynamic_share;
+  m.reprojection_rms_px = p.reprojection_rms_px;
+  m.conditioning = p.conditioning;
   return m;
 }
 
@@ -48,6 +52,8 @@ Result<PoseMessage> fromDds(const stillpoint_dds_Pose& m) {
                  std::to_string(PoseMessage::kSchemaVersion)};
   auto state = trackingStateFromInt(m.tracking_state);
   if (!state) return Error{"dds: " + state.error()};
+  auto health = poseHealthFromInt(m.health);
+  if (!health) return Error{"dds: " + health.error()};
   PoseMessage p;
   p.sensor_stamp = Timestamp::fromNanoseconds(m.sensor_stamp_ns);
   p.publish_stamp = Timestamp::fromNanoseconds(m.publish_stamp_ns);
@@ -59,6 +65,10 @@ Result<PoseMessage> fromDds(const stillpoint_dds_Pose& m) {
   p.dynamic_rejected_features = m.dynamic_rejected_features;
   p.keyframes = m.keyframes;
   p.map_id = m.map_id;
+  p.health = *health;
+  p.dynamic_share = m.dynamic_share;
+  p.reprojection_rms_px = m.reprojection_rms_px;
+  p.conditioning = m.conditioning;
   return p;
 }
 

@@ -27,6 +27,10 @@ stillpoint_lcm::pose_t toLcm(const PoseMessage& p) {
   m.dynamic_rejected_features = p.dynamic_rejected_features;
   m.keyframes = p.keyframes;
   m.map_id = asSigned(p.map_id);
+  m.health = static_cast<std::int8_t>(p.health);
+  m.dynamic_share = p.dynamic_share;
+  m.reprojection_rms_px = p.reprojection_rms_px;
+  m.conditioning = p.conditioning;
   return m;
 }
 
@@ -49,6 +53,8 @@ Result<PoseMessage> fromLcm(const stillpoint_lcm::pose_t& m) {
   if (!tracked) return Error{tracked.error()};
   if (!rejected) return Error{rejected.error()};
   if (!keyframes) return Error{keyframes.error()};
+  auto health = poseHealthFromInt(m.health);
+  if (!health) return Error{"lcm: " + health.error()};
   PoseMessage p;
   p.sensor_stamp = Timestamp::fromNanoseconds(m.sensor_stamp_ns);
   p.publish_stamp = Timestamp::fromNanoseconds(m.publish_stamp_ns);
@@ -60,6 +66,10 @@ Result<PoseMessage> fromLcm(const stillpoint_lcm::pose_t& m) {
   p.dynamic_rejected_features = *rejected;
   p.keyframes = *keyframes;
   p.map_id = asUnsigned(m.map_id);
+  p.health = *health;
+  p.dynamic_share = m.dynamic_share;
+  p.reprojection_rms_px = m.reprojection_rms_px;
+  p.conditioning = m.conditioning;
   return p;
 }
 

@@ -46,7 +46,46 @@ Status validate(const StatusMessage& status) {
   return Status::success();
 }
 
+bool hasPose(TrackingState s) {
+  return s == TrackingState::kOk || s == TrackingState::kRelocalised || s == TrackingState::kNewMap;
+}
+
+const char* toString(PoseHealth health) {
+  switch (health) {
+    case PoseHealth::kGood: return "good";
+    case PoseHealth::kDegraded: return "degraded";
+    case PoseHealth::kUnreliable: return "unreliable";
+    case PoseHealth::kLost: return "lost";
+  }
+  return "?";
+}
+
+Result<PoseHealth> poseHealthFromInt(std::int64_t value) {
+  if (value < 0 || value > 3) return Error{"pose health " + std::to_string(value) + " is not 0..3"};
+  return static_cast<PoseHealth>(value);
+}
+
+bool PoseMessage::operator==(const PoseMessage& o) const {
+  auto same = [](double a, double b) { return a == b || (std::isnan(a) && std::isnan(b)); };
+  for (int i = 0; i < 3; ++i)
+    if (!same(position[i], o.position[i])) return false;
+  for (int i = 0; i < 4; ++i)
+    if (!same(orientation[i], o.orientation[i])) return false;
+  return sensor_stamp == o.sensor_stamp && publish_stamp == o.publish_stamp && frame_counter == o.frame_counter &&
+         state == o.state && tracked_features == o.tracked_features &&
+         dynamic_rejected_features == o.dynamic_rejected_features && keyframes == o.keyframes && map_id == o.map_id &&
+         health == o.health && same(dynamic_share, o.dynamic_share) &&
+         same(reprojection_rms_px, o.reprojection_rms_px) && same(conditioning, o.conditioning);
+}
+
 Status validate(const PoseMessage& pose) {
+  if (!hasPose(pose.state)) {
+    for (double v : pose.position)
+      if (!std::isnan(v)) return Error{"pose: a message without a pose must carry NaN in position"};
+    for (double v : pose.orientation)
+      if (!std::isnan(v)) return Error{"pose: a message without a pose must carry NaN in orientation"};
+    return Status::success();
+  }
   for (double v : pose.position)
     if (!std::isfinite(v)) return Error{"pose: position is not finite"};
   double n2 = 0.0;

@@ -23,6 +23,10 @@ sp_pose_record toRecord(const PoseMessage& p) {
   r.dynamic_rejected_features = p.dynamic_rejected_features;
   r.keyframes = p.keyframes;
   r.map_id = p.map_id;
+  r.health = static_cast<std::uint32_t>(p.health);
+  r.dynamic_share = p.dynamic_share;
+  r.reprojection_rms_px = p.reprojection_rms_px;
+  r.conditioning = p.conditioning;
   return r;
 }
 
@@ -40,6 +44,12 @@ Result<PoseMessage> fromRecord(const sp_pose_record& r) {
   p.dynamic_rejected_features = r.dynamic_rejected_features;
   p.keyframes = r.keyframes;
   p.map_id = r.map_id;
+  auto health = poseHealthFromInt(r.health);
+  if (!health) return Error{"shm: " + health.error()};
+  p.health = *health;
+  p.dynamic_share = r.dynamic_share;
+  p.reprojection_rms_px = r.reprojection_rms_px;
+  p.conditioning = r.conditioning;
   return p;
 }
 

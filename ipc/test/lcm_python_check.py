@@ -9,6 +9,7 @@ against the formula of ipc/tools/probe_messages.cpp (testPose), bit for bit. Exi
 COUNT poses and STATUSES statuses arrived exactly; 77 when the lcm module is missing."""
 import math
 import os
+import struct
 import sys
 import time
 
@@ -25,6 +26,11 @@ sys.path.insert(0, gen_dir)
 from stillpoint_lcm import pose_t, status_t  # noqa: E402
 
 
+def f32(x):
+    """x rounded to single precision (as the C++ float arithmetic of testPose)."""
+    return struct.unpack("f", struct.pack("f", x))[0]
+
+
 def expected_pose(k):
     """Same arithmetic as probe::testPose(k): CPython's math calls the C library."""
     a = k * 0.001
@@ -33,7 +39,7 @@ def expected_pose(k):
     s = math.sin(half)
     map_id = 0xC0FFEE0000000000 | (k // 100)
     return {
-        "schema_version": 1,
+        "schema_version": 2,
         "sensor_stamp_ns": 1700000000123456789 + k * 33333333,
         "frame_counter": k,
         "position": [math.sin(a) * 3.14159265358979, -math.ldexp(float(k), -7) / 3.0, 1.0 / (k + 3.0)],
@@ -43,6 +49,10 @@ def expected_pose(k):
         "dynamic_rejected_features": k % 37,
         "keyframes": k // 10,
         "map_id": map_id - (1 << 64),  # LCM int64 carries the unsigned bits
+        "health": k % 4,
+        "dynamic_share": f32((k % 101) / 100.0),
+        "reprojection_rms_px": f32(0.5 + f32((k % 13) / 7.0)),
+        "conditioning": f32(1.0 / (k + 2)),
     }
 
 

@@ -15,6 +15,11 @@ TEST(Messages, TrackingStateNamesAndRange) {
 
 TEST(Messages, PoseValidation) {
   PoseMessage p;
+  EXPECT_TRUE(validate(p).ok());  // no pose, NaN pose fields
+  p.position = {0.0, 0.0, 0.0};
+  EXPECT_FALSE(validate(p).ok());  // no pose, but numbers a consumer could take for one
+  p.orientation = {0.0, 0.0, 0.0, 1.0};
+  p.state = TrackingState::kOk;
   EXPECT_TRUE(validate(p).ok());
   p.orientation = {0.0, 0.0, 0.0, 2.0};
   EXPECT_FALSE(validate(p).ok());

@@ -152,7 +152,9 @@ int main(int argc, char** argv) {
          << " " << p.position[1] << " " << p.position[2] << "] q=[" << p.orientation[0] << " " << p.orientation[1]
          << " " << p.orientation[2] << " " << p.orientation[3] << "] tracked=" << p.tracked_features
          << " rejected=" << p.dynamic_rejected_features << " keyframes=" << p.keyframes << " map=" << std::hex
-         << p.map_id << std::dec << std::setprecision(1)
+         << p.map_id << std::dec << " health=" << toString(p.health) << std::setprecision(3)
+         << " dynamic_share=" << p.dynamic_share << " rms_px=" << p.reprojection_rms_px
+         << " conditioning=" << p.conditioning << std::setprecision(1)
          << " latency_us=" << (wallNowNs() - static_cast<double>(p.publish_stamp.nanoseconds())) * 1e-3;
     std::cout << line.str() << "\n";
   });

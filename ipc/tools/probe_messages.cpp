@@ -20,6 +20,10 @@ PoseMessage testPose(std::uint64_t k) {
   p.dynamic_rejected_features = static_cast<std::uint32_t>(k % 37);
   p.keyframes = static_cast<std::uint32_t>(k / 10);
   p.map_id = 0xC0FFEE0000000000ULL | (k / 100);  // top bit set: unsigned survives signed wire types
+  p.health = static_cast<PoseHealth>(k % 4);
+  p.dynamic_share = static_cast<float>(k % 101) / 100.0f;
+  p.reprojection_rms_px = 0.5f + static_cast<float>(k % 13) / 7.0f;
+  p.conditioning = 1.0f / static_cast<float>(k + 2);
   return p;
 }
 
@@ -53,6 +57,10 @@ std::string diff(const PoseMessage& e, const PoseMessage& g) {
   if (e.dynamic_rejected_features != g.dynamic_rejected_features) return "dynamic_rejected_features";
   if (e.keyframes != g.keyframes) return "keyframes";
   if (e.map_id != g.map_id) return "map_id";
+  if (e.health != g.health) return "health";
+  if (e.dynamic_share != g.dynamic_share) return "dynamic_share";
+  if (e.reprojection_rms_px != g.reprojection_rms_px) return "reprojection_rms_px";
+  if (e.conditioning != g.conditioning) return "conditioning";
   return {};
 }
 

@@ -69,6 +69,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   }
   if (ok && state_ == TrackingState::kOk) lookForOlderMaps();
   if (options_.report_fates) reportFates(ok, out);
+  out->quality = measureQuality(ok);  // before the outliers are dropped
   if (ok) {
     updateVelocity();
     // Temporary odometry points never outlive the frame they helped track.
@@ -175,6 +176,8 @@ void Tracker::mapLoaded() {
 }
 
 void Tracker::noDepth(Timestamp stamp) {
+  health_ = PoseHealth::kLost;
+  better_frames_ = 0;
   if (!blind_since_) blind_since_ = stamp;
 }
 

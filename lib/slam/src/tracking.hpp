@@ -83,6 +83,10 @@ class Tracker {
   void updateProbation();
   void markMoverCells(bool tracked);
   void reportFates(bool ok, TrackOutput* out) const;
+  // The frame's pose health (pose_health.cpp), with hysteresis.
+  PoseQuality measureQuality(bool ok);
+  PoseHealth health_ = PoseHealth::kLost;
+  int better_frames_ = 0;
   // A loop closure or global BA moved the world since the last frame:
   // re-express the last pose through its reference keyframe.
   void followWorldMoves();  // SlamOptions::report_fates

@@ -4,6 +4,7 @@
 // schema it does not know.
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -27,22 +28,36 @@ const char* toString(TrackingState state);
 // Accepts 0..5; anything else is an error (a newer writer or a corrupt message).
 Result<TrackingState> trackingStateFromInt(std::int64_t value);
 
+// How far to trust a pose (slam::PoseHealth; docs/pose-health.md).
+enum class PoseHealth : std::uint8_t { kGood = 0, kDegraded = 1, kUnreliable = 2, kLost = 3 };
+const char* toString(PoseHealth health);
+Result<PoseHealth> poseHealthFromInt(std::int64_t value);
+
+// Schema 2 added the pose health; a message without a pose carries NaN in
+// position and orientation (nothing a consumer could take for a pose).
 struct PoseMessage {
-  static constexpr std::uint32_t kSchemaVersion = 1;
+  static constexpr std::uint32_t kSchemaVersion = 2;
+  static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
   Timestamp sensor_stamp;         // capture time of the frame
   Timestamp publish_stamp;        // wall clock (CLOCK_REALTIME) when sent; set by the Publisher
   std::uint64_t frame_counter = 0;
   // T_map_camera: position [m] and unit quaternion (x, y, z, w) of the camera in the map.
-  std::array<double, 3> position{0.0, 0.0, 0.0};
-  std::array<double, 4> orientation{0.0, 0.0, 0.0, 1.0};
+  // NaN until set: the default state has no pose.
+  std::array<double, 3> position{kNaN, kNaN, kNaN};
+  std::array<double, 4> orientation{kNaN, kNaN, kNaN, kNaN};
   TrackingState state = TrackingState::kInitialising;
   std::uint32_t tracked_features = 0;
   std::uint32_t dynamic_rejected_features = 0;
   std::uint32_t keyframes = 0;
   std::uint64_t map_id = 0;  // changes when the map is reset
+  PoseHealth health = PoseHealth::kLost;
+  float dynamic_share = 0;        // features kept out as moving / (those + inliers)
+  float reprojection_rms_px = 0;  // of the inliers
+  float conditioning = 0;         // 0..1: how well the inliers pin all six degrees of freedom
 
-  bool operator==(const PoseMessage&) const = default;
+  // Equal fields; NaN equals NaN (a message without a pose).
+  bool operator==(const PoseMessage& o) const;
 };
 
 struct ThreadStats {
@@ -81,7 +96,9 @@ struct StatusMessage {
 // Limits every transport can carry (DDS uses fixed-size arrays): at most kMaxThreads
 // threads and kMaxQueues queues, names of 1..kMaxNameLength printable characters.
 Status validate(const StatusMessage& status);
-// Unit quaternion (|q| within 1e-6 of 1) and finite position.
+// With a pose (kOk, kRelocalised, kNewMap): unit quaternion (|q| within 1e-6
+// of 1), finite position. Without: NaN in every pose field.
 Status validate(const PoseMessage& pose);
+bool hasPose(TrackingState state);
 
 }  // namespace stillpoint::ipc

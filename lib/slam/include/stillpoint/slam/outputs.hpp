@@ -28,6 +28,25 @@ constexpr bool hasPose(TrackingState s) {
   return s == TrackingState::kOk || s == TrackingState::kRelocalised || s == TrackingState::kNewMap;
 }
 
+// How far to trust a frame's pose (docs/pose-health.md). kLost: no pose.
+// Worse states take over at once; a better one only after it has held for
+// PoseQuality::kRecoveryFrames frames in a row (hysteresis).
+enum class PoseHealth : std::uint8_t { kGood = 0, kDegraded = 1, kUnreliable = 2, kLost = 3 };
+const char* toString(PoseHealth health);
+
+struct PoseQuality {
+  static constexpr int kRecoveryFrames = 15;
+  PoseHealth health = PoseHealth::kLost;
+  int inliers = 0;              // map points in the final pose
+  float dynamic_share = 0;      // features kept out as moving / (those + inliers)
+  float outlier_share = 0;      // map-point matches the final pose rejected / all of them
+  float reprojection_rms_px = 0;  // of the inliers, image plane
+  // How well the inliers pin all six degrees of freedom: sqrt(lambda_min /
+  // lambda_max) of the pose's information matrix (translation scaled by the
+  // median depth), 1 = every direction equally, 0 = one is free.
+  float conditioning = 0;
+};
+
 // Where one frame's tracking time went (milliseconds).
 struct StageTimes {
   double extract = 0;         // ORB extraction and depth lookup
@@ -112,6 +131,7 @@ struct TrackOutput {
   std::uint32_t map_id = 0;
   int features = 0;
   int tracked = 0;  // inlier matches to map points
+  PoseQuality quality;
   // Features matched to the masked features of the newest segmented keyframe
   // and kept out of the pose (semantic module).
   int semantic_features = 0;
