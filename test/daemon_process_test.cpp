@@ -721,7 +721,8 @@ TEST_F(DaemonProcess, RealExcerptMapSavedOnStopThenLocalisedAgainst) {
 
 TEST_F(DaemonProcess, RealExcerptStatusCarriesTheTrackingRate) {
   // Status messages over DDS (loopback only), read by stillpoint-echo while
-  // the excerpt plays at its recorded 30 Hz: the tracking thread's loop rate.
+  // the excerpt plays at its recorded 30 Hz: the tracking thread's loop rate,
+  // the tracking state and the pose health.
   const fs::path seq = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
   if (!fs::exists(seq / "rgb.txt")) GTEST_SKIP() << "no " << seq;
   const auto d = dir("loop_rate");
@@ -744,16 +745,19 @@ TEST_F(DaemonProcess, RealExcerptStatusCarriesTheTrackingRate) {
   ASSERT_EQ(rc, 0) << daemon.err();
   // "status ... tracking=29.9Hz/..." lines: while the excerpt plays, about 30.
   std::ifstream in(echo_out);
-  int near_30 = 0, statuses = 0;
+  // And the newest frame's state and health: tracked, and good on this static scene.
+  int near_30 = 0, statuses = 0, ok_good = 0;
   for (std::string line; std::getline(in, line);) {
     const auto at = line.find("tracking=");
     if (at == std::string::npos) continue;
     ++statuses;
     const double hz = std::strtod(line.c_str() + at + 9, nullptr);
     near_30 += hz > 20 && hz < 40;
+    ok_good += line.find("state=ok health=good") != std::string::npos;
   }
   EXPECT_GE(statuses, 5) << readFile(echo_out);
   EXPECT_GE(near_30, 3) << readFile(echo_out);
+  EXPECT_GE(ok_good, 3) << readFile(echo_out);
 }
 
 // OpenNI2: a private copy of libOpenNI2.so.0 with our replay driver as its only

@@ -125,6 +125,7 @@ struct Daemon::Impl {
   std::atomic<std::uint64_t> frames_received{0}, frames_bad{0}, frames_tracked{0}, frames_lost{0},
       frames_processed{0}, reconnects{0}, keyframes{0};
   std::atomic<int> last_state{-1};
+  std::atomic<int> last_health{static_cast<int>(slam::PoseHealth::kLost)};
   std::atomic<std::uint32_t> map_id{0};
   std::atomic<double> tracking_rate_hz{0};
   std::atomic<bool> device_gone{false};
@@ -341,6 +342,7 @@ void Daemon::Impl::trackingLoop() {
     keyframes = out->keyframes;
     map_id = out->map_id;
     last_state = static_cast<int>(out->state);
+    last_health = static_cast<int>(out->quality.health);
   }
   std::lock_guard lock(mutex);
   tracking_done = true;
@@ -378,6 +380,8 @@ ipc::StatusMessage Daemon::Impl::statusMessage() const {
   m.frames_received = frames_received;
   m.frames_dropped = queue->dropped();
   m.map_id = map_id;
+  if (last_state >= 0) m.tracking_state = toIpc(static_cast<slam::TrackingState>(last_state.load()));
+  m.health = static_cast<ipc::PoseHealth>(last_health.load());
   ipc::ThreadStats tracking;
   tracking.name = "tracking";
   tracking.loop_rate_hz = tracking_rate_hz;  // frames tracked per second over the last status period

@@ -80,6 +80,8 @@ void toDds(const StatusMessage& s, stillpoint_dds_Status& m) {
   m.frames_received = s.frames_received;
   m.frames_dropped = s.frames_dropped;
   m.map_id = s.map_id;
+  m.tracking_state = static_cast<std::uint8_t>(s.tracking_state);
+  m.health = static_cast<std::uint8_t>(s.health);
   m.thread_count = static_cast<std::uint8_t>(s.threads.size());
   for (std::size_t i = 0; i < s.threads.size(); ++i) {
     copyName(m.threads[i].name, s.threads[i].name);
@@ -108,6 +110,12 @@ Result<StatusMessage> fromDds(const stillpoint_dds_Status& m) {
   s.frames_received = m.frames_received;
   s.frames_dropped = m.frames_dropped;
   s.map_id = m.map_id;
+  auto state = trackingStateFromInt(m.tracking_state);
+  if (!state) return Error{"dds: status " + state.error()};
+  auto health = poseHealthFromInt(m.health);
+  if (!health) return Error{"dds: status " + health.error()};
+  s.tracking_state = *state;
+  s.health = *health;
   for (int i = 0; i < m.thread_count; ++i) {
     const auto& t = m.threads[i];
     s.threads.push_back({std::string(t.name, strnlen(t.name, sizeof(t.name))), t.loop_rate_hz,

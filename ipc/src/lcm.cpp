@@ -81,6 +81,8 @@ stillpoint_lcm::status_t toLcm(const StatusMessage& s) {
   m.frames_received = asSigned(s.frames_received);
   m.frames_dropped = asSigned(s.frames_dropped);
   m.map_id = asSigned(s.map_id);
+  m.tracking_state = static_cast<std::int8_t>(s.tracking_state);
+  m.health = static_cast<std::int8_t>(s.health);
   m.num_threads = static_cast<std::int16_t>(s.threads.size());
   for (const auto& t : s.threads)
     m.threads.push_back({t.name, t.loop_rate_hz, t.latency_ms_median, t.latency_ms_max});
@@ -99,6 +101,12 @@ Result<StatusMessage> fromLcm(const stillpoint_lcm::status_t& m) {
   s.frames_received = asUnsigned(m.frames_received);
   s.frames_dropped = asUnsigned(m.frames_dropped);
   s.map_id = asUnsigned(m.map_id);
+  auto state = trackingStateFromInt(m.tracking_state);
+  if (!state) return Error{"lcm: status " + state.error()};
+  auto health = poseHealthFromInt(m.health);
+  if (!health) return Error{"lcm: status " + health.error()};
+  s.tracking_state = *state;
+  s.health = *health;
   for (const auto& t : m.threads) s.threads.push_back({t.name, t.loop_rate_hz, t.latency_ms_median, t.latency_ms_max});
   for (const auto& q : m.queues) {
     auto depth = narrow<std::uint32_t>(q.depth, "queues.depth");

@@ -82,6 +82,8 @@ def on_status(channel, data):
         problems.append(f"status {j}: threads {[t.name for t in m.threads]}")
     if m.uptime_s != 0.25 * j + 1.0 / 3.0 or m.queues[1].dropped != 0xFFFFFFFFFFFFFFF0 - (1 << 64):
         problems.append(f"status {j}: fields differ")
+    if m.schema_version != 2 or m.tracking_state != j % 6 or m.health != j % 4:
+        problems.append(f"status {j}: schema {m.schema_version}, state {m.tracking_state}, health {m.health}")
 
 
 lc = lcm.LCM(url)

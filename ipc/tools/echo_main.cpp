@@ -164,7 +164,8 @@ int main(int argc, char** argv) {
     if (rates_only) return;
     std::ostringstream line;
     line << std::fixed << std::setprecision(2) << "status uptime_s=" << s.uptime_s
-         << " frames=" << s.frames_received << " dropped=" << s.frames_dropped;
+         << " frames=" << s.frames_received << " dropped=" << s.frames_dropped << " state=" << toString(s.tracking_state)
+         << " health=" << toString(s.health);
     for (const auto& t : s.threads)
       line << " " << t.name << "=" << t.loop_rate_hz << "Hz/" << t.latency_ms_median << "ms";
     for (const auto& q : s.queues) line << " q." << q.name << "=" << q.depth << "/" << q.capacity;

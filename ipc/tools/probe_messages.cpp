@@ -33,6 +33,8 @@ StatusMessage testStatus(std::uint64_t k) {
   s.frames_received = 30 * k;
   s.frames_dropped = k % 5;
   s.map_id = 0xC0FFEE0000000000ULL | k;
+  s.tracking_state = static_cast<TrackingState>(k % 6);
+  s.health = static_cast<PoseHealth>(k % 4);
   s.threads = {{"tracking", 29.97, 11.9 + 0.01 * static_cast<double>(k), 15.5},
                {"local_mapping", 2.5, 40.0, 165.0},
                {"publisher", 30.0, 0.004, 0.05}};

@@ -76,8 +76,9 @@ struct QueueStats {
   bool operator==(const QueueStats&) const = default;
 };
 
+// Schema 2 added the tracking state and pose health of the newest frame.
 struct StatusMessage {
-  static constexpr std::uint32_t kSchemaVersion = 1;
+  static constexpr std::uint32_t kSchemaVersion = 2;
   static constexpr std::size_t kMaxThreads = 16;
   static constexpr std::size_t kMaxQueues = 16;
   static constexpr std::size_t kMaxNameLength = 31;
@@ -87,6 +88,8 @@ struct StatusMessage {
   std::uint64_t frames_received = 0;
   std::uint64_t frames_dropped = 0;
   std::uint64_t map_id = 0;
+  TrackingState tracking_state = TrackingState::kInitialising;  // of the newest frame tracked
+  PoseHealth health = PoseHealth::kLost;                         // of the newest frame tracked
   std::vector<ThreadStats> threads;
   std::vector<QueueStats> queues;
 
