@@ -1,0 +1,109 @@
+#!/usr/bin/env python3
+"""Reads stillpoint's poses from the shared-memory ring, in plain Python (no packages).
+
+    read_poses.py [--name RING] [--count N] [--timeout S]
+
+Attaches to /dev/shm/RING (default stillpoint_pose, what stillpointd writes), starts at the
+newest record and prints one line per pose as it arrives: frame, stamp, tracking state, pose
+health and, when the frame has a pose, T_map_camera (position [m], quaternion x y z w). The
+ring's layout and protocol are those of the C reader, ipc/include/stillpoint_shm.h (pose
+schema 2): a record is read between two equal even values of its slot's sequence word, so a
+record the writer is overwriting is never returned. Exit status: 0 after N poses, 1 when the
+ring is missing or not a pose ring of this schema, or nothing arrived within S seconds.
+"""
+import argparse
+import math
+import mmap
+import os
+import struct
+import sys
+import time
+
+MAGIC = 0x48535053  # "SPSH"
+SCHEMA = 2
+HEADER_SIZE, SLOT_SIZE, RECORD_SIZE = 128, 192, 128
+STATES = ["initialising", "ok", "lost", "relocalised", "no_depth", "new_map"]
+HEALTH = ["good", "degraded", "unreliable", "lost"]
+# sp_pose_record: sequence, stamps, frame counter, position[3], orientation[4], state,
+# tracked, rejected, keyframes, map id, health, dynamic share, reprojection RMS, conditioning.
+RECORD = struct.Struct("<QqqQ3d4dIIIIQIfff")
+assert RECORD.size == RECORD_SIZE
+
+
+def open_ring(name):
+    path = "/dev/shm/" + name
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        ring = mmap.mmap(fd, 0, prot=mmap.PROT_READ)
+    finally:
+        os.close(fd)
+    magic, schema, header_size, record_size, slot_size, capacity = struct.unpack_from("<IHHIII", ring, 0)
+    if magic != MAGIC:
+        raise ValueError(f"{path} is not a stillpoint pose ring")
+    if schema != SCHEMA:
+        raise ValueError(f"{path} has pose schema {schema}; this reader knows {SCHEMA}")
+    if (header_size, record_size, slot_size) != (HEADER_SIZE, RECORD_SIZE, SLOT_SIZE) or capacity & (capacity - 1):
+        raise ValueError(f"{path} has an inconsistent layout")
+    return ring, capacity
+
+
+def write_count(ring):
+    return struct.unpack_from("<Q", ring, 32)[0]
+
+
+def try_read(ring, capacity, n):
+    """Record n, or None when its slot does not hold it (not written yet, or overwritten)."""
+    offset = HEADER_SIZE + (n & (capacity - 1)) * SLOT_SIZE
+    seq = struct.unpack_from("<Q", ring, offset)[0]
+    if seq != 2 * n:
+        return None
+    words = ring[offset + 8:offset + 8 + RECORD_SIZE]
+    if struct.unpack_from("<Q", ring, offset)[0] != seq:
+        return None
+    return RECORD.unpack(words)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--name", default="stillpoint_pose")
+    parser.add_argument("--count", type=int, default=0, help="exit after N poses (0: run until interrupted)")
+    parser.add_argument("--timeout", type=float, default=10.0, help="give up when nothing arrives for S seconds")
+    args = parser.parse_args()
+    try:
+        ring, capacity = open_ring(args.name)
+    except (OSError, ValueError) as e:
+        print(f"read_poses: {e}", file=sys.stderr)
+        return 1
+    next_n = max(1, write_count(ring))
+    received, last_arrival = 0, time.monotonic()
+    while args.count == 0 or received < args.count:
+        newest = write_count(ring)
+        if next_n > newest:
+            if time.monotonic() - last_arrival > args.timeout:
+                print(f"read_poses: nothing for {args.timeout} s", file=sys.stderr)
+                return 1
+            time.sleep(0.002)
+            continue
+        if newest - next_n >= capacity:
+            next_n = newest - capacity + 1  # we fell a lap behind: skip what was overwritten
+        r = try_read(ring, capacity, next_n)
+        next_n += 1
+        if r is None:
+            continue
+        (_, stamp_ns, _, frame, px, py, pz, qx, qy, qz, qw, state, tracked, _, _, map_id, health, dynamic,
+         rms, conditioning) = r
+        line = (f"frame={frame} t={stamp_ns * 1e-9:.6f} state={STATES[state] if state < len(STATES) else state} "
+                f"health={HEALTH[health] if health < len(HEALTH) else health} map={map_id}")
+        if math.isnan(px):
+            line += " (no pose)"
+        else:
+            line += (f" p=[{px:.4f} {py:.4f} {pz:.4f}] q=[{qx:.4f} {qy:.4f} {qz:.4f} {qw:.4f}]"
+                     f" inliers={tracked} dynamic_share={dynamic:.2f} rms_px={rms:.2f} conditioning={conditioning:.3f}")
+        print(line, flush=True)
+        received += 1
+        last_arrival = time.monotonic()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

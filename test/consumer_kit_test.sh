@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# The consumer kit's plain-Python reader (ipc/examples/read_poses.py) reads the
+# poses stillpointd writes to the shared-memory ring while it replays the real
+# excerpt: every line has a state and a health, and tracked frames a pose.
+# Skips (77) without python3 or the excerpt.
+# usage: consumer_kit_test.sh BIN_DIR SOURCE_DIR DATA_DIR WORK_DIR
+set -uo pipefail
+bin=$1 src=$2 data=$3/tum_fr3_teddy_200 work=$4
+fail() { echo "FAIL: $*"; exit 1; }
+command -v python3 >/dev/null || { echo "SKIP: no python3"; exit 77; }
+[[ -f $data/rgb.txt ]] || { echo "SKIP: no excerpt at $data"; exit 77; }
+rm -rf "$work" && mkdir -p "$work"
+ring="sp_kit_$$"
+cat > "$work/d.yaml" <<YAML
+camera: fr3
+lock_memory: false
+source: {replay: {path: $data, paced: true}}
+ipc: {shm: {enabled: true, name: $ring, capacity: 1024}}
+YAML
+"$bin/stillpointd" --config "$work/d.yaml" > "$work/d.out" 2> "$work/d.err" &
+daemon=$!
+trap 'kill $daemon 2>/dev/null; wait 2>/dev/null' EXIT
+for _ in $(seq 1 100); do [[ -e /dev/shm/$ring ]] && break; sleep 0.1; done
+[[ -e /dev/shm/$ring ]] || { cat "$work/d.err"; fail "no ring /dev/shm/$ring"; }
+python3 "$src/ipc/examples/read_poses.py" --name "$ring" --count 60 --timeout 20 > "$work/poses.txt" 2> "$work/py.err" ||
+  { cat "$work/py.err"; fail "read_poses.py failed"; }
+lines=$(wc -l < "$work/poses.txt")
+with_pose=$(grep -c "state=ok health=[a-z]* map=0 p=\[" "$work/poses.txt")
+[[ $lines -eq 60 ]] || fail "$lines lines, expected 60"
+[[ $with_pose -ge 50 ]] || { head "$work/poses.txt"; fail "only $with_pose of 60 poses tracked with a pose"; }
+# Frames arrive in order.
+awk '{ split($1, a, "="); if (NR > 1 && a[2] <= last) exit 1; last = a[2] }' "$work/poses.txt" || fail "frames out of order"
+echo "PASS: $lines poses read by the Python example, $with_pose tracked"
