@@ -328,6 +328,26 @@ class Ros2Transport final : public Transport {
     dds_qset_durability(q.get(), DDS_DURABILITY_VOLATILE);
     writer_ = dds_create_writer(dp_.participant(), topic_, q.get(), nullptr);
     if (writer_ < 0) return Error{ddsError("cannot create the ROS 2 pose writer", writer_)};
+    child_frame_id_ = o.child_frame_id;
+    if (!o.odometry_topic.empty()) {
+      const dds_entity_t t = dds_create_topic(dp_.participant(), &nav_msgs_msg_dds__Odometry__desc,
+                                              o.odometry_topic.c_str(), nullptr, nullptr);
+      if (t < 0) return Error{ddsError(("cannot create topic '" + o.odometry_topic + "'").c_str(), t)};
+      odometry_writer_ = dds_create_writer(dp_.participant(), t, q.get(), nullptr);
+      if (odometry_writer_ < 0) return Error{ddsError("cannot create the ROS 2 odometry writer", odometry_writer_)};
+    }
+    if (!o.tf_topic.empty()) {
+      // tf2's QoS: reliable, volatile, keep-last 100.
+      QosPtr tq(dds_create_qos());
+      dds_qset_reliability(tq.get(), DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+      dds_qset_history(tq.get(), DDS_HISTORY_KEEP_LAST, 100);
+      dds_qset_durability(tq.get(), DDS_DURABILITY_VOLATILE);
+      const dds_entity_t t =
+          dds_create_topic(dp_.participant(), &tf2_msgs_msg_dds__TFMessage__desc, o.tf_topic.c_str(), nullptr, nullptr);
+      if (t < 0) return Error{ddsError(("cannot create topic '" + o.tf_topic + "'").c_str(), t)};
+      tf_writer_ = dds_create_writer(dp_.participant(), t, tq.get(), nullptr);
+      if (tf_writer_ < 0) return Error{ddsError("cannot create the ROS 2 tf writer", tf_writer_)};
+    }
     return Status::success();
   }
   std::string_view name() const override { return "ros2"; }
@@ -362,6 +382,37 @@ class Ros2Transport final : public Transport {
     m.pose.orientation.z = r.z();
     m.pose.orientation.w = r.w();
     if (dds_return_t rc = dds_write(writer_, &m); rc != DDS_RETCODE_OK) return Error{ddsError("write ROS 2 pose", rc)};
+    if (odometry_writer_ > 0) {
+      nav_msgs_msg_dds__Odometry_ odo{};
+      odo.header = m.header;
+      odo.child_frame_id = const_cast<char*>(child_frame_id_.c_str());
+      odo.pose.pose = m.pose;
+      // The pose health as a covariance: a standard deviation per state, the
+      // same on every axis (the health does not say which direction is weak).
+      const double sigma_m = pose.health == PoseHealth::kGood ? 0.01 : pose.health == PoseHealth::kDegraded ? 0.05 : 0.25;
+      const double sigma_rad = pose.health == PoseHealth::kGood ? 0.01 : pose.health == PoseHealth::kDegraded ? 0.05 : 0.25;
+      for (int k = 0; k < 3; ++k) {
+        odo.pose.covariance[k * 7] = sigma_m * sigma_m;
+        odo.pose.covariance[(k + 3) * 7] = sigma_rad * sigma_rad;
+      }
+      odo.twist.covariance[0] = -1.0;  // REP convention: the twist is not measured
+      if (dds_return_t rc = dds_write(odometry_writer_, &odo); rc != DDS_RETCODE_OK)
+        return Error{ddsError("write ROS 2 odometry", rc)};
+    }
+    if (tf_writer_ > 0) {
+      geometry_msgs_msg_dds__TransformStamped_ tf{};
+      tf.header = m.header;
+      tf.child_frame_id = const_cast<char*>(child_frame_id_.c_str());
+      tf.transform.translation.x = p.x();
+      tf.transform.translation.y = p.y();
+      tf.transform.translation.z = p.z();
+      tf.transform.rotation = m.pose.orientation;
+      tf2_msgs_msg_dds__TFMessage_ msg{};
+      msg.transforms._maximum = msg.transforms._length = 1;
+      msg.transforms._buffer = &tf;
+      msg.transforms._release = false;
+      if (dds_return_t rc = dds_write(tf_writer_, &msg); rc != DDS_RETCODE_OK) return Error{ddsError("write ROS 2 tf", rc)};
+    }
     return Status::success();
   }
   Status publishStatus(const StatusMessage&) override { return Status::success(); }
@@ -375,7 +426,8 @@ class Ros2Transport final : public Transport {
   DdsParticipant dp_;
   dds_entity_t topic_ = 0;
   dds_entity_t writer_ = 0;
-  std::string frame_id_;
+  dds_entity_t odometry_writer_ = 0, tf_writer_ = 0;
+  std::string frame_id_, child_frame_id_;
   std::int64_t offset_ns_ = 0;
   bool has_offset_ = false;
 };

@@ -54,6 +54,9 @@ TEST(IpcOptions, ErrorsNameTheField) {
       {"shm: {name: a, name: b}", "duplicate field 'ipc.shm.name'"},
       {"? [a, b]\n: 1", "plain names"},
       {"shm: {? [a, b] : 1}", "'ipc.shm.' must be plain names"},
+      {"ros2: {odometry_topic: stillpoint/odometry}", "ipc.ros2.odometry_topic"},
+      {"ros2: {tf_topic: tf}", "ipc.ros2.tf_topic"},
+      {"ros2: {child_frame_id: map}", "ipc.ros2.child_frame_id"},
   };
   for (const auto& c : cases) {
     auto o = parseIpcOptions(YAML::Load(c.yaml));

@@ -1,10 +1,12 @@
 """A ROS 2-typed reader that is not stillpoint's: PyPI cyclonedds with the
-ROS 2 message types written here from their .msg definitions, a reliable
-reader (ROS 2's default QoS) on rt/stillpoint/pose, and every sample decoded
-again by PyPI rosbags as geometry_msgs/msg/PoseStamped. Writes the poses as a
-TUM trajectory (header stamps) for the ATE.
+ROS 2 message types written here from their .msg definitions, reliable
+readers (ROS 2's default QoS) on the pose, odometry and tf topics, and every
+sample decoded again by PyPI rosbags as geometry_msgs/msg/PoseStamped,
+nav_msgs/msg/Odometry and tf2_msgs/msg/TFMessage. The odometry and tf samples
+must carry the pose of the PoseStamped with the same stamp. Writes the poses
+as a TUM trajectory (header stamps) for the ATE.
 
-usage: ros2_python_check.py CONFIG_URI TOPIC MIN_SAMPLES TIMEOUT_S OUT_TRAJ READY_FILE
+usage: ros2_python_check.py CONFIG_URI POSE_TOPIC ODOMETRY_TOPIC TF_TOPIC MIN_SAMPLES TIMEOUT_S OUT_TRAJ READY_FILE
 """
 import math
 import os
@@ -15,7 +17,7 @@ from dataclasses import dataclass
 from cyclonedds.core import Qos, Policy
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import int32, uint32, float64
+from cyclonedds.idl.types import array, int32, sequence, uint32, float64
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
@@ -61,13 +63,67 @@ class PoseStamped_(IdlStruct, typename="geometry_msgs::msg::dds_::PoseStamped_")
     pose: Pose_
 
 
+@dataclass
+class Vector3_(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class PoseWithCovariance_(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose_
+    covariance: array[float64, 36]
+
+
+@dataclass
+class Twist_(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: Vector3_
+    angular: Vector3_
+
+
+@dataclass
+class TwistWithCovariance_(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    twist: Twist_
+    covariance: array[float64, 36]
+
+
+@dataclass
+class Odometry_(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    header: Header_
+    child_frame_id: str
+    pose: PoseWithCovariance_
+    twist: TwistWithCovariance_
+
+
+@dataclass
+class Transform_(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    translation: Vector3_
+    rotation: Quaternion_
+
+
+@dataclass
+class TransformStamped_(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    header: Header_
+    child_frame_id: str
+    transform: Transform_
+
+
+@dataclass
+class TFMessage_(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    transforms: sequence[TransformStamped_]
+
+
 def main():
-    config, topic, min_samples, timeout_s, out_path, ready = sys.argv[1:7]
+    config, topic, odom_topic, tf_topic, min_samples, timeout_s, out_path, ready = sys.argv[1:9]
     min_samples, timeout_s = int(min_samples), float(timeout_s)
     domain = Domain(0, config)
     participant = DomainParticipant(0)
     qos = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(100))
     reader = DataReader(participant, Topic(participant, topic, PoseStamped_), qos=qos)
+    odom_reader = DataReader(participant, Topic(participant, odom_topic, Odometry_), qos=qos)
+    tf_reader = DataReader(participant, Topic(participant, tf_topic, TFMessage_), qos=qos)
+    odometry, transforms = {}, {}
     typestore = get_typestore(Stores.ROS2_HUMBLE)
     open(ready, "w").close()
     poses, bad = [], 0
@@ -89,6 +145,15 @@ def main():
                   and msg.header.stamp.nanosec == sample.header.stamp.nanosec)
             bad += not ok
             poses.append(msg)
+        for sample in odom_reader.take(N=64):
+            if isinstance(sample, Odometry_):
+                msg = typestore.deserialize_cdr(sample.serialize(), "nav_msgs/msg/Odometry")
+                odometry[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg
+        for sample in tf_reader.take(N=64):
+            if isinstance(sample, TFMessage_):
+                msg = typestore.deserialize_cdr(sample.serialize(), "tf2_msgs/msg/TFMessage")
+                for t in msg.transforms:
+                    transforms[(t.header.stamp.sec, t.header.stamp.nanosec)] = t
         if len(poses) >= min_samples and time.time() - quiet_since > 2.0:
             break
         time.sleep(0.01)
@@ -113,9 +178,26 @@ def main():
             qy = math.copysign(math.sqrt(max(0.0, 1 - Ro[0][0] + Ro[1][1] - Ro[2][2])) / 2, Ro[0][2] - Ro[2][0])
             qz = math.copysign(math.sqrt(max(0.0, 1 - Ro[0][0] - Ro[1][1] + Ro[2][2])) / 2, Ro[1][0] - Ro[0][1])
             f.write(f"{m.header.stamp.sec}.{m.header.stamp.nanosec:09d} {po[0]} {po[1]} {po[2]} {qx} {qy} {qz} {qw}\n")
-    print(f"ros2 reader: {len(poses)} PoseStamped samples, {bad} that rosbags decoded differently or malformed")
+    # Odometry and tf: one per pose, the same pose, the health as a covariance.
+    odom_bad = tf_bad = 0
+    for m in poses:
+        key = (m.header.stamp.sec, m.header.stamp.nanosec)
+        o, t = odometry.get(key), transforms.get(key)
+        p, q = m.pose.position, m.pose.orientation
+        if (o is None or o.header.frame_id != "map" or o.child_frame_id != "camera_link"
+                or (o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.position.z) != (p.x, p.y, p.z)
+                or (o.pose.pose.orientation.w, o.pose.pose.orientation.x) != (q.w, q.x)
+                or not all(o.pose.covariance[k * 7] > 0 for k in range(6)) or o.twist.covariance[0] != -1.0):
+            odom_bad += 1
+        if (t is None or t.header.frame_id != "map" or t.child_frame_id != "camera_link"
+                or (t.transform.translation.x, t.transform.translation.y, t.transform.translation.z) != (p.x, p.y, p.z)
+                or (t.transform.rotation.w, t.transform.rotation.z) != (q.w, q.z)):
+            tf_bad += 1
+    print(f"ros2 reader: {len(poses)} PoseStamped samples, {bad} that rosbags decoded differently or malformed; "
+          f"{len(odometry)} Odometry, {odom_bad} missing or not the pose; {len(transforms)} tf, {tf_bad} missing or "
+          f"not the pose")
     del domain
-    return 0 if len(poses) >= min_samples and bad == 0 else 1
+    return 0 if len(poses) >= min_samples and bad == 0 and odom_bad == 0 and tf_bad == 0 else 1
 
 
 if __name__ == "__main__":
