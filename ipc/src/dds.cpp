@@ -348,6 +348,13 @@ class Ros2Transport final : public Transport {
       tf_writer_ = dds_create_writer(dp_.participant(), t, tq.get(), nullptr);
       if (tf_writer_ < 0) return Error{ddsError("cannot create the ROS 2 tf writer", tf_writer_)};
     }
+    if (!o.diagnostics_topic.empty()) {
+      const dds_entity_t t = dds_create_topic(dp_.participant(), &diagnostic_msgs_msg_dds__DiagnosticArray__desc,
+                                              o.diagnostics_topic.c_str(), nullptr, nullptr);
+      if (t < 0) return Error{ddsError(("cannot create topic '" + o.diagnostics_topic + "'").c_str(), t)};
+      diagnostics_writer_ = dds_create_writer(dp_.participant(), t, q.get(), nullptr);
+      if (diagnostics_writer_ < 0) return Error{ddsError("cannot create the ROS 2 diagnostics writer", diagnostics_writer_)};
+    }
     return Status::success();
   }
   std::string_view name() const override { return "ros2"; }
@@ -415,7 +422,57 @@ class Ros2Transport final : public Transport {
     }
     return Status::success();
   }
-  Status publishStatus(const StatusMessage&) override { return Status::success(); }
+  // The status as one diagnostic_msgs/DiagnosticStatus "stillpoint": OK
+  // while tracking with a good pose, WARN when the pose is degraded or
+  // unreliable, tracking is lost or a queue drops, and every field as a value.
+  Status publishStatus(const StatusMessage& status) override {
+    if (diagnostics_writer_ <= 0) return Status::success();
+    std::vector<std::pair<std::string, std::string>> kv = {
+        {"tracking_state", toString(status.tracking_state)},
+        {"pose_health", toString(status.health)},
+        {"map_id", std::to_string(status.map_id)},
+        {"uptime_s", std::to_string(status.uptime_s)},
+        {"frames_received", std::to_string(status.frames_received)},
+        {"frames_dropped", std::to_string(status.frames_dropped)}};
+    bool dropping = false;
+    for (const ThreadStats& t : status.threads) {
+      kv.emplace_back(t.name + ".loop_rate_hz", std::to_string(t.loop_rate_hz));
+      kv.emplace_back(t.name + ".latency_ms_median", std::to_string(t.latency_ms_median));
+    }
+    for (const QueueStats& q : status.queues) {
+      kv.emplace_back(q.name + ".depth", std::to_string(q.depth) + "/" + std::to_string(q.capacity));
+      kv.emplace_back(q.name + ".dropped", std::to_string(q.dropped));
+      dropping |= q.dropped > 0;
+    }
+    const bool tracking = hasPose(status.tracking_state);
+    const bool warn = !tracking || status.health != PoseHealth::kGood || dropping;
+    const std::string message = std::string(tracking ? "tracking" : toString(status.tracking_state)) +
+                                ", pose " + toString(status.health) + (dropping ? ", frames or messages dropped" : "");
+    std::vector<diagnostic_msgs_msg_dds__KeyValue_> values(kv.size());
+    for (std::size_t k = 0; k < kv.size(); ++k) {
+      values[k].key = kv[k].first.data();
+      values[k].value = kv[k].second.data();
+    }
+    diagnostic_msgs_msg_dds__DiagnosticStatus_ st{};
+    st.level = warn ? 1 : 0;
+    st.name = const_cast<char*>("stillpoint");
+    st.message = const_cast<char*>(message.c_str());
+    st.hardware_id = const_cast<char*>("");
+    st.values._maximum = st.values._length = static_cast<std::uint32_t>(values.size());
+    st.values._buffer = values.data();
+    st.values._release = false;
+    diagnostic_msgs_msg_dds__DiagnosticArray_ m{};
+    const std::int64_t stamp = status.publish_stamp.nanoseconds();
+    m.header.stamp.sec = static_cast<std::int32_t>(stamp / 1'000'000'000);
+    m.header.stamp.nanosec = static_cast<std::uint32_t>(stamp % 1'000'000'000);
+    m.header.frame_id = const_cast<char*>("");
+    m.status._maximum = m.status._length = 1;
+    m.status._buffer = &st;
+    m.status._release = false;
+    if (dds_return_t rc = dds_write(diagnostics_writer_, &m); rc != DDS_RETCODE_OK)
+      return Error{ddsError("write ROS 2 diagnostics", rc)};
+    return Status::success();
+  }
   int matchedReaders() const override {
     dds_publication_matched_status_t st{};
     if (dds_get_publication_matched_status(writer_, &st) != DDS_RETCODE_OK) return -1;
@@ -424,6 +481,7 @@ class Ros2Transport final : public Transport {
 
  private:
   DdsParticipant dp_;
+  dds_entity_t diagnostics_writer_ = 0;
   dds_entity_t topic_ = 0;
   dds_entity_t writer_ = 0;
   dds_entity_t odometry_writer_ = 0, tf_writer_ = 0;

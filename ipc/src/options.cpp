@@ -30,7 +30,8 @@ Status IpcOptions::validate() const {
     return Error{"ipc.ros2.pose_topic must be a DDS topic name of ROS 2's form, rt/<name> (ROS 2 topic /<name>)"};
   if (ros2.frame_id.empty()) return Error{"ipc.ros2.frame_id must not be empty"};
   for (const auto& [key, topic] : {std::pair<const char*, const std::string*>{"odometry_topic", &ros2.odometry_topic},
-                                   {"tf_topic", &ros2.tf_topic}})
+                                   {"tf_topic", &ros2.tf_topic},
+                                   {"diagnostics_topic", &ros2.diagnostics_topic}})
     if (!topic->empty() && (topic->rfind("rt/", 0) != 0 || topic->size() < 4))
       return Error{std::string("ipc.ros2.") + key + " must be empty (off) or of ROS 2's form, rt/<name>"};
   if (ros2.child_frame_id.empty() || ros2.child_frame_id == ros2.frame_id)
@@ -132,6 +133,7 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
     r.get("odometry_topic", o.ros2.odometry_topic);
     r.get("tf_topic", o.ros2.tf_topic);
     r.get("child_frame_id", o.ros2.child_frame_id);
+    r.get("diagnostics_topic", o.ros2.diagnostics_topic);
   });
   if (!s) return Error{s.error()};
   if (Status v = o.validate(); !v) return Error{v.error()};

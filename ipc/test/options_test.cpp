@@ -56,6 +56,7 @@ TEST(IpcOptions, ErrorsNameTheField) {
       {"shm: {? [a, b] : 1}", "'ipc.shm.' must be plain names"},
       {"ros2: {odometry_topic: stillpoint/odometry}", "ipc.ros2.odometry_topic"},
       {"ros2: {tf_topic: tf}", "ipc.ros2.tf_topic"},
+      {"ros2: {diagnostics_topic: diagnostics}", "ipc.ros2.diagnostics_topic"},
       {"ros2: {child_frame_id: map}", "ipc.ros2.child_frame_id"},
   };
   for (const auto& c : cases) {

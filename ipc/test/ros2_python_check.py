@@ -6,7 +6,10 @@ nav_msgs/msg/Odometry and tf2_msgs/msg/TFMessage. The odometry and tf samples
 must carry the pose of the PoseStamped with the same stamp. Writes the poses
 as a TUM trajectory (header stamps) for the ATE.
 
-usage: ros2_python_check.py CONFIG_URI POSE_TOPIC ODOMETRY_TOPIC TF_TOPIC MIN_SAMPLES TIMEOUT_S OUT_TRAJ READY_FILE
+The status comes as diagnostic_msgs/msg/DiagnosticArray on the diagnostics topic.
+
+usage: ros2_python_check.py CONFIG_URI POSE_TOPIC ODOMETRY_TOPIC TF_TOPIC DIAGNOSTICS_TOPIC MIN_SAMPLES TIMEOUT_S
+                            OUT_TRAJ READY_FILE
 """
 import math
 import os
@@ -17,7 +20,7 @@ from dataclasses import dataclass
 from cyclonedds.core import Qos, Policy
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, int32, sequence, uint32, float64
+from cyclonedds.idl.types import array, int32, sequence, uint8, uint32, float64
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
@@ -114,8 +117,29 @@ class TFMessage_(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
     transforms: sequence[TransformStamped_]
 
 
+@dataclass
+class KeyValue_(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    key: str
+    value: str
+
+
+@dataclass
+class DiagnosticStatus_(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    level: uint8
+    name: str
+    message: str
+    hardware_id: str
+    values: sequence[KeyValue_]
+
+
+@dataclass
+class DiagnosticArray_(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    header: Header_
+    status: sequence[DiagnosticStatus_]
+
+
 def main():
-    config, topic, odom_topic, tf_topic, min_samples, timeout_s, out_path, ready = sys.argv[1:9]
+    config, topic, odom_topic, tf_topic, diag_topic, min_samples, timeout_s, out_path, ready = sys.argv[1:10]
     min_samples, timeout_s = int(min_samples), float(timeout_s)
     domain = Domain(0, config)
     participant = DomainParticipant(0)
@@ -123,7 +147,8 @@ def main():
     reader = DataReader(participant, Topic(participant, topic, PoseStamped_), qos=qos)
     odom_reader = DataReader(participant, Topic(participant, odom_topic, Odometry_), qos=qos)
     tf_reader = DataReader(participant, Topic(participant, tf_topic, TFMessage_), qos=qos)
-    odometry, transforms = {}, {}
+    diag_reader = DataReader(participant, Topic(participant, diag_topic, DiagnosticArray_), qos=qos)
+    odometry, transforms, diagnostics = {}, {}, []
     typestore = get_typestore(Stores.ROS2_HUMBLE)
     open(ready, "w").close()
     poses, bad = [], 0
@@ -154,6 +179,9 @@ def main():
                 msg = typestore.deserialize_cdr(sample.serialize(), "tf2_msgs/msg/TFMessage")
                 for t in msg.transforms:
                     transforms[(t.header.stamp.sec, t.header.stamp.nanosec)] = t
+        for sample in diag_reader.take(N=16):
+            if isinstance(sample, DiagnosticArray_):
+                diagnostics.append(typestore.deserialize_cdr(sample.serialize(), "diagnostic_msgs/msg/DiagnosticArray"))
         if len(poses) >= min_samples and time.time() - quiet_since > 2.0:
             break
         time.sleep(0.01)
@@ -196,8 +224,21 @@ def main():
     print(f"ros2 reader: {len(poses)} PoseStamped samples, {bad} that rosbags decoded differently or malformed; "
           f"{len(odometry)} Odometry, {odom_bad} missing or not the pose; {len(transforms)} tf, {tf_bad} missing or "
           f"not the pose")
+    # Diagnostics: one status "stillpoint" per status message, its fields as values; while
+    # the excerpt plays, tracking with a good pose is OK.
+    diag_bad, tracking_ok = 0, 0
+    for d in diagnostics:
+        s = d.status[0] if len(d.status) == 1 else None
+        values = {kv.key: kv.value for kv in s.values} if s else {}
+        if s is None or s.name != "stillpoint" or s.level not in (0, 1) or "tracking_state" not in values \
+                or "pose_health" not in values or "tracking.loop_rate_hz" not in values:
+            diag_bad += 1
+            continue
+        tracking_ok += s.level == 0 and values["tracking_state"] == "ok" and values["pose_health"] == "good"
+    print(f"ros2 reader: {len(diagnostics)} DiagnosticArray, {diag_bad} malformed, {tracking_ok} OK with a good pose")
     del domain
-    return 0 if len(poses) >= min_samples and bad == 0 and odom_bad == 0 and tf_bad == 0 else 1
+    diag_ok = len(diagnostics) >= 3 and diag_bad == 0 and tracking_ok >= 2
+    return 0 if len(poses) >= min_samples and bad == 0 and odom_bad == 0 and tf_bad == 0 and diag_ok else 1
 
 
 if __name__ == "__main__":

@@ -52,6 +52,8 @@ struct Ros2Options {
   // tf2_msgs/msg/TFMessage with frame_id -> child_frame_id (empty: off).
   std::string tf_topic = "rt/tf";
   std::string child_frame_id = "camera_link";  // the camera's body frame (REP-103 axes)
+  // diagnostic_msgs/msg/DiagnosticArray with every status message (empty: off).
+  std::string diagnostics_topic = "rt/diagnostics";
 };
 
 struct IpcOptions {
