@@ -75,12 +75,8 @@ Result<semantic::ResolvedModel> resolveModel(const SemanticOptions& o) {
 }
 }  // namespace
 
-std::string defaultVocabularyPath() {
-  std::error_code ec;
-  const std::filesystem::path in_tree = std::filesystem::path(STILLPOINT_SOURCE_MODELS_DIR) / kDefaultVocabulary;
-  if (std::filesystem::is_regular_file(in_tree, ec)) return in_tree.string();
-  return (std::filesystem::path(STILLPOINT_INSTALL_MODELS_DIR) / kDefaultVocabulary).string();
-}
+// Beside the model cards: models/ in the source tree, else the installed copy.
+std::string defaultVocabularyPath() { return (semantic::defaultModelCardDir() / kDefaultVocabulary).string(); }
 
 const char* toString(TrackingState state) {
   switch (state) {
