@@ -68,12 +68,10 @@ struct View {
 };
 
 // ORB descriptors of every `every`-th readable frame of a sequence.
-Status forEachImage(const std::string& dir, int every, features::OrbExtractor* orb,
-                    const std::function<void(const dataset::RgbdFrame&, const cv::Mat&)>& use) {
-  auto data = dataset::TumDataset::open(dir);
-  if (!data) return Error{data.error()};
-  for (std::size_t i = 0; i < data->size(); i += static_cast<std::size_t>(every)) {
-    auto frame = data->load(i);
+void forEachImage(const dataset::TumDataset& data, int every, features::OrbExtractor* orb,
+                  const std::function<void(const dataset::RgbdFrame&, const cv::Mat&)>& use) {
+  for (std::size_t i = 0; i < data.size(); i += static_cast<std::size_t>(every)) {
+    auto frame = data.load(i);
     if (!frame) {
       std::fprintf(stderr, "stillpoint-vocab: skipped: %s\n", frame.error().c_str());
       continue;
@@ -83,7 +81,6 @@ Status forEachImage(const std::string& dir, int every, features::OrbExtractor* o
     orb->extract(frame->gray, &keys, &descriptors);
     use(*frame, descriptors);
   }
-  return Status::success();
 }
 
 // The ground-truth pose nearest in time (within 0.03 s).
@@ -115,12 +112,13 @@ int train(const std::vector<std::string>& args, int every, const features::Vocab
   std::vector<cv::Mat> images;
   std::size_t descriptors = 0;
   for (std::size_t k = 1; k < args.size(); ++k) {
-    const Status s = forEachImage(args[k], every, &orb, [&](const dataset::RgbdFrame&, const cv::Mat& d) {
+    auto data = dataset::TumDataset::open(args[k]);
+    if (!data) return inputError(data.error());
+    forEachImage(*data, every, &orb, [&](const dataset::RgbdFrame&, const cv::Mat& d) {
       if (d.empty()) return;
       images.push_back(d.clone());
       descriptors += static_cast<std::size_t>(d.rows);
     });
-    if (!s) return inputError(s.error());
   }
   std::fprintf(stderr, "stillpoint-vocab: training on %zu images, %zu descriptors\n", images.size(), descriptors);
   const auto t0 = std::chrono::steady_clock::now();
@@ -161,7 +159,7 @@ int check(const std::vector<std::string>& args, int every, double exclude_s) {
     if (!gt) return inputError(gt.error());
     std::vector<View> views;
     double transform_ms = 0;
-    const Status s = forEachImage(args[k], every, &orb, [&](const dataset::RgbdFrame& f, const cv::Mat& d) {
+    forEachImage(*data, every, &orb, [&](const dataset::RgbdFrame& f, const cv::Mat& d) {
       View v;
       v.stamp = f.stamp;
       const auto t0 = std::chrono::steady_clock::now();
@@ -170,7 +168,6 @@ int check(const std::vector<std::string>& args, int every, double exclude_s) {
       v.has_pose = poseAt(*gt, f.stamp, &v.T_w_c);
       views.push_back(std::move(v));
     });
-    if (!s) return inputError(s.error());
     int revisits = 0, top1 = 0, top5 = 0;
     std::vector<double> revisit_best, other_best;
     for (const View& q : views) {

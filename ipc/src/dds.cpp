@@ -319,41 +319,24 @@ class Ros2Transport final : public Transport {
   Status open(const Ros2Options& o) {
     frame_id_ = o.frame_id;
     if (Status s = dp_.openDomain(o.domain_id, o.config); !s) return s;
-    topic_ = dds_create_topic(dp_.participant(), &geometry_msgs_msg_dds__PoseStamped__desc, o.pose_topic.c_str(),
-                              nullptr, nullptr);
-    if (topic_ < 0) return Error{ddsError(("cannot create topic '" + o.pose_topic + "'").c_str(), topic_)};
-    QosPtr q(dds_create_qos());
-    dds_qset_reliability(q.get(), DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
-    dds_qset_history(q.get(), DDS_HISTORY_KEEP_LAST, 10);
-    dds_qset_durability(q.get(), DDS_DURABILITY_VOLATILE);
-    writer_ = dds_create_writer(dp_.participant(), topic_, q.get(), nullptr);
-    if (writer_ < 0) return Error{ddsError("cannot create the ROS 2 pose writer", writer_)};
+    // ROS 2's publisher default is keep-last 10; tf2's keep-last 100.
     child_frame_id_ = o.child_frame_id;
-    if (!o.odometry_topic.empty()) {
-      const dds_entity_t t = dds_create_topic(dp_.participant(), &nav_msgs_msg_dds__Odometry__desc,
-                                              o.odometry_topic.c_str(), nullptr, nullptr);
-      if (t < 0) return Error{ddsError(("cannot create topic '" + o.odometry_topic + "'").c_str(), t)};
-      odometry_writer_ = dds_create_writer(dp_.participant(), t, q.get(), nullptr);
-      if (odometry_writer_ < 0) return Error{ddsError("cannot create the ROS 2 odometry writer", odometry_writer_)};
-    }
-    if (!o.tf_topic.empty()) {
-      // tf2's QoS: reliable, volatile, keep-last 100.
-      QosPtr tq(dds_create_qos());
-      dds_qset_reliability(tq.get(), DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
-      dds_qset_history(tq.get(), DDS_HISTORY_KEEP_LAST, 100);
-      dds_qset_durability(tq.get(), DDS_DURABILITY_VOLATILE);
-      const dds_entity_t t =
-          dds_create_topic(dp_.participant(), &tf2_msgs_msg_dds__TFMessage__desc, o.tf_topic.c_str(), nullptr, nullptr);
-      if (t < 0) return Error{ddsError(("cannot create topic '" + o.tf_topic + "'").c_str(), t)};
-      tf_writer_ = dds_create_writer(dp_.participant(), t, tq.get(), nullptr);
-      if (tf_writer_ < 0) return Error{ddsError("cannot create the ROS 2 tf writer", tf_writer_)};
-    }
-    if (!o.diagnostics_topic.empty()) {
-      const dds_entity_t t = dds_create_topic(dp_.participant(), &diagnostic_msgs_msg_dds__DiagnosticArray__desc,
-                                              o.diagnostics_topic.c_str(), nullptr, nullptr);
-      if (t < 0) return Error{ddsError(("cannot create topic '" + o.diagnostics_topic + "'").c_str(), t)};
-      diagnostics_writer_ = dds_create_writer(dp_.participant(), t, q.get(), nullptr);
-      if (diagnostics_writer_ < 0) return Error{ddsError("cannot create the ROS 2 diagnostics writer", diagnostics_writer_)};
+    auto pose = writer(&geometry_msgs_msg_dds__PoseStamped__desc, o.pose_topic, 10);
+    if (!pose) return Error{pose.error()};
+    writer_ = *pose;
+    const struct {
+      const dds_topic_descriptor_t* type;
+      const std::string& topic;
+      int depth;
+      dds_entity_t* out;
+    } optional[] = {{&nav_msgs_msg_dds__Odometry__desc, o.odometry_topic, 10, &odometry_writer_},
+                    {&tf2_msgs_msg_dds__TFMessage__desc, o.tf_topic, 100, &tf_writer_},
+                    {&diagnostic_msgs_msg_dds__DiagnosticArray__desc, o.diagnostics_topic, 10, &diagnostics_writer_}};
+    for (const auto& w : optional) {
+      if (w.topic.empty()) continue;  // turned off
+      auto made = writer(w.type, w.topic, w.depth);
+      if (!made) return Error{made.error()};
+      *w.out = *made;
     }
     return Status::success();
   }
@@ -480,9 +463,21 @@ class Ros2Transport final : public Transport {
   }
 
  private:
+  // A writer on `topic` with ROS 2's QoS: reliable, volatile, keep-last `depth`.
+  Result<dds_entity_t> writer(const dds_topic_descriptor_t* type, const std::string& topic, int depth) {
+    const dds_entity_t t = dds_create_topic(dp_.participant(), type, topic.c_str(), nullptr, nullptr);
+    if (t < 0) return Error{ddsError(("cannot create topic '" + topic + "'").c_str(), t)};
+    QosPtr q(dds_create_qos());
+    dds_qset_reliability(q.get(), DDS_RELIABILITY_RELIABLE, DDS_MSECS(100));
+    dds_qset_history(q.get(), DDS_HISTORY_KEEP_LAST, depth);
+    dds_qset_durability(q.get(), DDS_DURABILITY_VOLATILE);
+    const dds_entity_t w = dds_create_writer(dp_.participant(), t, q.get(), nullptr);
+    if (w < 0) return Error{ddsError(("cannot create the ROS 2 writer on '" + topic + "'").c_str(), w)};
+    return w;
+  }
+
   DdsParticipant dp_;
   dds_entity_t diagnostics_writer_ = 0;
-  dds_entity_t topic_ = 0;
   dds_entity_t writer_ = 0;
   dds_entity_t odometry_writer_ = 0, tf_writer_ = 0;
   std::string frame_id_, child_frame_id_;

@@ -79,10 +79,10 @@ void Publisher::publishStatus(StatusMessage status) { push(Item(std::move(status
 
 void Publisher::send(Item& item) {
   std::uint64_t errors = 0, unsent_down = 0;
-  std::vector<std::string> down;
+  bool any_down = false;
   for (auto& t : transports_) {
     t->retry();
-    if (!t->up()) down.emplace_back(t->name());
+    any_down |= !t->up();
   }
   if (auto* pose = std::get_if<PoseMessage>(&item)) {
     pose->publish_stamp = wallClockNow();
@@ -116,7 +116,13 @@ void Publisher::send(Item& item) {
   ++stats_.sent;
   stats_.send_errors += errors;
   stats_.unsent_down += unsent_down;
-  stats_.down = std::move(down);
+  // Names only when the set is not empty, or has just become so (no
+  // allocation per message while everything is up).
+  if (any_down || !stats_.down.empty()) {
+    stats_.down.clear();
+    for (auto& t : transports_)
+      if (!t->up()) stats_.down.emplace_back(t->name());
+  }
 }
 
 void Publisher::flush() {
