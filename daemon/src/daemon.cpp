@@ -83,6 +83,33 @@ ipc::TrackingState toIpc(slam::TrackingState s) {
   return ipc::TrackingState::kLost;
 }
 
+ipc::ObjectsMessage toIpc(const std::vector<slam::DynamicObject>& objects, const ipc::PoseMessage& pose) {
+  ipc::ObjectsMessage m;
+  m.sensor_stamp = pose.sensor_stamp;
+  m.frame_counter = pose.frame_counter;
+  m.map_id = pose.map_id;
+  // The largest first when a frame has more than a message carries.
+  std::vector<const slam::DynamicObject*> order;
+  for (const auto& o : objects) order.push_back(&o);
+  std::stable_sort(order.begin(), order.end(), [](auto* a, auto* b) { return a->samples > b->samples; });
+  if (order.size() > ipc::ObjectsMessage::kMaxObjects) order.resize(ipc::ObjectsMessage::kMaxObjects);
+  for (const slam::DynamicObject* o : order) {
+    ipc::ObjectMessage x;
+    x.id = o->id;
+    x.label = o->label.substr(0, ipc::ObjectsMessage::kMaxLabelLength);
+    x.sources = o->sources;
+    for (int k = 0; k < 3; ++k) {
+      x.centroid[k] = static_cast<float>(o->centroid[k]);
+      x.extent[k] = static_cast<float>(o->extent[k]);
+      x.velocity[k] = static_cast<float>(o->velocity[k]);
+    }
+    x.has_velocity = o->has_velocity;
+    x.samples = static_cast<std::uint32_t>(o->samples);
+    m.objects.push_back(std::move(x));
+  }
+  return m;
+}
+
 void logWarnings(const std::vector<std::string>& warnings) {
   for (const auto& w : warnings) SP_WARN(logger, w);
 }
@@ -127,6 +154,7 @@ struct Daemon::Impl {
   std::atomic<int> last_state{-1};
   std::atomic<int> last_health{static_cast<int>(slam::PoseHealth::kLost)};
   std::atomic<std::uint32_t> map_id{0};
+  std::atomic<std::int64_t> last_stamp_ns{0};  // sensor stamp of the newest frame tracked
   std::atomic<double> tracking_rate_hz{0};
   std::atomic<bool> device_gone{false};
   std::atomic<int> semantic_tid{0};  // the segmentation thread (nice 10 by default)
@@ -335,12 +363,14 @@ void Daemon::Impl::trackingLoop() {
       pose.orientation = {q.x(), q.y(), q.z(), q.w()};
     }
     publisher->publishPose(pose);
+    if (has_pose) publisher->publishObjects(toIpc(out->objects, pose));
     latency.add(std::chrono::duration<double, std::milli>(Clock::now() - frame->arrival).count());
     ++frames_processed;
     if (has_pose) ++frames_tracked;
     if (out->state == slam::TrackingState::kLost) ++frames_lost;
     keyframes = out->keyframes;
     map_id = out->map_id;
+    last_stamp_ns = frame->stamp.nanoseconds();
     last_state = static_cast<int>(out->state);
     last_health = static_cast<int>(out->quality.health);
   }
@@ -474,6 +504,11 @@ int Daemon::run() {
   auto tick = status_period;
   if (watchdog_period.count() > 0) tick = std::min<Clock::duration>(tick, watchdog_period);
   auto next_status = Clock::now() + status_period;
+  const auto map_cloud_period =
+      d.config.ipc.ros2.enabled && !d.config.ipc.ros2.map_cloud_topic.empty()
+          ? std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(d.config.ipc.ros2.map_cloud_period_s))
+          : Clock::duration::zero();
+  auto next_map_cloud = Clock::now();
   auto next_watchdog = Clock::now() + watchdog_period;
   std::uint64_t frames_at_ping = 0, frames_at_status = 0;
   auto last_status_time = Clock::now();
@@ -507,6 +542,17 @@ int Daemon::run() {
         frames_at_status = processed;
         last_status_time = now;
         next_status = now + status_period;
+      }
+      if (map_cloud_period.count() > 0 && now >= next_map_cloud && d.frames_tracked > 0) {
+        // The static map at a low rate: a few thousand points, read under
+        // the map's shared lock, off the tracking thread.
+        ipc::MapCloudMessage cloud;
+        cloud.map_id = d.map_id;
+        cloud.sensor_stamp = Timestamp::fromNanoseconds(d.last_stamp_ns);
+        for (const Vec3& p : d.system->mapPoints(static_cast<std::uint32_t>(cloud.map_id)))
+          cloud.points.push_back({static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
+        d.publisher->publishMapCloud(std::move(cloud));
+        next_map_cloud = now + map_cloud_period;
       }
       lock.lock();
     }

@@ -96,12 +96,15 @@
 extern "C" {
 #endif
 
-#define SP_SHM_MAGIC 0x48535053u /* "SPSH" in little-endian byte order */
+#define SP_SHM_MAGIC 0x48535053u /* "SPSH" in little-endian byte order: a pose ring */
+#define SP_SHM_OBJECTS_MAGIC 0x4F535053u /* "SPSO": a dynamic-objects ring (sp_object_record) */
 #define SP_SHM_SCHEMA_VERSION 2u
 #define SP_SHM_HEADER_SIZE 128u
 #define SP_SHM_SLOT_SIZE 192u
 #define SP_SHM_POSE_WORDS 16
 #define SP_SHM_DEFAULT_NAME "stillpoint_pose"
+#define SP_SHM_DEFAULT_OBJECTS_NAME "stillpoint_objects"
+#define SP_SHM_LABEL_SIZE 32
 #define SP_SHM_DIR "/dev/shm/"
 #define SP_SHM_LOCK_SUFFIX ".lock" /* writers' lock file, mode 0600: SP_SHM_DIR <name> SP_SHM_LOCK_SUFFIX */
 #define SP_SHM_MAX_CAPACITY (1u << 20)
@@ -143,6 +146,29 @@ typedef struct sp_pose_record {
   float conditioning;        /* 0..1: how well the inliers pin all six degrees of freedom */
 } sp_pose_record;
 
+/* Dynamic-object record, schema version 2 (docs/dynamic-objects.md), in a ring of its
+ * own (SP_SHM_OBJECTS_MAGIC; sp_shm_reader_open_objects()). Exactly SP_SHM_POSE_WORDS
+ * 64-bit words. Each frame with a pose gives `count` records, index 0..count-1, one per
+ * object, or one record with count 0 when nothing moves. Positions in the map frame
+ * of the pose records (the first camera's optical axes). */
+typedef struct sp_object_record {
+  uint64_t sequence;          /* 1-based position in this writer generation's stream */
+  int64_t sensor_stamp_ns;    /* capture time of the frame */
+  int64_t publish_stamp_ns;   /* CLOCK_REALTIME when the publisher sent it */
+  uint64_t frame_counter;     /* the frame's pose record has the same */
+  uint64_t map_id;
+  uint32_t id;                /* stable while the object is followed; 0 when count is 0 */
+  uint16_t index;             /* this object's place in the frame's records */
+  uint16_t count;             /* objects in the frame (0: nothing moves) */
+  uint32_t sources;           /* 1 geometry module, 2 semantic module, 3 both */
+  uint32_t samples;           /* surface points it was measured from */
+  float centroid[3];          /* median of its surface points [m] */
+  float extent[3];            /* 5-95 % range of its surface points per axis [m] */
+  float velocity[3];          /* of the centroid [m/s] */
+  uint32_t has_velocity;      /* 0 until seen twice */
+  char label[SP_SHM_LABEL_SIZE]; /* class ("person") or "unknown", NUL-terminated */
+} sp_object_record;
+
 typedef struct sp_shm_slot {
   uint64_t seq; /* 0 empty, 2n-1 writing record n, 2n holds record n */
   uint64_t words[SP_SHM_POSE_WORDS];
@@ -166,6 +192,7 @@ typedef struct sp_shm_header {
 
 /* Compile-time layout checks (C99 has no static_assert). */
 typedef char sp_shm_check_record_size[(sizeof(sp_pose_record) == 8 * SP_SHM_POSE_WORDS) ? 1 : -1];
+typedef char sp_shm_check_object_size[(sizeof(sp_object_record) == 8 * SP_SHM_POSE_WORDS) ? 1 : -1];
 typedef char sp_shm_check_slot_size[(sizeof(sp_shm_slot) == SP_SHM_SLOT_SIZE) ? 1 : -1];
 typedef char sp_shm_check_header_size[(sizeof(sp_shm_header) == SP_SHM_HEADER_SIZE) ? 1 : -1];
 
@@ -202,6 +229,7 @@ typedef struct sp_shm_reader {
   uint32_t owner_uid;      /* user that must own the ring; sp_shm_reader_init(): the effective uid */
   uint32_t found_mode;     /* st_mode of the file refused with SP_SHM_ERR_NOT_REGULAR or _OWNER */
   uint32_t found_uid;      /* its owner */
+  uint32_t magic;          /* the kind of ring it reads: SP_SHM_MAGIC (poses) or SP_SHM_OBJECTS_MAGIC */
 } sp_shm_reader;
 
 static inline const char* sp_shm_strerror(int code) {
@@ -299,10 +327,11 @@ static inline int sp_shm_open_file(const char* path, int flags, unsigned mode, u
   return fd;
 }
 
-/* Checks a mapped header. Kept separate so the writer uses the same rules. */
-static inline int sp_shm_check_header(const sp_shm_header* h, size_t file_size) {
+/* Checks a mapped header of a ring of kind `magic`. Kept separate so the writer uses
+ * the same rules. */
+static inline int sp_shm_check_header_of(const sp_shm_header* h, size_t file_size, uint32_t magic) {
   if (file_size < SP_SHM_HEADER_SIZE) return SP_SHM_ERR_NOT_A_RING;
-  if (__atomic_load_n(&h->magic, __ATOMIC_ACQUIRE) != SP_SHM_MAGIC) return SP_SHM_ERR_NOT_A_RING;
+  if (__atomic_load_n(&h->magic, __ATOMIC_ACQUIRE) != magic) return SP_SHM_ERR_NOT_A_RING;
   if (h->schema_version != SP_SHM_SCHEMA_VERSION) return SP_SHM_ERR_VERSION;
   if (h->header_size != SP_SHM_HEADER_SIZE || h->record_size != sizeof(sp_pose_record) ||
       h->slot_size != SP_SHM_SLOT_SIZE || h->capacity == 0 || h->capacity > SP_SHM_MAX_CAPACITY ||
@@ -312,10 +341,16 @@ static inline int sp_shm_check_header(const sp_shm_header* h, size_t file_size) 
   return SP_SHM_OK;
 }
 
+/* A pose ring's header. */
+static inline int sp_shm_check_header(const sp_shm_header* h, size_t file_size) {
+  return sp_shm_check_header_of(h, file_size, SP_SHM_MAGIC);
+}
+
 static inline void sp_shm_reader_init(sp_shm_reader* r) {
   memset(r, 0, sizeof(*r));
   r->fd = -1;
   r->owner_uid = (uint32_t)geteuid();
+  r->magic = SP_SHM_MAGIC;
 }
 
 static inline void sp_shm_reader_detach(sp_shm_reader* r) {
@@ -353,7 +388,7 @@ static inline int sp_shm_reader_attach(sp_shm_reader* r) {
   r->base = (const unsigned char*)map;
   r->map_size = (size_t)st.st_size;
   h = sp_shm_reader_header(r);
-  rc = sp_shm_check_header(h, r->map_size);
+  rc = sp_shm_check_header_of(h, r->map_size, r->magic);
   if (rc != SP_SHM_OK) {
     sp_shm_reader_detach(r);
     return rc;
@@ -380,6 +415,13 @@ static inline int sp_shm_reader_open(sp_shm_reader* r, const char* name, int sta
   if (rc != SP_SHM_OK) return rc;
   r->start_mode = start;
   return sp_shm_reader_attach(r);
+}
+
+/* Opens the dynamic-objects ring `name` (SP_SHM_DEFAULT_OBJECTS_NAME unless configured);
+ * read it with sp_shm_reader_next_object(). */
+static inline int sp_shm_reader_open_objects(sp_shm_reader* r, const char* name, int start) {
+  r->magic = SP_SHM_OBJECTS_MAGIC;
+  return sp_shm_reader_open(r, name, start);
 }
 
 static inline void sp_shm_reader_close(sp_shm_reader* r) { sp_shm_reader_detach(r); }
@@ -440,7 +482,7 @@ static inline int sp_shm_reader_writer_died(const sp_shm_reader* r) {
 }
 
 /* Copies record n if the slot still holds it. 1 on success, 0 if it was overwritten. */
-static inline int sp_shm_try_read(const sp_shm_reader* r, uint64_t n, sp_pose_record* out) {
+static inline int sp_shm_try_read(const sp_shm_reader* r, uint64_t n, void* out) {
   uint64_t words[SP_SHM_POSE_WORDS];
   const sp_shm_slot* slot = sp_shm_reader_slot(r, n);
   uint64_t s1, s2;
@@ -452,14 +494,14 @@ static inline int sp_shm_try_read(const sp_shm_reader* r, uint64_t n, sp_pose_re
   for (i = 0; i < SP_SHM_POSE_WORDS; ++i) words[i] = __atomic_load_n(&slot->words[i], __ATOMIC_ACQUIRE);
   s2 = __atomic_load_n(&slot->seq, __ATOMIC_RELAXED);
   if (s2 != s1) return 0;
-  memcpy(out, words, sizeof(*out));
+  memcpy(out, words, sizeof(words));
   return 1;
 }
 
 /* Returns the next record in order (SP_SHM_OK), SP_SHM_EMPTY when there is none yet, or
  * SP_SHM_RESTARTED after reattaching to a restarted writer. Never blocks. Records the
  * writer overwrote before this reader got to them are skipped and counted in r->lost. */
-static inline int sp_shm_reader_next(sp_shm_reader* r, sp_pose_record* out) {
+static inline int sp_shm_reader_next_record(sp_shm_reader* r, void* out) {
   const sp_shm_header* h;
   uint64_t newest, capacity;
   int attempt;
@@ -493,6 +535,17 @@ static inline int sp_shm_reader_next(sp_shm_reader* r, sp_pose_record* out) {
     r->next_sequence++;
   }
   return SP_SHM_EMPTY;
+}
+
+static inline int sp_shm_reader_next(sp_shm_reader* r, sp_pose_record* out) {
+  if (r->magic != SP_SHM_MAGIC) return SP_SHM_ERR_NOT_A_RING;
+  return sp_shm_reader_next_record(r, out);
+}
+
+/* sp_shm_reader_next() for a reader opened with sp_shm_reader_open_objects(). */
+static inline int sp_shm_reader_next_object(sp_shm_reader* r, sp_object_record* out) {
+  if (r->magic != SP_SHM_OBJECTS_MAGIC) return SP_SHM_ERR_NOT_A_RING;
+  return sp_shm_reader_next_record(r, out);
 }
 
 /* Returns the newest record (SP_SHM_OK) and skips anything older; SP_SHM_EMPTY if the

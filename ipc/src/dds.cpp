@@ -1,11 +1,16 @@
 // Cyclone DDS transport (C API). Types come from msg/stillpoint.idl through idlc at
-// build time. Poses: best-effort, keep-last 1 (a late pose is worthless, never resend).
+// build time. Poses and objects: best-effort, keep-last 1 (a late pose is worthless,
+// never resend).
 // Status: reliable, transient-local, keep-last 1 (a late joiner gets the last status).
 #include <dds/dds.h>
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
+#include <cmath>
+#include <cstdio>
 #include <cstring>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -128,6 +133,51 @@ Result<StatusMessage> fromDds(const stillpoint_dds_Status& m) {
   return s;
 }
 
+void toDds(const ObjectsMessage& o, stillpoint_dds_DynamicObjects& m) {
+  std::memset(&m, 0, sizeof(m));
+  m.schema_version = ObjectsMessage::kSchemaVersion;
+  m.sensor_stamp_ns = o.sensor_stamp.nanoseconds();
+  m.publish_stamp_ns = o.publish_stamp.nanoseconds();
+  m.frame_counter = o.frame_counter;
+  m.map_id = o.map_id;
+  m.object_count = static_cast<std::uint8_t>(o.objects.size());
+  for (std::size_t k = 0; k < o.objects.size(); ++k) {
+    const ObjectMessage& x = o.objects[k];
+    auto& y = m.objects[k];
+    y.id = x.id;
+    copyName(y.label, x.label);
+    y.sources = x.sources;
+    for (int i = 0; i < 3; ++i) y.centroid[i] = x.centroid[i], y.extent[i] = x.extent[i], y.velocity[i] = x.velocity[i];
+    y.has_velocity = x.has_velocity;
+    y.samples = x.samples;
+  }
+}
+
+Result<ObjectsMessage> fromDds(const stillpoint_dds_DynamicObjects& m) {
+  if (m.schema_version != ObjectsMessage::kSchemaVersion)
+    return Error{"dds: objects schema version " + std::to_string(m.schema_version) + ", this build reads " +
+                 std::to_string(ObjectsMessage::kSchemaVersion)};
+  if (m.object_count > ObjectsMessage::kMaxObjects) return Error{"dds: more objects than the schema allows"};
+  ObjectsMessage o;
+  o.sensor_stamp = Timestamp::fromNanoseconds(m.sensor_stamp_ns);
+  o.publish_stamp = Timestamp::fromNanoseconds(m.publish_stamp_ns);
+  o.frame_counter = m.frame_counter;
+  o.map_id = m.map_id;
+  for (int k = 0; k < m.object_count; ++k) {
+    const auto& y = m.objects[k];
+    ObjectMessage x;
+    x.id = y.id;
+    x.label = std::string(y.label, strnlen(y.label, sizeof(y.label)));
+    x.sources = y.sources;
+    for (int i = 0; i < 3; ++i) x.centroid[i] = y.centroid[i], x.extent[i] = y.extent[i], x.velocity[i] = y.velocity[i];
+    x.has_velocity = y.has_velocity;
+    x.samples = y.samples;
+    o.objects.push_back(std::move(x));
+  }
+  if (Status v = validate(o); !v) return Error{"dds: " + v.error()};
+  return o;
+}
+
 // Owns the domain (when we created it) and the participant; deleting the participant
 // deletes every entity under it.
 class DdsParticipant {
@@ -158,9 +208,16 @@ class DdsParticipant {
         dds_create_topic(participant_, &stillpoint_dds_Status_desc, o.status_topic.c_str(), nullptr, nullptr);
     if (status_topic_ < 0)
       return Error{ddsError(("cannot create topic '" + o.status_topic + "'").c_str(), status_topic_)};
+    if (!o.objects_topic.empty()) {
+      objects_topic_ =
+          dds_create_topic(participant_, &stillpoint_dds_DynamicObjects_desc, o.objects_topic.c_str(), nullptr, nullptr);
+      if (objects_topic_ < 0)
+        return Error{ddsError(("cannot create topic '" + o.objects_topic + "'").c_str(), objects_topic_)};
+    }
     return Status::success();
   }
   dds_entity_t participant() const { return participant_; }
+  dds_entity_t objectsTopic() const { return objects_topic_; }  // 0: off
   dds_entity_t poseTopic() const { return pose_topic_; }
   dds_entity_t statusTopic() const { return status_topic_; }
 
@@ -169,6 +226,7 @@ class DdsParticipant {
   dds_entity_t participant_ = 0;
   dds_entity_t pose_topic_ = 0;
   dds_entity_t status_topic_ = 0;
+  dds_entity_t objects_topic_ = 0;
 };
 
 struct QosDeleter {
@@ -200,6 +258,18 @@ class DdsTransport final : public Transport {
     if (pose_writer_ < 0) return Error{ddsError("cannot create pose writer", pose_writer_)};
     status_writer_ = dds_create_writer(dp_.participant(), dp_.statusTopic(), statusQos().get(), nullptr);
     if (status_writer_ < 0) return Error{ddsError("cannot create status writer", status_writer_)};
+    if (dp_.objectsTopic() > 0) {
+      objects_writer_ = dds_create_writer(dp_.participant(), dp_.objectsTopic(), poseQos(1).get(), nullptr);
+      if (objects_writer_ < 0) return Error{ddsError("cannot create objects writer", objects_writer_)};
+    }
+    return Status::success();
+  }
+  Status publishObjects(const ObjectsMessage& objects) override {
+    if (objects_writer_ <= 0) return Status::success();
+    if (Status v = validate(objects); !v) return v;
+    toDds(objects, objects_sample_);
+    if (dds_return_t rc = dds_write(objects_writer_, &objects_sample_); rc != DDS_RETCODE_OK)
+      return Error{ddsError("write objects", rc)};
     return Status::success();
   }
   std::string_view name() const override { return "dds"; }
@@ -225,7 +295,9 @@ class DdsTransport final : public Transport {
   DdsParticipant dp_;
   dds_entity_t pose_writer_ = 0;
   dds_entity_t status_writer_ = 0;
+  dds_entity_t objects_writer_ = 0;
   stillpoint_dds_Status status_sample_{};
+  stillpoint_dds_DynamicObjects objects_sample_{};
 };
 
 class DdsSubscriber final : public Subscriber {
@@ -238,7 +310,12 @@ class DdsSubscriber final : public Subscriber {
     if (status_reader_ < 0) return Error{ddsError("cannot create status reader", status_reader_)};
     waitset_ = dds_create_waitset(dp_.participant());
     if (waitset_ < 0) return Error{ddsError("cannot create waitset", waitset_)};
-    for (dds_entity_t r : {pose_reader_, status_reader_}) {
+    if (dp_.objectsTopic() > 0) {
+      objects_reader_ = dds_create_reader(dp_.participant(), dp_.objectsTopic(), poseQos(pose_history).get(), nullptr);
+      if (objects_reader_ < 0) return Error{ddsError("cannot create objects reader", objects_reader_)};
+    }
+    for (dds_entity_t r : {pose_reader_, status_reader_, objects_reader_}) {
+      if (r <= 0) continue;
       dds_return_t rc = dds_set_status_mask(r, DDS_DATA_AVAILABLE_STATUS);
       if (rc == DDS_RETCODE_OK) rc = dds_waitset_attach(waitset_, r, r);
       if (rc != DDS_RETCODE_OK) return Error{ddsError("cannot attach reader to waitset", rc)};
@@ -275,6 +352,18 @@ class DdsSubscriber final : public Subscriber {
       ++handled;
       if (status_handler_) status_handler_(*status);
     }
+    while (objects_reader_ > 0) {
+      void* ptr = &objects_buf_;
+      dds_sample_info_t info;
+      const int n = dds_take(objects_reader_, &ptr, &info, 1, 1);
+      if (n < 0) return Error{ddsError("take objects", n)};
+      if (n == 0) break;
+      if (!info.valid_data) continue;
+      auto objects = fromDds(objects_buf_);
+      if (!objects) return Error{objects.error()};
+      ++handled;
+      if (objects_handler_) objects_handler_(*objects);
+    }
     return handled;
   }
 
@@ -296,6 +385,8 @@ class DdsSubscriber final : public Subscriber {
   void* pose_ptrs_[kBatch] = {};
   dds_sample_info_t pose_infos_[kBatch]{};
   stillpoint_dds_Status status_buf_{};
+  dds_entity_t objects_reader_ = 0;
+  stillpoint_dds_DynamicObjects objects_buf_{};
 
  public:
   DdsSubscriber() {
@@ -304,23 +395,36 @@ class DdsSubscriber final : public Subscriber {
 };
 
 // REP-103 axes from a camera's optical axes: x forward (optical z), y left
-// (optical -x), z up (optical -y). A pose T_map_cam in optical axes becomes
-// C T C^-1: the map frame and the camera's body frame both in REP-103 axes.
+// (optical -x), z up (optical -y).
 Eigen::Matrix3d rep103FromOptical() {
   Eigen::Matrix3d C;
   C << 0, 0, 1, -1, 0, 0, 0, -1, 0;
   return C;
 }
 
-// Poses as geometry_msgs/msg/PoseStamped. ROS 2's default QoS for a
-// publisher: reliable, volatile, keep-last 10.
+builtin_interfaces_msg_dds__Time_ rosTime(std::int64_t ns) {
+  builtin_interfaces_msg_dds__Time_ t{};
+  t.sec = static_cast<std::int32_t>(ns / 1'000'000'000);
+  t.nanosec = static_cast<std::uint32_t>(ns % 1'000'000'000);
+  return t;
+}
+
+// Poses as geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry and tf; objects
+// as a visualization_msgs/msg/MarkerArray; the map as sensor_msgs/msg/PointCloud2.
+// ROS 2's default QoS for a publisher: reliable, volatile, keep-last 10.
 class Ros2Transport final : public Transport {
  public:
   Status open(const Ros2Options& o) {
     frame_id_ = o.frame_id;
+    child_frame_id_ = o.child_frame_id;
+    // X = T_child_optical: the camera's body frame in the child frame
+    // (ipc.ros2.camera_extrinsic), after the optical -> body axes.
+    const auto& e = o.camera_extrinsic;
+    const Eigen::Quaterniond q_child_body(e[6], e[3], e[4], e[5]);
+    X_.linear() = q_child_body.normalized().toRotationMatrix() * rep103FromOptical();
+    X_.translation() = Eigen::Vector3d(e[0], e[1], e[2]);
     if (Status s = dp_.openDomain(o.domain_id, o.config); !s) return s;
     // ROS 2's publisher default is keep-last 10; tf2's keep-last 100.
-    child_frame_id_ = o.child_frame_id;
     auto pose = writer(&geometry_msgs_msg_dds__PoseStamped__desc, o.pose_topic, 10);
     if (!pose) return Error{pose.error()};
     writer_ = *pose;
@@ -331,7 +435,9 @@ class Ros2Transport final : public Transport {
       dds_entity_t* out;
     } optional[] = {{&nav_msgs_msg_dds__Odometry__desc, o.odometry_topic, 10, &odometry_writer_},
                     {&tf2_msgs_msg_dds__TFMessage__desc, o.tf_topic, 100, &tf_writer_},
-                    {&diagnostic_msgs_msg_dds__DiagnosticArray__desc, o.diagnostics_topic, 10, &diagnostics_writer_}};
+                    {&diagnostic_msgs_msg_dds__DiagnosticArray__desc, o.diagnostics_topic, 10, &diagnostics_writer_},
+                    {&visualization_msgs_msg_dds__MarkerArray__desc, o.objects_topic, 10, &objects_writer_},
+                    {&sensor_msgs_msg_dds__PointCloud2__desc, o.map_cloud_topic, 1, &cloud_writer_}};
     for (const auto& w : optional) {
       if (w.topic.empty()) continue;  // turned off
       auto made = writer(w.type, w.topic, w.depth);
@@ -346,23 +452,18 @@ class Ros2Transport final : public Transport {
     if (pose.state != TrackingState::kOk && pose.state != TrackingState::kRelocalised &&
         pose.state != TrackingState::kNewMap)
       return Status::success();
-    const Eigen::Matrix3d C = rep103FromOptical();
+    // The child frame's pose in the map (the child frame at the first pose):
+    // X T X^-1, T the optical frame's pose in the first optical frame.
     const Eigen::Quaterniond q(pose.orientation[3], pose.orientation[0], pose.orientation[1], pose.orientation[2]);
-    const Eigen::Vector3d t(pose.position[0], pose.position[1], pose.position[2]);
-    const Eigen::Vector3d p = C * t;
-    Eigen::Quaterniond r(C * q.normalized().toRotationMatrix() * C.transpose());
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = q.normalized().toRotationMatrix();
+    T.translation() = Eigen::Vector3d(pose.position[0], pose.position[1], pose.position[2]);
+    const Eigen::Isometry3d P = X_ * T * X_.inverse();
+    const Eigen::Vector3d p = P.translation();
+    Eigen::Quaterniond r(P.rotation());
     r.normalize();
-    // Header stamps on the system clock: the camera's clock mapped to it by
-    // the publish - sensor difference of the first pose (the clocks' offset
-    // plus that frame's latency), so stamps keep the camera's spacing exactly.
-    if (!has_offset_) {
-      offset_ns_ = pose.publish_stamp.nanoseconds() - pose.sensor_stamp.nanoseconds();
-      has_offset_ = true;
-    }
-    const std::int64_t stamp = pose.sensor_stamp.nanoseconds() + offset_ns_;
     geometry_msgs_msg_dds__PoseStamped_ m{};
-    m.header.stamp.sec = static_cast<std::int32_t>(stamp / 1'000'000'000);
-    m.header.stamp.nanosec = static_cast<std::uint32_t>(stamp % 1'000'000'000);
+    m.header.stamp = rosTime(systemStamp(pose.sensor_stamp, pose.publish_stamp));
     m.header.frame_id = const_cast<char*>(frame_id_.c_str());
     m.pose.position.x = p.x();
     m.pose.position.y = p.y();
@@ -403,6 +504,108 @@ class Ros2Transport final : public Transport {
       msg.transforms._release = false;
       if (dds_return_t rc = dds_write(tf_writer_, &msg); rc != DDS_RETCODE_OK) return Error{ddsError("write ROS 2 tf", rc)};
     }
+    return Status::success();
+  }
+  // Each object as a box (CUBE, its extent, coloured by what found it) and a
+  // label above it (TEXT_VIEW_FACING), after a DELETEALL that clears the last
+  // frame's; every marker also expires after 0.5 s.
+  Status publishObjects(const ObjectsMessage& objects) override {
+    if (objects_writer_ <= 0) return Status::success();
+    if (Status v = validate(objects); !v) return v;
+    const builtin_interfaces_msg_dds__Time_ stamp = rosTime(systemStamp(objects.sensor_stamp, objects.publish_stamp));
+    std::vector<visualization_msgs_msg_dds__Marker_> markers(1 + 2 * objects.objects.size());
+    std::vector<std::string> texts(objects.objects.size());
+    static char empty[] = "";
+    static char boxes[] = "stillpoint_objects";
+    static char labels[] = "stillpoint_object_labels";
+    for (auto& mk : markers) {
+      mk.header.stamp = stamp;
+      mk.header.frame_id = const_cast<char*>(frame_id_.c_str());
+      mk.ns = boxes;
+      mk.pose.orientation.w = 1.0;
+      mk.texture_resource = mk.text = mk.mesh_resource = empty;
+      mk.texture.header.frame_id = mk.texture.format = empty;
+      mk.mesh_file.filename = empty;
+      mk.lifetime.nanosec = 500'000'000;
+    }
+    markers[0].action = 3;  // DELETEALL
+    const Eigen::Matrix3d R = X_.linear();
+    const Eigen::Matrix3d absR = R.cwiseAbs();
+    for (std::size_t k = 0; k < objects.objects.size(); ++k) {
+      const ObjectMessage& o = objects.objects[k];
+      const Eigen::Vector3d c = X_ * Eigen::Vector3d(o.centroid[0], o.centroid[1], o.centroid[2]);
+      const Eigen::Vector3d size = absR * Eigen::Vector3d(o.extent[0], o.extent[1], o.extent[2]);
+      auto& box = markers[1 + 2 * k];
+      box.id = static_cast<std::int32_t>(o.id);
+      box.type = 1;  // CUBE
+      box.pose.position.x = c.x();
+      box.pose.position.y = c.y();
+      box.pose.position.z = c.z();
+      box.scale.x = std::max(0.05, size.x());
+      box.scale.y = std::max(0.05, size.y());
+      box.scale.z = std::max(0.05, size.z());
+      // Geometry only: orange; semantic only: blue; both: magenta.
+      const bool geo = o.sources & ObjectMessage::kGeometry, sem = o.sources & ObjectMessage::kSemantic;
+      box.color = {geo ? 1.0f : 0.2f, geo && !sem ? 0.5f : 0.2f, sem ? 1.0f : 0.0f, 0.5f};
+      auto& text = markers[2 + 2 * k];
+      text.ns = labels;
+      text.id = static_cast<std::int32_t>(o.id);
+      text.type = 9;  // TEXT_VIEW_FACING
+      text.pose.position.x = c.x();
+      text.pose.position.y = c.y();
+      text.pose.position.z = c.z() + 0.5 * box.scale.z + 0.1;
+      text.scale.z = 0.15;  // text height
+      text.color = {1.0f, 1.0f, 1.0f, 1.0f};
+      const Eigen::Vector3d v = R * Eigen::Vector3d(o.velocity[0], o.velocity[1], o.velocity[2]);
+      char speed[32] = "";
+      if (o.has_velocity) std::snprintf(speed, sizeof(speed), " %.2f m/s", v.norm());
+      texts[k] = o.label + " " + std::to_string(o.id) + speed;
+      text.text = texts[k].data();
+    }
+    visualization_msgs_msg_dds__MarkerArray_ array{};
+    array.markers._maximum = array.markers._length = static_cast<std::uint32_t>(markers.size());
+    array.markers._buffer = markers.data();
+    array.markers._release = false;
+    if (dds_return_t rc = dds_write(objects_writer_, &array); rc != DDS_RETCODE_OK)
+      return Error{ddsError("write ROS 2 dynamic objects", rc)};
+    return Status::success();
+  }
+  Status publishMapCloud(const MapCloudMessage& cloud) override {
+    if (cloud_writer_ <= 0) return Status::success();
+    std::vector<float> data;
+    data.reserve(3 * cloud.points.size());
+    for (const auto& pt : cloud.points) {
+      if (!std::isfinite(pt[0]) || !std::isfinite(pt[1]) || !std::isfinite(pt[2])) continue;
+      const Eigen::Vector3d p = X_ * Eigen::Vector3d(pt[0], pt[1], pt[2]);
+      data.insert(data.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z())});
+    }
+    static char names[3][2] = {"x", "y", "z"};
+    sensor_msgs_msg_dds__PointField_ fields[3]{};
+    for (int k = 0; k < 3; ++k) {
+      fields[k].name = names[k];
+      fields[k].offset = static_cast<std::uint32_t>(4 * k);
+      fields[k].datatype = 7;  // FLOAT32
+      fields[k].count = 1;
+    }
+    sensor_msgs_msg_dds__PointCloud2_ m{};
+    m.header.stamp = rosTime(cloud.sensor_stamp.nanoseconds() != 0 && has_offset_
+                                 ? cloud.sensor_stamp.nanoseconds() + offset_ns_
+                                 : cloud.publish_stamp.nanoseconds());
+    m.header.frame_id = const_cast<char*>(frame_id_.c_str());
+    m.height = 1;
+    m.width = static_cast<std::uint32_t>(data.size() / 3);
+    m.fields._maximum = m.fields._length = 3;
+    m.fields._buffer = fields;
+    m.fields._release = false;
+    m.is_bigendian = std::endian::native == std::endian::big;
+    m.point_step = 12;
+    m.row_step = 12 * m.width;
+    m.data._maximum = m.data._length = static_cast<std::uint32_t>(data.size() * sizeof(float));
+    m.data._buffer = reinterpret_cast<std::uint8_t*>(data.data());
+    m.data._release = false;
+    m.is_dense = true;
+    if (dds_return_t rc = dds_write(cloud_writer_, &m); rc != DDS_RETCODE_OK)
+      return Error{ddsError("write ROS 2 map cloud", rc)};
     return Status::success();
   }
   // The status as one diagnostic_msgs/DiagnosticStatus "stillpoint": OK
@@ -476,10 +679,22 @@ class Ros2Transport final : public Transport {
     return w;
   }
 
+  // Header stamps on the system clock: the camera's clock mapped to it by the
+  // publish - sensor difference of the first message (the clocks' offset plus
+  // that frame's latency), so stamps keep the camera's spacing exactly.
+  std::int64_t systemStamp(Timestamp sensor, Timestamp publish) {
+    if (!has_offset_) {
+      offset_ns_ = publish.nanoseconds() - sensor.nanoseconds();
+      has_offset_ = true;
+    }
+    return sensor.nanoseconds() + offset_ns_;
+  }
+
   DdsParticipant dp_;
+  Eigen::Isometry3d X_ = Eigen::Isometry3d::Identity();
   dds_entity_t diagnostics_writer_ = 0;
   dds_entity_t writer_ = 0;
-  dds_entity_t odometry_writer_ = 0, tf_writer_ = 0;
+  dds_entity_t odometry_writer_ = 0, tf_writer_ = 0, objects_writer_ = 0, cloud_writer_ = 0;
   std::string frame_id_, child_frame_id_;
   std::int64_t offset_ns_ = 0;
   bool has_offset_ = false;

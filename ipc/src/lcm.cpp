@@ -4,6 +4,7 @@
 #include <cstring>
 
 #include "stillpoint/ipc/transport.hpp"
+#include "stillpoint_lcm/objects_t.hpp"
 #include "stillpoint_lcm/pose_t.hpp"
 #include "stillpoint_lcm/status_t.hpp"
 
@@ -119,6 +120,52 @@ Result<StatusMessage> fromLcm(const stillpoint_lcm::status_t& m) {
   return s;
 }
 
+stillpoint_lcm::objects_t toLcm(const ObjectsMessage& o) {
+  stillpoint_lcm::objects_t m{};
+  m.schema_version = ObjectsMessage::kSchemaVersion;
+  m.sensor_stamp_ns = o.sensor_stamp.nanoseconds();
+  m.publish_stamp_ns = o.publish_stamp.nanoseconds();
+  m.frame_counter = asSigned(o.frame_counter);
+  m.map_id = asSigned(o.map_id);
+  m.count = static_cast<std::int32_t>(o.objects.size());
+  for (const ObjectMessage& x : o.objects) {
+    stillpoint_lcm::object_t y{};
+    y.id = static_cast<std::int32_t>(x.id);
+    y.label = x.label;
+    y.sources = static_cast<std::int8_t>(x.sources);
+    for (int k = 0; k < 3; ++k) y.centroid[k] = x.centroid[k], y.extent[k] = x.extent[k], y.velocity[k] = x.velocity[k];
+    y.has_velocity = x.has_velocity;
+    y.samples = static_cast<std::int32_t>(x.samples);
+    m.objects.push_back(std::move(y));
+  }
+  return m;
+}
+
+Result<ObjectsMessage> fromLcm(const stillpoint_lcm::objects_t& m) {
+  if (m.schema_version != static_cast<std::int32_t>(ObjectsMessage::kSchemaVersion))
+    return Error{"lcm: objects schema version " + std::to_string(m.schema_version) + ", this build reads " +
+                 std::to_string(ObjectsMessage::kSchemaVersion)};
+  ObjectsMessage o;
+  o.sensor_stamp = Timestamp::fromNanoseconds(m.sensor_stamp_ns);
+  o.publish_stamp = Timestamp::fromNanoseconds(m.publish_stamp_ns);
+  o.frame_counter = asUnsigned(m.frame_counter);
+  o.map_id = asUnsigned(m.map_id);
+  for (const auto& y : m.objects) {
+    ObjectMessage x;
+    x.id = static_cast<std::uint32_t>(y.id);
+    x.label = y.label;
+    x.sources = static_cast<std::uint8_t>(y.sources);
+    for (int k = 0; k < 3; ++k) x.centroid[k] = y.centroid[k], x.extent[k] = y.extent[k], x.velocity[k] = y.velocity[k];
+    x.has_velocity = y.has_velocity;
+    auto samples = narrow<std::uint32_t>(y.samples, "objects.samples");
+    if (!samples) return Error{samples.error()};
+    x.samples = *samples;
+    o.objects.push_back(std::move(x));
+  }
+  if (Status v = validate(o); !v) return Error{"lcm: " + v.error()};
+  return o;
+}
+
 Status checkUrl(const std::string& url) {
   // lcm::LCM prints its own complaint and leaves the object unusable; say which URL.
   if (url.find("://") == std::string::npos)
@@ -144,6 +191,14 @@ class LcmTransport final : public Transport {
       return Error{"lcm: publish on " + options_.status_channel + " failed"};
     return Status::success();
   }
+  Status publishObjects(const ObjectsMessage& objects) override {
+    if (options_.objects_channel.empty()) return Status::success();
+    if (Status v = validate(objects); !v) return v;
+    const auto m = toLcm(objects);
+    if (lcm_.publish(options_.objects_channel, &m) != 0)
+      return Error{"lcm: publish on " + options_.objects_channel + " failed"};
+    return Status::success();
+  }
 
  private:
   LcmOptions options_;
@@ -162,6 +217,8 @@ class LcmSubscriber final : public Subscriber {
     // caller polls late; a subscriber descheduled for 30 ms at 1 kHz would lose poses.
     lcm_.subscribeFunction(options_.pose_channel, &LcmSubscriber::onRawPose, this)->setQueueCapacity(1024);
     lcm_.subscribeFunction(options_.status_channel, &LcmSubscriber::onRawStatus, this)->setQueueCapacity(64);
+    if (!options_.objects_channel.empty())
+      lcm_.subscribeFunction(options_.objects_channel, &LcmSubscriber::onRawObjects, this)->setQueueCapacity(1024);
     return Status::success();
   }
 
@@ -208,6 +265,20 @@ class LcmSubscriber final : public Subscriber {
     if (self->status_handler_) self->status_handler_(*status);
   }
 
+  static void onRawObjects(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
+    stillpoint_lcm::objects_t m;
+    if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
+      self->error_ = "lcm: cannot decode an objects_t on " + channel + " (different schema?)";
+      return;
+    }
+    auto objects = fromLcm(m);
+    if (!objects) {
+      self->error_ = objects.error();
+      return;
+    }
+    ++self->handled_;
+    if (self->objects_handler_) self->objects_handler_(*objects);
+  }
   LcmOptions options_;
   lcm::LCM lcm_;
   int handled_ = 0;

@@ -46,6 +46,25 @@ Status validate(const StatusMessage& status) {
   return Status::success();
 }
 
+Status validate(const ObjectsMessage& m) {
+  if (m.objects.size() > ObjectsMessage::kMaxObjects)
+    return Error{"objects: " + std::to_string(m.objects.size()) + " objects, at most " +
+                 std::to_string(ObjectsMessage::kMaxObjects)};
+  for (const ObjectMessage& o : m.objects) {
+    if (o.label.empty() || o.label.size() > ObjectsMessage::kMaxLabelLength)
+      return Error{"objects: label '" + o.label + "' must have 1.." + std::to_string(ObjectsMessage::kMaxLabelLength) +
+                   " characters"};
+    for (char c : o.label)
+      if (c < 0x20 || c > 0x7e) return Error{"objects: label '" + o.label + "' has a non-printable character"};
+    if ((o.sources & ~(ObjectMessage::kGeometry | ObjectMessage::kSemantic)) != 0)
+      return Error{"objects: sources " + std::to_string(o.sources) + " is not a combination of 1 and 2"};
+    for (const auto* v : {&o.centroid, &o.extent, &o.velocity})
+      for (float x : *v)
+        if (!std::isfinite(x)) return Error{"objects: object " + std::to_string(o.id) + " has a non-finite number"};
+  }
+  return Status::success();
+}
+
 bool hasPose(TrackingState s) {
   return s == TrackingState::kOk || s == TrackingState::kRelocalised || s == TrackingState::kNewMap;
 }

@@ -2,8 +2,11 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
+#include <cmath>
 #include <functional>
 #include <set>
+#include <vector>
 
 #include "stillpoint/core/yaml_file.hpp"
 
@@ -31,11 +34,37 @@ Status IpcOptions::validate() const {
   if (ros2.frame_id.empty()) return Error{"ipc.ros2.frame_id must not be empty"};
   for (const auto& [key, topic] : {std::pair<const char*, const std::string*>{"odometry_topic", &ros2.odometry_topic},
                                    {"tf_topic", &ros2.tf_topic},
-                                   {"diagnostics_topic", &ros2.diagnostics_topic}})
+                                   {"diagnostics_topic", &ros2.diagnostics_topic},
+                                   {"objects_topic", &ros2.objects_topic},
+                                   {"map_cloud_topic", &ros2.map_cloud_topic}})
     if (!topic->empty() && (topic->rfind("rt/", 0) != 0 || topic->size() < 4))
       return Error{std::string("ipc.ros2.") + key + " must be empty (off) or of ROS 2's form, rt/<name>"};
   if (ros2.child_frame_id.empty() || ros2.child_frame_id == ros2.frame_id)
     return Error{"ipc.ros2.child_frame_id must be set and differ from frame_id"};
+  if (!(ros2.map_cloud_period_s >= 0.1 && ros2.map_cloud_period_s <= 3600))
+    return Error{"ipc.ros2.map_cloud_period_s must be in [0.1, 3600]"};
+  {
+    double n2 = 0;
+    for (int k = 0; k < 7; ++k) {
+      if (!std::isfinite(ros2.camera_extrinsic[k])) return Error{"ipc.ros2.camera_extrinsic must be finite"};
+      if (k >= 3) n2 += ros2.camera_extrinsic[k] * ros2.camera_extrinsic[k];
+    }
+    if (std::abs(std::sqrt(n2) - 1.0) > 1e-3)
+      return Error{"ipc.ros2.camera_extrinsic's quaternion (qx qy qz qw) must have unit norm, has " +
+                   std::to_string(std::sqrt(n2))};
+  }
+  if (!shm.objects_name.empty() && (shm.objects_name == shm.name || shm.objects_name.size() > 200 ||
+                                    shm.objects_name[0] == '.' ||
+                                    shm.objects_name.find_first_not_of(
+                                        "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") !=
+                                        std::string::npos))
+    return Error{"ipc.shm.objects_name must be empty (off) or 1-200 characters from [A-Za-z0-9._-], not starting "
+                 "with '.', and differ from ipc.shm.name"};
+  if (!lcm.objects_channel.empty() &&
+      (lcm.objects_channel == lcm.pose_channel || lcm.objects_channel == lcm.status_channel))
+    return Error{"ipc.lcm.objects_channel must differ from the pose and status channels"};
+  if (!dds.objects_topic.empty() && (dds.objects_topic == dds.pose_topic || dds.objects_topic == dds.status_topic))
+    return Error{"ipc.dds.objects_topic must differ from the pose and status topics"};
   return Status::success();
 }
 
@@ -110,12 +139,14 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
     r.get("enabled", o.shm.enabled);
     r.get("name", o.shm.name);
     r.get("capacity", o.shm.capacity);
+    r.get("objects_name", o.shm.objects_name);
   });
   if (s) s = section(node, "lcm", "ipc.lcm", [&](Reader& r) {
     r.get("enabled", o.lcm.enabled);
     r.get("url", o.lcm.url);
     r.get("pose_channel", o.lcm.pose_channel);
     r.get("status_channel", o.lcm.status_channel);
+    r.get("objects_channel", o.lcm.objects_channel);
   });
   if (s) s = section(node, "dds", "ipc.dds", [&](Reader& r) {
     r.get("enabled", o.dds.enabled);
@@ -123,6 +154,7 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
     r.get("config", o.dds.config);
     r.get("pose_topic", o.dds.pose_topic);
     r.get("status_topic", o.dds.status_topic);
+    r.get("objects_topic", o.dds.objects_topic);
   });
   if (s) s = section(node, "ros2", "ipc.ros2", [&](Reader& r) {
     r.get("enabled", o.ros2.enabled);
@@ -134,6 +166,18 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
     r.get("tf_topic", o.ros2.tf_topic);
     r.get("child_frame_id", o.ros2.child_frame_id);
     r.get("diagnostics_topic", o.ros2.diagnostics_topic);
+    r.get("objects_topic", o.ros2.objects_topic);
+    r.get("map_cloud_topic", o.ros2.map_cloud_topic);
+    r.get("map_cloud_period_s", o.ros2.map_cloud_period_s);
+    std::vector<double> extrinsic;
+    r.get("camera_extrinsic", extrinsic);
+    if (!extrinsic.empty()) {
+      if (extrinsic.size() != 7) {
+        if (r.error.empty()) r.error = "field 'ipc.ros2.camera_extrinsic' must be [x, y, z, qx, qy, qz, qw]";
+      } else {
+        std::copy(extrinsic.begin(), extrinsic.end(), o.ros2.camera_extrinsic.begin());
+      }
+    }
   });
   if (!s) return Error{s.error()};
   if (Status v = o.validate(); !v) return Error{v.error()};

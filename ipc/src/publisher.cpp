@@ -1,6 +1,8 @@
 #include "stillpoint/ipc/publisher.hpp"
 
 #include <chrono>
+#include <type_traits>
+#include <variant>
 
 #include "stillpoint/core/log.hpp"
 
@@ -76,6 +78,8 @@ void Publisher::push(Item item) {
 
 void Publisher::publishPose(const PoseMessage& pose) { push(Item(pose)); }
 void Publisher::publishStatus(StatusMessage status) { push(Item(std::move(status))); }
+void Publisher::publishObjects(ObjectsMessage objects) { push(Item(std::move(objects))); }
+void Publisher::publishMapCloud(MapCloudMessage cloud) { push(Item(std::move(cloud))); }
 
 void Publisher::send(Item& item) {
   std::uint64_t errors = 0, unsent_down = 0;
@@ -84,34 +88,34 @@ void Publisher::send(Item& item) {
     t->retry();
     any_down |= !t->up();
   }
-  if (auto* pose = std::get_if<PoseMessage>(&item)) {
-    pose->publish_stamp = wallClockNow();
+  const Timestamp now = wallClockNow();
+  const auto send_all = [&](const char* what, auto&& publish) {
     for (auto& t : transports_) {
       if (!t->up()) {
         ++unsent_down;
         continue;
       }
-      if (Status s = t->publishPose(*pose); !s) {
+      if (Status s = publish(*t); !s) {
         ++errors;
         static log::RateLimiter limiter(std::chrono::seconds(5));
-        SP_WARN_EVERY(kLog, limiter, t->name() << ": pose not sent: " << s.error());
+        SP_WARN_EVERY(kLog, limiter, t->name() << ": " << what << " not sent: " << s.error());
       }
     }
-  } else {
-    auto& status = std::get<StatusMessage>(item);
-    status.publish_stamp = wallClockNow();
-    for (auto& t : transports_) {
-      if (!t->up()) {
-        ++unsent_down;
-        continue;
-      }
-      if (Status s = t->publishStatus(status); !s) {
-        ++errors;
-        static log::RateLimiter limiter(std::chrono::seconds(5));
-        SP_WARN_EVERY(kLog, limiter, t->name() << ": status not sent: " << s.error());
-      }
-    }
-  }
+  };
+  std::visit(
+      [&](auto& message) {
+        message.publish_stamp = now;
+        using M = std::decay_t<decltype(message)>;
+        if constexpr (std::is_same_v<M, PoseMessage>)
+          send_all("pose", [&](Transport& t) { return t.publishPose(message); });
+        else if constexpr (std::is_same_v<M, StatusMessage>)
+          send_all("status", [&](Transport& t) { return t.publishStatus(message); });
+        else if constexpr (std::is_same_v<M, ObjectsMessage>)
+          send_all("objects", [&](Transport& t) { return t.publishObjects(message); });
+        else
+          send_all("map cloud", [&](Transport& t) { return t.publishMapCloud(message); });
+      },
+      item);
   std::lock_guard lock(mutex_);
   ++stats_.sent;
   stats_.send_errors += errors;

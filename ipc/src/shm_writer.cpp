@@ -99,7 +99,7 @@ Result<int> lockRing(const std::string& name, const std::string& lock_path) {
 
 // Generation of the ring at `path`: 0 when there is none or the file is not a valid ring
 // (it is replaced); an error when anything but a regular file of ours is there.
-Result<std::uint64_t> previousGeneration(const std::string& path) {
+Result<std::uint64_t> previousGeneration(const std::string& path, std::uint32_t magic) {
   struct stat st {};
   const int fd = sp_shm_open_file(path.c_str(), O_RDONLY, 0, effectiveUid(), &st);
   if (fd == SP_SHM_ERR_NO_RING) return std::uint64_t{0};
@@ -110,7 +110,7 @@ Result<std::uint64_t> previousGeneration(const std::string& path) {
     void* map = ::mmap(nullptr, size, PROT_READ, MAP_SHARED, fd, 0);
     if (map != MAP_FAILED) {
       const auto* h = static_cast<const sp_shm_header*>(map);
-      if (sp_shm_check_header(h, size) == SP_SHM_OK) generation = h->generation;
+      if (sp_shm_check_header_of(h, size, magic) == SP_SHM_OK) generation = h->generation;
       ::munmap(map, size);
     }
   }
@@ -121,7 +121,7 @@ Result<std::uint64_t> previousGeneration(const std::string& path) {
 }  // namespace
 
 Result<std::unique_ptr<ShmPoseWriter>> ShmPoseWriter::create(const std::string& name,
-                                                             std::uint32_t capacity) {
+                                                             std::uint32_t capacity, std::uint32_t magic) {
   char path[256];
   if (sp_shm_make_path(name.c_str(), path, sizeof(path)) != SP_SHM_OK)
     return Error{"shm: invalid ring name '" + name + "': " + sp_shm_strerror(SP_SHM_ERR_NAME)};
@@ -135,7 +135,8 @@ Result<std::unique_ptr<ShmPoseWriter>> ShmPoseWriter::create(const std::string& 
   if (!lock) return Error{lock.error()};
   w->lock_fd_ = *lock;  // from here on the destructor releases it on every error path
 
-  const auto previous = previousGeneration(w->path_);
+  if (magic != SP_SHM_MAGIC && magic != SP_SHM_OBJECTS_MAGIC) return Error{"shm: unknown ring kind"};
+  const auto previous = previousGeneration(w->path_, magic);
   if (!previous) return Error{previous.error()};
   w->capacity_ = capacity;
   w->generation_ = *previous + 1;
@@ -176,7 +177,7 @@ Result<std::unique_ptr<ShmPoseWriter>> ShmPoseWriter::create(const std::string& 
                       std::chrono::system_clock::now().time_since_epoch()).count();
   __atomic_store_n(&h->write_count, 0, __ATOMIC_RELAXED);
   __atomic_store_n(&h->writer_state, SP_SHM_WRITER_RUNNING, __ATOMIC_RELAXED);
-  __atomic_store_n(&h->magic, SP_SHM_MAGIC, __ATOMIC_RELEASE);
+  __atomic_store_n(&h->magic, magic, __ATOMIC_RELEASE);
   if (::rename(tmp.c_str(), path) != 0) {
     const std::string err = errnoText();
     ::munmap(base, w->size_);
@@ -199,13 +200,16 @@ ShmPoseWriter::~ShmPoseWriter() {
   if (lock_fd_ >= 0) ::close(lock_fd_);
 }
 
-void ShmPoseWriter::write(const sp_pose_record& record) {
+void ShmPoseWriter::write(const sp_pose_record& record) { writeWords(&record); }
+void ShmPoseWriter::write(const sp_object_record& record) { writeWords(&record); }
+
+void ShmPoseWriter::writeWords(const void* record) {
   auto* h = reinterpret_cast<sp_shm_header*>(base_);
   const std::uint64_t n = count_ + 1;
   auto* slot = reinterpret_cast<sp_shm_slot*>(base_ + SP_SHM_HEADER_SIZE +
                                               static_cast<std::size_t>(n & (capacity_ - 1)) * SP_SHM_SLOT_SIZE);
   std::uint64_t words[SP_SHM_POSE_WORDS];
-  std::memcpy(words, &record, sizeof(words));
+  std::memcpy(words, record, sizeof(words));
   words[0] = n;  // sp_pose_record::sequence
 
   // Seqlock write: mark the slot busy (odd); each payload store is a release, so a reader

@@ -63,6 +63,9 @@ struct Frame {
   // and mapping, and why (kNotDynamic: static).
   std::vector<DynamicCause> dynamic;
   std::vector<std::int16_t> cluster;  // depth cluster, -1 when unknown
+  // For kSemanticDynamic features: the movable class whose mask they came
+  // from (Map::className), 0 when unknown. Empty until the first is set.
+  std::vector<std::uint8_t> movable_class;
 
   SE3 T_c_w = SE3::Identity();
   // The grey image, only while the geometry module's photometric test needs

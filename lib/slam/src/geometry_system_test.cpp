@@ -1,5 +1,9 @@
 // The geometry module through SlamSystem: a board moving in a ray-cast room,
 // each cue on and off (sequential mode, so every run is the same).
+#include <algorithm>
+#include <map>
+#include <optional>
+
 #include "system_test_scenes.hpp"
 
 namespace stillpoint::slam {
@@ -46,6 +50,74 @@ TEST(SlamSystemGeometry, MovingBoardIsFlaggedAndKeptOutOfThePose) {
   EXPECT_GE(recall, 0.9);
   EXPECT_GE(precision, 0.9);
   EXPECT_LT(on.rms_translation, off.rms_translation);
+}
+
+// The moving board as a dynamic object: one id while it moves, its centroid
+// where its surface is (the median of the mask's pixels in the world, from the
+// rendered depth and the true pose), its velocity that of this surface.
+TEST(SlamSystemGeometry, MovingBoardIsReportedAsAnObject) {
+  const MovingBoardSequence data = movingBoardSequence(45);
+  const Sequence& seq = data.seq;
+  SlamOptions options = sequentialOptions();
+  auto system = makeSystem(seq.camera, options);
+  ASSERT_TRUE(system);
+  std::map<std::uint32_t, int> ids;
+  int reported = 0, scored = 0;
+  double error_sum = 0, worst = 0;
+  Vec3 velocity_sum = Vec3::Zero(), truth_velocity_sum = Vec3::Zero();
+  int velocities = 0;
+  std::optional<Vec3> last_truth;
+  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+    const auto out = system->track(seq.frames[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    if (i < 10) {
+      EXPECT_TRUE(out->objects.empty()) << "frame " << i << ": the board has not moved yet";
+      continue;
+    }
+    if (i < 15 || out->objects.empty()) continue;  // the module needs a few frames of motion
+    ++reported;
+    const DynamicObject* board = &out->objects[0];
+    for (const DynamicObject& o : out->objects)
+      if (o.samples > board->samples) board = &o;
+    EXPECT_EQ(board->label, "unknown");
+    EXPECT_EQ(board->sources, DynamicObject::kGeometry);
+    ++ids[board->id];
+    std::vector<double> axis[3];
+    const cv::Mat& depth = seq.frames[i].depth_m;
+    for (int v = 0; v < depth.rows; v += 2)
+      for (int u = 0; u < depth.cols; u += 2) {
+        if (!data.masks[i].at<std::uint8_t>(v, u) || !(depth.at<float>(v, u) > 0)) continue;
+        const Vec3 p = seq.T_w_c[i] * seq.camera.unproject(Vec2(u, v), depth.at<float>(v, u));
+        for (int k = 0; k < 3; ++k) axis[k].push_back(p[k]);
+      }
+    ASSERT_FALSE(axis[0].empty());
+    Vec3 truth;
+    for (int k = 0; k < 3; ++k) {
+      std::nth_element(axis[k].begin(), axis[k].begin() + axis[k].size() / 2, axis[k].end());
+      truth[k] = axis[k][axis[k].size() / 2];
+    }
+    const double error = (board->centroid - truth).norm();
+    error_sum += error, worst = std::max(worst, error), ++scored;
+    if (board->has_velocity && last_truth) {
+      velocity_sum += board->velocity, ++velocities;
+      truth_velocity_sum += (truth - *last_truth) * 30.0;
+    }
+    last_truth = truth;
+  }
+  system->finish();
+  const int main_id_frames = std::max_element(ids.begin(), ids.end(), [](auto& a, auto& b) { return a.second < b.second; })->second;
+  const Vec3 velocity = velocity_sum / std::max(1, velocities);
+  const Vec3 truth_velocity = truth_velocity_sum / std::max(1, velocities);
+  std::printf("board object: reported in %d of 30 frames, %zu ids (the main one in %d), centroid error mean %.1f mm "
+              "max %.1f mm, velocity (%.2f %.2f %.2f) m/s, its surface's (%.2f %.2f %.2f)\n",
+              reported, ids.size(), main_id_frames, 1e3 * error_sum / std::max(1, scored), 1e3 * worst, velocity.x(),
+              velocity.y(), velocity.z(), truth_velocity.x(), truth_velocity.y(), truth_velocity.z());
+  EXPECT_GE(reported, 27);
+  EXPECT_GE(main_id_frames, reported - 2);
+  EXPECT_LT(error_sum / std::max(1, scored), 0.05);
+  EXPECT_GT(velocities, 20);
+  EXPECT_LT((velocity - truth_velocity).norm(), 0.1);
 }
 
 // tracking.motion_prior_sigma_m: the board covers few features (8 % of the

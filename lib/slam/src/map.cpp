@@ -315,6 +315,20 @@ std::size_t Map::pointsInMemory() const {
   return std::count_if(points_.begin(), points_.end(), [](const auto& w) { return !w.expired(); });
 }
 
+std::uint8_t Map::classId(const std::string& name) {
+  std::lock_guard lock(classes_mutex_);
+  for (std::size_t k = 0; k < classes_.size(); ++k)
+    if (classes_[k] == name) return static_cast<std::uint8_t>(k + 1);
+  if (classes_.size() >= 255) return 0;
+  classes_.push_back(name);
+  return static_cast<std::uint8_t>(classes_.size());
+}
+
+std::string Map::className(std::uint8_t id) const {
+  std::lock_guard lock(classes_mutex_);
+  return id >= 1 && id <= classes_.size() ? classes_[id - 1] : std::string("unknown");
+}
+
 std::size_t Map::pointCount() const {
   std::size_t n = 0;
   for (const auto& w : points_)

@@ -22,6 +22,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <shared_mutex>
 #include <string>
 #include <unordered_map>
@@ -243,8 +244,14 @@ class Map {
   std::size_t pointCount() const;  // live (not bad) points
   std::size_t pointsInMemory() const;  // map points not yet freed (bad ones included)
   std::int64_t nextFrameId() { return next_frame_id_++; }
+  // Semantic class names as small ids (Frame::movable_class), 1..255; 0 when
+  // the table is full. Any thread; no map lock needed.
+  std::uint8_t classId(const std::string& name);
+  std::string className(std::uint8_t id) const;  // "unknown" for 0 or an unused id
 
  private:
+  mutable std::mutex classes_mutex_;
+  std::vector<std::string> classes_;
   mutable std::shared_mutex mutex_;
   std::vector<std::unique_ptr<KeyFrame>> keyframes_;
   std::vector<std::weak_ptr<MapPoint>> points_;  // for statistics only

@@ -12,6 +12,13 @@
 namespace stillpoint::slam {
 namespace {
 log::Logger logger("semantic");
+// Feature j of `to` was found as feature i of `from`: it takes its class.
+void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
+  if (from.movable_class.empty() || from.movable_class[i] == 0) return;
+  to->movable_class.resize(to->size(), 0);
+  to->movable_class[j] = from.movable_class[i];
+}
+
 }  // namespace
 
 std::pair<std::shared_ptr<const cv::Mat>, Timestamp> LocalMapper::latestSemanticLabels() const {
@@ -87,6 +94,9 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     if (r.regions[k].continued) ++st.instances_continued;
   }
 
+  std::vector<std::uint8_t> class_of(n_regions + 1, 0);
+  for (int k = 0; k < n_regions; ++k)
+    if (applied[k + 1]) class_of[k + 1] = map_->classId(r.regions[k].class_name);
   int features_removed = 0, points_removed = 0, points_culled = 0;
   for (int i = 0; i < f.size(); ++i) {
     const std::shared_ptr<MapPoint> p = f.points[i] && !f.points[i]->bad ? f.points[i] : nullptr;
@@ -95,6 +105,8 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       continue;
     }
     f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
+    f.movable_class.resize(f.size(), 0);
+    f.movable_class[i] = class_of[region_of[i]];
     ++features_removed;
     if (!p) continue;
     if (p->first_keyframe_id == kf->id) {
@@ -167,6 +179,7 @@ void Tracker::markSemanticMovers() {
   for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true)) {
     if (f.dynamic[i] != kSemanticDynamic) continue;
     current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
+    copyMovableClass(f, i, &current_, j);
   }
   if (options_.semantic.propagate_from_last && has_last_ && has_flags(last_)) {
     // The last frame's flagged features, looked up here: from frame to frame
@@ -174,7 +187,10 @@ void Tracker::markSemanticMovers() {
     // module flagged carry its flag instead and are not followed.)
     int chained = 0;
     for (const auto& [j, i] : matchByDescriptor(current_, last_, 0.7f, false, true))
-      if (last_.dynamic[i] == kSemanticDynamic && !current_.dynamic[j]) current_.dynamic[j] = kSemanticDynamic, ++chained;
+      if (last_.dynamic[i] == kSemanticDynamic && !current_.dynamic[j]) {
+        current_.dynamic[j] = kSemanticDynamic, ++chained;
+        copyMovableClass(last_, i, &current_, j);
+      }
     semantic_marked_ += chained;
     SP_DEBUG(logger, "frame " << current_.id << ": " << chained << " flagged from the last frame");
   }

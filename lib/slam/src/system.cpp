@@ -476,6 +476,18 @@ Status SlamSystem::exportCloud(const std::string& path) const {
   return writePly(path, points, "stillpoint static map points");
 }
 
+std::vector<Vec3> SlamSystem::mapPoints(std::uint32_t map_id) const {
+  std::vector<Vec3> out;
+  std::shared_lock lock(impl_->map.mutex());
+  std::unordered_set<const MapPoint*> seen;
+  for (const auto& kf : impl_->map.keyframes()) {
+    if (kf->bad || kf->map_id != map_id) continue;
+    for (const auto& p : kf->frame.points)
+      if (p && !p->bad && !p->isTemporary() && seen.insert(p.get()).second) out.push_back(p->position);
+  }
+  return out;
+}
+
 std::vector<KeyFrameView> SlamSystem::keyframes() const {
   std::shared_lock lock(impl_->map.mutex());
   std::vector<KeyFrameView> out;

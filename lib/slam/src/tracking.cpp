@@ -94,6 +94,10 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   out->new_keyframe = new_keyframe != nullptr;
   out->geometry = std::move(geometry_);
   out->semantic_features = semantic_marked_;
+  if (ok)
+    out->objects = objects_.update(current_, out->geometry, map_id_, [this](std::uint8_t id) { return map_->className(id); });
+  else
+    objects_.missed(current_.stamp);
   markMoverCells(ok);
   if (detector_) detector_->endFrame(current_, ok);
   last_ = std::move(current_);
@@ -176,6 +180,7 @@ void Tracker::mapLoaded() {
 }
 
 void Tracker::noDepth(Timestamp stamp) {
+  objects_.missed(stamp);
   health_ = PoseHealth::kLost;
   better_frames_ = 0;
   if (!blind_since_) blind_since_ = stamp;

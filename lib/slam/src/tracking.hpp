@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "dynamic_detector.hpp"
+#include "dynamic_objects.hpp"
 #include "map.hpp"
 #include "trajectory.hpp"
 #include "stillpoint/geometry/clustering_worker.hpp"
@@ -116,6 +117,7 @@ class Tracker {
   const LevelInfo& levels_;
   Map* map_;
   std::unique_ptr<DynamicDetector> detector_;  // null: geometry module off
+  DynamicObjectTracker objects_{camera_};
   const double close_depth_;
   const features::Vocabulary* vocabulary_ = nullptr;
 

@@ -96,12 +96,51 @@ struct StatusMessage {
   bool operator==(const StatusMessage&) const = default;
 };
 
+// Something seen moving in one frame (slam::DynamicObject; docs/dynamic-objects.md),
+// in the map frame of the frame's pose message.
+struct ObjectMessage {
+  static constexpr std::uint8_t kGeometry = 1, kSemantic = 2;
+  std::uint32_t id = 0;            // stable while the object is followed from frame to frame
+  std::string label = "unknown";   // semantic class, or "unknown"
+  std::uint8_t sources = 0;        // kGeometry | kSemantic
+  std::array<float, 3> centroid{};  // [m]
+  std::array<float, 3> extent{};    // size per map axis [m]
+  std::array<float, 3> velocity{};  // [m/s]; zero until has_velocity
+  bool has_velocity = false;
+  std::uint32_t samples = 0;        // surface points it was measured from
+  bool operator==(const ObjectMessage&) const = default;
+};
+
+// The dynamic objects of one frame with a pose (none: nothing moves there).
+struct ObjectsMessage {
+  static constexpr std::uint32_t kSchemaVersion = 2;  // the pose schema it goes with
+  static constexpr std::size_t kMaxObjects = 32;
+  static constexpr std::size_t kMaxLabelLength = 31;
+  Timestamp sensor_stamp;
+  Timestamp publish_stamp;  // set by the Publisher
+  std::uint64_t frame_counter = 0;  // its pose message's
+  std::uint64_t map_id = 0;
+  std::vector<ObjectMessage> objects;
+  bool operator==(const ObjectsMessage&) const = default;
+};
+
+// The static map's points, now and then (ROS 2 only: sensor_msgs/PointCloud2).
+struct MapCloudMessage {
+  Timestamp sensor_stamp;  // of the newest frame when it was taken
+  Timestamp publish_stamp;  // set by the Publisher
+  std::uint64_t map_id = 0;
+  std::vector<std::array<float, 3>> points;  // map frame, as the poses [m]
+};
+
 // Limits every transport can carry (DDS uses fixed-size arrays): at most kMaxThreads
 // threads and kMaxQueues queues, names of 1..kMaxNameLength printable characters.
 Status validate(const StatusMessage& status);
 // With a pose (kOk, kRelocalised, kNewMap): unit quaternion (|q| within 1e-6
 // of 1), finite position. Without: NaN in every pose field.
 Status validate(const PoseMessage& pose);
+// At most kMaxObjects objects, labels of 1..kMaxLabelLength printable
+// characters, finite numbers, sources within kGeometry | kSemantic.
+Status validate(const ObjectsMessage& objects);
 bool hasPose(TrackingState state);
 
 }  // namespace stillpoint::ipc

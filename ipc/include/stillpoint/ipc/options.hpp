@@ -1,6 +1,7 @@
 #pragma once
 // IPC configuration: the `ipc:` section of the daemon's YAML file feeds these plain
 // structs. validate() names the bad field.
+#include <array>
 #include <cstdint>
 #include <string>
 
@@ -16,6 +17,8 @@ struct ShmOptions {
   bool enabled = true;
   std::string name = "stillpoint_pose";  // /dev/shm/<name>
   std::uint32_t capacity = 1024;         // records in the ring, power of two
+  // Dynamic objects in a ring of their own, /dev/shm/<objects_name> (empty: off).
+  std::string objects_name = "stillpoint_objects";
 };
 
 struct LcmOptions {
@@ -24,6 +27,7 @@ struct LcmOptions {
   std::string url = "udpm://239.255.76.67:7667?ttl=0";
   std::string pose_channel = "STILLPOINT_POSE";
   std::string status_channel = "STILLPOINT_STATUS";
+  std::string objects_channel = "STILLPOINT_OBJECTS";  // empty: off
 };
 
 struct DdsOptions {
@@ -34,6 +38,7 @@ struct DdsOptions {
   std::string config;
   std::string pose_topic = "stillpoint_pose";
   std::string status_topic = "stillpoint_status";
+  std::string objects_topic = "stillpoint_objects";  // empty: off
 };
 
 // Poses as ROS 2 topics (geometry_msgs/msg/PoseStamped on `pose_topic`) over
@@ -54,6 +59,18 @@ struct Ros2Options {
   std::string child_frame_id = "camera_link";  // the camera's body frame (REP-103 axes)
   // diagnostic_msgs/msg/DiagnosticArray with every status message (empty: off).
   std::string diagnostics_topic = "rt/diagnostics";
+  // visualization_msgs/msg/MarkerArray: a box and a label per dynamic object
+  // (empty: off).
+  std::string objects_topic = "rt/stillpoint/dynamic_objects";
+  // sensor_msgs/msg/PointCloud2 of the static map every map_cloud_period_s
+  // (empty: off).
+  std::string map_cloud_topic = "rt/stillpoint/map_cloud";
+  double map_cloud_period_s = 2.0;
+  // The camera's body frame (REP-103 axes: x along the optical axis, z up) in
+  // child_frame_id: x y z [m], qx qy qz qw. Identity when the child frame is
+  // the camera's own. The map frame is the child frame where the first pose
+  // was taken, so with a level base_link the map's z is up (REP-105).
+  std::array<double, 7> camera_extrinsic{0, 0, 0, 0, 0, 0, 1};
 };
 
 struct IpcOptions {

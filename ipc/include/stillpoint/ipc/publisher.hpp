@@ -48,6 +48,8 @@ class Publisher {
   // Never blocks on a transport. Thread-safe.
   void publishPose(const PoseMessage& pose);
   void publishStatus(StatusMessage status);
+  void publishObjects(ObjectsMessage objects);
+  void publishMapCloud(MapCloudMessage cloud);
 
   // Sends everything queued now, on the calling thread (kInline, or tests).
   void flush();
@@ -57,7 +59,7 @@ class Publisher {
   PublisherStats stats() const;
 
  private:
-  using Item = std::variant<PoseMessage, StatusMessage>;
+  using Item = std::variant<PoseMessage, StatusMessage, ObjectsMessage, MapCloudMessage>;
   void push(Item item);
   void send(Item& item);
   void run(std::stop_token stop);

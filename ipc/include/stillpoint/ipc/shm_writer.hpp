@@ -19,7 +19,10 @@ class ShmPoseWriter {
   // Fails when the name is invalid, capacity is not a power of two in [2, 2^20], another
   // writer holds the lock, or the ring's path or lock file is anything but a regular
   // file of this process's effective user (a FIFO, a symbolic link, another user's file).
-  static Result<std::unique_ptr<ShmPoseWriter>> create(const std::string& name, std::uint32_t capacity);
+  // `magic`: SP_SHM_MAGIC for a pose ring, SP_SHM_OBJECTS_MAGIC for a dynamic-objects
+  // ring (write its records with write(const sp_object_record&)).
+  static Result<std::unique_ptr<ShmPoseWriter>> create(const std::string& name, std::uint32_t capacity,
+                                                       std::uint32_t magic = SP_SHM_MAGIC);
   // Marks the ring closed, then releases the locks; the files stay so late readers still
   // see the last pose.
   ~ShmPoseWriter();
@@ -28,6 +31,7 @@ class ShmPoseWriter {
 
   // Publishes `record` as the next record; its `sequence` field is overwritten.
   void write(const sp_pose_record& record);
+  void write(const sp_object_record& record);
 
   std::uint64_t generation() const { return generation_; }
   std::uint64_t written() const { return count_; }
@@ -47,6 +51,7 @@ class ShmPoseWriter {
   std::uint64_t generation_ = 0;
   std::uint64_t count_ = 0;
   std::uint32_t capacity_ = 0;
+  void writeWords(const void* record);
 };
 
 }  // namespace stillpoint::ipc

@@ -23,6 +23,9 @@ class Transport {
   virtual std::string_view name() const = 0;
   virtual Status publishPose(const PoseMessage& pose) = 0;
   virtual Status publishStatus(const StatusMessage& status) = 0;
+  // Transports that do not carry these ignore them.
+  virtual Status publishObjects(const ObjectsMessage&) { return Status::success(); }
+  virtual Status publishMapCloud(const MapCloudMessage&) { return Status::success(); }
   // Readers currently matched (DDS); -1 when the transport cannot know (shm, LCM).
   virtual int matchedReaders() const { return -1; }
   // A network transport that could not come up (no route, no interface yet)
@@ -51,6 +54,7 @@ class Subscriber {
  public:
   using PoseHandler = std::function<void(const PoseMessage&)>;
   using StatusHandler = std::function<void(const StatusMessage&)>;
+  using ObjectsHandler = std::function<void(const ObjectsMessage&)>;
   // Called once per detected writer restart (shared memory only).
   using RestartHandler = std::function<void()>;
 
@@ -63,11 +67,15 @@ class Subscriber {
 
   void onPose(PoseHandler handler) { pose_handler_ = std::move(handler); }
   void onStatus(StatusHandler handler) { status_handler_ = std::move(handler); }
+  // A frame's objects (transports that carry them; shm: with
+  // ShmSubscriberOptions::objects).
+  void onObjects(ObjectsHandler handler) { objects_handler_ = std::move(handler); }
   void onRestart(RestartHandler handler) { restart_handler_ = std::move(handler); }
 
  protected:
   PoseHandler pose_handler_;
   StatusHandler status_handler_;
+  ObjectsHandler objects_handler_;
   RestartHandler restart_handler_;
 };
 
@@ -78,6 +86,8 @@ struct ShmSubscriberOptions {
   // writer (re)creates it. Otherwise poll() fails with "writer gone" on a dead ring.
   bool wait_for_ring = false;
   std::int64_t owner_uid = -1;  // user that must own the ring; -1: this process's effective uid
+  // Also read the dynamic-objects ring (ShmOptions::objects_name), for onObjects().
+  bool objects = false;
 };
 Result<std::unique_ptr<Subscriber>> makeShmSubscriber(const ShmOptions& options,
                                                       const ShmSubscriberOptions& sub = {});

@@ -122,6 +122,25 @@ struct FeatureView {
   FeatureFate fate = FeatureFate::kUnused;
 };
 
+// Something seen moving in one frame (docs/dynamic-objects.md): a region of
+// depth clusters the geometry module judged dynamic, or features of a movable
+// semantic class, or both where they overlap. Positions in the map frame of
+// TrackOutput::map_id (the first camera's optical axes: x right, y down, z
+// forward), from the depth of its visible surface.
+struct DynamicObject {
+  static constexpr std::uint8_t kGeometry = 1, kSemantic = 2;
+  // Stable while the object is followed from frame to frame; a new id when it
+  // is lost for DynamicObjectTracker's memory or the map changes.
+  std::uint32_t id = 0;
+  std::string label = "unknown";  // the semantic class, or "unknown"
+  std::uint8_t sources = 0;       // kGeometry | kSemantic
+  Vec3 centroid = Vec3::Zero();   // median of its surface points [m]
+  Vec3 extent = Vec3::Zero();     // 5-95 % range of its surface points per axis [m]
+  Vec3 velocity = Vec3::Zero();   // of the centroid [m/s], smoothed; zero until seen twice
+  bool has_velocity = false;
+  int samples = 0;                // surface points it was measured from
+};
+
 struct TrackOutput {
   TrackingState state = TrackingState::kInitialising;
   SE3 T_w_c = SE3::Identity();  // valid when hasPose(state)
@@ -141,6 +160,8 @@ struct TrackOutput {
   double track_ms = 0;    // whole tracking step, extraction included
   StageTimes stages;
   GeometryOutput geometry;
+  // What moves in this frame (frames with a pose; empty otherwise).
+  std::vector<DynamicObject> objects;
   // Filled only when SlamOptions::report_fates asks for it (pictures of a
   // run): every feature of the frame with its fate, and the labels of the
   // newest segmentation applied to the map (CV_8U, image size: 0 = none, k =

@@ -103,6 +103,9 @@ class SlamSystem {
   // had no colour image). Only the static map: points the modules found
   // moving were culled from it.
   Status exportCloud(const std::string& path) const;
+  // The static map points of map `map_id` (TrackOutput::map_id), in its
+  // frame. Safe from any thread.
+  std::vector<Vec3> mapPoints(std::uint32_t map_id) const;
   // The dense static cloud (PLY as above): the keyframes' depth views of the
   // map being tracked fused in voxels of `voxel_m`, without the pixels the
   // modules found moving or movable, and without voxels other keyframes saw
