@@ -302,6 +302,7 @@ int main(int argc, char** argv) {
     }
   }
   (void)ipc::ShmPoseWriter::remove(ring);
+  (void)ipc::ShmPoseWriter::remove(ring + "_objects");
   targets.push_back({"shm-ring", ring_seed.empty() ? std::vector<std::string>{} : std::vector<std::string>{ring_seed},
                      [&ring](const fs::path&, const std::string& bytes) {
                        const fs::path path = fs::path("/dev/shm") / ring;
@@ -348,6 +349,7 @@ int main(int argc, char** argv) {
   }
   fs::remove_all(work);
   (void)ipc::ShmPoseWriter::remove(ring);
+  (void)ipc::ShmPoseWriter::remove(ring + "_objects");
   if (ran_targets == 0) return 2;
   return failures == 0 ? 0 : 1;
 }

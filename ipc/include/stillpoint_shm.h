@@ -103,7 +103,7 @@ extern "C" {
 #define SP_SHM_SLOT_SIZE 192u
 #define SP_SHM_POSE_WORDS 16
 #define SP_SHM_DEFAULT_NAME "stillpoint_pose"
-#define SP_SHM_DEFAULT_OBJECTS_NAME "stillpoint_objects"
+#define SP_SHM_DEFAULT_OBJECTS_NAME "stillpoint_pose_objects" /* <pose ring name>_objects */
 #define SP_SHM_LABEL_SIZE 32
 #define SP_SHM_DIR "/dev/shm/"
 #define SP_SHM_LOCK_SUFFIX ".lock" /* writers' lock file, mode 0600: SP_SHM_DIR <name> SP_SHM_LOCK_SUFFIX */

@@ -53,13 +53,13 @@ Status IpcOptions::validate() const {
       return Error{"ipc.ros2.camera_extrinsic's quaternion (qx qy qz qw) must have unit norm, has " +
                    std::to_string(std::sqrt(n2))};
   }
-  if (!shm.objects_name.empty() && (shm.objects_name == shm.name || shm.objects_name.size() > 200 ||
-                                    shm.objects_name[0] == '.' ||
-                                    shm.objects_name.find_first_not_of(
-                                        "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") !=
-                                        std::string::npos))
-    return Error{"ipc.shm.objects_name must be empty (off) or 1-200 characters from [A-Za-z0-9._-], not starting "
-                 "with '.', and differ from ipc.shm.name"};
+  if (const std::string ring = shm.objectsRing();
+      !ring.empty() && (ring == shm.name || ring.size() > 200 || ring[0] == '.' ||
+                        ring.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") !=
+                            std::string::npos))
+    return Error{"ipc.shm.objects_name ('" + ring +
+                 "') must be 1-200 characters from [A-Za-z0-9._-], not starting with '.', and differ from "
+                 "ipc.shm.name"};
   if (!lcm.objects_channel.empty() &&
       (lcm.objects_channel == lcm.pose_channel || lcm.objects_channel == lcm.status_channel))
     return Error{"ipc.lcm.objects_channel must differ from the pose and status channels"};
@@ -139,6 +139,7 @@ Result<IpcOptions> parseIpcOptions(const YAML::Node& node) {
     r.get("enabled", o.shm.enabled);
     r.get("name", o.shm.name);
     r.get("capacity", o.shm.capacity);
+    r.get("objects", o.shm.objects);
     r.get("objects_name", o.shm.objects_name);
   });
   if (s) s = section(node, "lcm", "ipc.lcm", [&](Reader& r) {

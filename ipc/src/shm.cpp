@@ -122,7 +122,7 @@ class ShmSubscriber final : public Subscriber {
     int err = errno;
     if (!(rc == SP_SHM_OK || (rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring))) return Error{describe(rc, err)};
     if (!options_.objects) return Status::success();
-    if (objects_name_.empty()) return Error{"shm: objects asked for, but ipc.shm.objects_name is empty (off)"};
+    if (objects_name_.empty()) return Error{"shm: objects asked for, but ipc.shm.objects is off"};
     rc = sp_shm_reader_open_objects(&objects_, objects_name_.c_str(), start);
     err = errno;
     if (rc == SP_SHM_OK || (rc == SP_SHM_ERR_NO_RING && options_.wait_for_ring)) return Status::success();
@@ -255,9 +255,9 @@ Result<std::unique_ptr<Transport>> makeShmTransport(const ShmOptions& options) {
   auto writer = ShmPoseWriter::create(options.name, options.capacity);
   if (!writer) return Error{writer.error()};
   std::unique_ptr<ShmPoseWriter> objects;
-  if (!options.objects_name.empty()) {
+  if (const std::string ring = options.objectsRing(); !ring.empty()) {
     // A few records per frame: four times the pose ring's depth.
-    auto made = ShmPoseWriter::create(options.objects_name, std::min<std::uint32_t>(options.capacity * 4, SP_SHM_MAX_CAPACITY),
+    auto made = ShmPoseWriter::create(ring, std::min<std::uint32_t>(options.capacity * 4, SP_SHM_MAX_CAPACITY),
                                       SP_SHM_OBJECTS_MAGIC);
     if (!made) return Error{made.error()};
     objects = std::move(made.value());
@@ -266,7 +266,7 @@ Result<std::unique_ptr<Transport>> makeShmTransport(const ShmOptions& options) {
 }
 
 Result<std::unique_ptr<Subscriber>> makeShmSubscriber(const ShmOptions& options, const ShmSubscriberOptions& sub) {
-  auto s = std::make_unique<ShmSubscriber>(options.name, options.objects_name, sub);
+  auto s = std::make_unique<ShmSubscriber>(options.name, options.objectsRing(), sub);
   if (Status st = s->open(); !st) return Error{st.error()};
   return std::unique_ptr<Subscriber>(std::move(s));
 }

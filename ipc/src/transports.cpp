@@ -22,6 +22,14 @@ class RetryingTransport final : public Transport {
     if (!inner_) return Error{name_ + " is down: " + error_};
     return inner_->publishStatus(status);
   }
+  Status publishObjects(const ObjectsMessage& objects) override {
+    if (!inner_) return Error{name_ + " is down: " + error_};
+    return inner_->publishObjects(objects);
+  }
+  Status publishMapCloud(const MapCloudMessage& cloud) override {
+    if (!inner_) return Error{name_ + " is down: " + error_};
+    return inner_->publishMapCloud(cloud);
+  }
   int matchedReaders() const override { return inner_ ? inner_->matchedReaders() : 0; }
   bool up() const override { return inner_ != nullptr; }
   void retry() override {

@@ -19,10 +19,10 @@ tag="_t$$"
 dds=(--transport dds --dds-config "$cfg" --domain 0)
 
 echo "== publisher -> subscriber (1000 poses at 1 kHz, 20 statuses)"
-"$bin/ipc_probe" sub "${dds[@]}" --suffix "${tag}a" --count 1000 --statuses 20 --ready-file "$work/ready" \
+"$bin/ipc_probe" sub "${dds[@]}" --suffix "${tag}a" --count 1000 --statuses 20 --objects --ready-file "$work/ready" \
   --timeout 20 >"$work/sub.out" 2>&1 &
 sub=$!; pids+=($sub)
-"$bin/ipc_probe" pub "${dds[@]}" --suffix "${tag}a" --count 1000 --rate 1000 --status-every 50 \
+"$bin/ipc_probe" pub "${dds[@]}" --suffix "${tag}a" --count 1000 --rate 1000 --status-every 50 --objects \
   --ready-file "$work/ready" --timeout 20 || fail "publisher failed"
 wait $sub; rc=$?
 cat "$work/sub.out"

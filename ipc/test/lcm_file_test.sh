@@ -7,9 +7,9 @@ bin=$1
 work=$2
 rm -rf "$work" && mkdir -p "$work"
 log="$work/probe.lcmlog"
-"$bin/ipc_probe" pub --transport lcm --url "file://$log?mode=w" --count 500 --rate 20000 --status-every 25 \
+"$bin/ipc_probe" pub --transport lcm --url "file://$log?mode=w" --count 500 --rate 20000 --status-every 25 --objects \
   || { echo "FAIL: writing the log"; exit 1; }
-"$bin/ipc_probe" sub --transport lcm --url "file://$log?speed=0" --count 500 --statuses 20 --timeout 10 \
+"$bin/ipc_probe" sub --transport lcm --url "file://$log?speed=0" --count 500 --statuses 20 --objects --timeout 10 \
   || { echo "FAIL: reading the log back"; exit 1; }
 # Another schema on our channel must be a clear error, not garbage: swap the channels so
 # status messages arrive where a pose is expected.

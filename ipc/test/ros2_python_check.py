@@ -6,13 +6,17 @@ nav_msgs/msg/Odometry and tf2_msgs/msg/TFMessage. The odometry and tf samples
 must carry the pose of the PoseStamped with the same stamp. Writes the poses
 as a TUM trajectory (header stamps) for the ATE.
 
-The status comes as diagnostic_msgs/msg/DiagnosticArray on the diagnostics topic.
+The status comes as diagnostic_msgs/msg/DiagnosticArray on the diagnostics topic,
+the dynamic objects as visualization_msgs/msg/MarkerArray (one per pose, opening
+with a DELETEALL, then a CUBE and a TEXT_VIEW_FACING per object) and the static
+map as sensor_msgs/msg/PointCloud2 (x, y, z float32 around the trajectory).
 
 usage: ros2_python_check.py CONFIG_URI POSE_TOPIC ODOMETRY_TOPIC TF_TOPIC DIAGNOSTICS_TOPIC MIN_SAMPLES TIMEOUT_S
-                            OUT_TRAJ READY_FILE
+                            OUT_TRAJ READY_FILE OBJECTS_TOPIC MAP_CLOUD_TOPIC
 """
 import math
 import os
+import struct
 import sys
 import time
 from dataclasses import dataclass
@@ -20,7 +24,7 @@ from dataclasses import dataclass
 from cyclonedds.core import Qos, Policy
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, int32, sequence, uint8, uint32, float64
+from cyclonedds.idl.types import array, int32, sequence, uint8, uint32, float32, float64
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
@@ -138,8 +142,119 @@ class DiagnosticArray_(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnost
     status: sequence[DiagnosticStatus_]
 
 
+@dataclass
+class Duration_(IdlStruct, typename="builtin_interfaces::msg::dds_::Duration_"):
+    sec: int32
+    nanosec: uint32
+
+
+@dataclass
+class ColorRGBA_(IdlStruct, typename="std_msgs::msg::dds_::ColorRGBA_"):
+    r: float32
+    g: float32
+    b: float32
+    a: float32
+
+
+@dataclass
+class CompressedImage_(IdlStruct, typename="sensor_msgs::msg::dds_::CompressedImage_"):
+    header: Header_
+    format: str
+    data: sequence[uint8]
+
+
+@dataclass
+class UVCoordinate_(IdlStruct, typename="visualization_msgs::msg::dds_::UVCoordinate_"):
+    u: float32
+    v: float32
+
+
+@dataclass
+class MeshFile_(IdlStruct, typename="visualization_msgs::msg::dds_::MeshFile_"):
+    filename: str
+    data: sequence[uint8]
+
+
+@dataclass
+class Marker_(IdlStruct, typename="visualization_msgs::msg::dds_::Marker_"):
+    header: Header_
+    ns: str
+    id: int32
+    type: int32
+    action: int32
+    pose: Pose_
+    scale: Vector3_
+    color: ColorRGBA_
+    lifetime: Duration_
+    frame_locked: bool
+    points: sequence[Point_]
+    colors: sequence[ColorRGBA_]
+    texture_resource: str
+    texture: CompressedImage_
+    uv_coordinates: sequence[UVCoordinate_]
+    text: str
+    mesh_resource: str
+    mesh_file: MeshFile_
+    mesh_use_embedded_materials: bool
+
+
+@dataclass
+class MarkerArray_(IdlStruct, typename="visualization_msgs::msg::dds_::MarkerArray_"):
+    markers: sequence[Marker_]
+
+
+@dataclass
+class PointField_(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
+    name: str
+    offset: uint32
+    datatype: uint8
+    count: uint32
+
+
+@dataclass
+class PointCloud2_(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
+    header: Header_
+    height: uint32
+    width: uint32
+    fields: sequence[PointField_]
+    is_bigendian: bool
+    point_step: uint32
+    row_step: uint32
+    data: sequence[uint8]
+    is_dense: bool
+
+
+def check_markers(msg):
+    """A DELETEALL, then per object a box and its label in the map frame."""
+    m = msg.markers
+    if len(m) < 1 or m[0].action != 3 or len(m) % 2 != 1:
+        return False
+    for box, text in zip(m[1::2], m[2::2]):
+        if (box.type != 1 or text.type != 9 or box.id != text.id or box.header.frame_id != "map"
+                or min(box.scale.x, box.scale.y, box.scale.z) < 0.05 or not text.text
+                or not all(math.isfinite(v) for v in (box.pose.position.x, box.pose.position.y, box.pose.position.z))):
+            return False
+    return True
+
+
+def check_cloud(msg):
+    """x, y, z float32, little-endian, every point finite and within 20 m (a depth camera's range) of the map's origin."""
+    names = [(f.name, f.offset, f.datatype, f.count) for f in msg.fields]
+    if (names != [("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1)] or msg.is_bigendian or msg.point_step != 12
+            or msg.height != 1 or msg.width < 100 or len(msg.data) != 12 * msg.width or msg.header.frame_id != "map"):
+        print(f"ros2 reader: malformed PointCloud2: fields {names}, {msg.height}x{msg.width}, {len(msg.data)} bytes")
+        return False
+    for k in range(msg.width):
+        x, y, z = struct.unpack_from("<fff", bytes(msg.data[12 * k:12 * k + 12]))
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)) or x * x + y * y + z * z > 400:
+            print(f"ros2 reader: PointCloud2 point {k} of {msg.width} at ({x}, {y}, {z})")
+            return False
+    return True
+
+
 def main():
     config, topic, odom_topic, tf_topic, diag_topic, min_samples, timeout_s, out_path, ready = sys.argv[1:10]
+    objects_topic, cloud_topic = sys.argv[10:12]
     min_samples, timeout_s = int(min_samples), float(timeout_s)
     domain = Domain(0, config)
     participant = DomainParticipant(0)
@@ -148,7 +263,10 @@ def main():
     odom_reader = DataReader(participant, Topic(participant, odom_topic, Odometry_), qos=qos)
     tf_reader = DataReader(participant, Topic(participant, tf_topic, TFMessage_), qos=qos)
     diag_reader = DataReader(participant, Topic(participant, diag_topic, DiagnosticArray_), qos=qos)
+    objects_reader = DataReader(participant, Topic(participant, objects_topic, MarkerArray_), qos=qos)
+    cloud_reader = DataReader(participant, Topic(participant, cloud_topic, PointCloud2_), qos=qos)
     odometry, transforms, diagnostics = {}, {}, []
+    marker_arrays, markers_bad, clouds, clouds_bad, cloud_points = 0, 0, 0, 0, 0
     typestore = get_typestore(Stores.ROS2_HUMBLE)
     open(ready, "w").close()
     poses, bad = [], 0
@@ -179,6 +297,17 @@ def main():
                 msg = typestore.deserialize_cdr(sample.serialize(), "tf2_msgs/msg/TFMessage")
                 for t in msg.transforms:
                     transforms[(t.header.stamp.sec, t.header.stamp.nanosec)] = t
+        for sample in objects_reader.take(N=64):
+            if isinstance(sample, MarkerArray_):
+                msg = typestore.deserialize_cdr(sample.serialize(), "visualization_msgs/msg/MarkerArray")
+                marker_arrays += 1
+                markers_bad += not check_markers(msg)
+        for sample in cloud_reader.take(N=4):
+            if isinstance(sample, PointCloud2_):
+                msg = typestore.deserialize_cdr(sample.serialize(), "sensor_msgs/msg/PointCloud2")
+                clouds += 1
+                clouds_bad += not check_cloud(msg)
+                cloud_points = max(cloud_points, msg.width)
         for sample in diag_reader.take(N=16):
             if isinstance(sample, DiagnosticArray_):
                 diagnostics.append(typestore.deserialize_cdr(sample.serialize(), "diagnostic_msgs/msg/DiagnosticArray"))
@@ -236,9 +365,14 @@ def main():
             continue
         tracking_ok += s.level == 0 and values["tracking_state"] == "ok" and values["pose_health"] == "good"
     print(f"ros2 reader: {len(diagnostics)} DiagnosticArray, {diag_bad} malformed, {tracking_ok} OK with a good pose")
+    print(f"ros2 reader: {marker_arrays} MarkerArray, {markers_bad} malformed; {clouds} PointCloud2 "
+          f"(up to {cloud_points} points), {clouds_bad} malformed")
     del domain
     diag_ok = len(diagnostics) >= 3 and diag_bad == 0 and tracking_ok >= 2
-    return 0 if len(poses) >= min_samples and bad == 0 and odom_bad == 0 and tf_bad == 0 and diag_ok else 1
+    objects_ok = marker_arrays >= min_samples and markers_bad == 0
+    cloud_ok = clouds >= 2 and clouds_bad == 0
+    return 0 if (len(poses) >= min_samples and bad == 0 and odom_bad == 0 and tf_bad == 0 and diag_ok and objects_ok
+                 and cloud_ok) else 1
 
 
 if __name__ == "__main__":

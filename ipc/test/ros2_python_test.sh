@@ -6,7 +6,9 @@
 # rosbags decodes every sample as geometry_msgs/msg/PoseStamped,
 # nav_msgs/msg/Odometry and tf2_msgs/msg/TFMessage, odometry and tf must carry
 # each pose, the status arrives as diagnostic_msgs/msg/DiagnosticArray, and the
-# poses are compared with the ground truth. Skips (77) without the Python modules or the excerpt.
+# poses are compared with the ground truth. Dynamic objects come as
+# visualization_msgs/msg/MarkerArray with every pose, the map as
+# sensor_msgs/msg/PointCloud2 every second. Skips (77) without the Python modules or the excerpt.
 # usage: ros2_python_test.sh PYTHON BIN_DIR DATA_DIR WORK_DIR LOOPBACK_XML
 set -uo pipefail
 py=$1 bin=$2 data=$3 work=$4 xml=$5
@@ -17,16 +19,19 @@ seq=$data/tum_fr3_teddy_200
   { echo "SKIP: $py lacks cyclonedds or rosbags (pip install cyclonedds rosbags)"; exit 77; }
 fail() { echo "FAIL: $*"; exit 1; }
 rm -rf "$work" && mkdir -p "$work"
-topic="rt/stillpoint/pose_t$$" odom_topic="rt/stillpoint/odometry_t$$" tf_topic="rt/tf_t$$" diag_topic="rt/diagnostics_t$$"
+topic="rt/stillpoint/pose_t$$" odom_topic="rt/stillpoint/odometry_t$$" tf_topic="rt/tf_t$$" diag_topic="rt/diagnostics_t$$" \
+  objects_topic="rt/stillpoint/dynamic_objects_t$$" cloud_topic="rt/stillpoint/map_cloud_t$$"
 cat > "$work/d.yaml" <<YAML
 camera: fr3
 source: {replay: {path: $seq, paced: true}}
 ipc:
   shm: {enabled: false}
   ros2: {enabled: true, config: "file://$xml", pose_topic: "$topic", odometry_topic: "$odom_topic", tf_topic: "$tf_topic",
-         diagnostics_topic: "$diag_topic"}
+         diagnostics_topic: "$diag_topic", objects_topic: "$objects_topic", map_cloud_topic: "$cloud_topic",
+         map_cloud_period_s: 1.0}
 YAML
-"$py" "$here/ros2_python_check.py" "file://$xml" "$topic" "$odom_topic" "$tf_topic" "$diag_topic" 184 60 "$work/ros2.txt" "$work/ready" > "$work/reader.out" 2>&1 &
+"$py" "$here/ros2_python_check.py" "file://$xml" "$topic" "$odom_topic" "$tf_topic" "$diag_topic" 184 60 "$work/ros2.txt" "$work/ready" \
+  "$objects_topic" "$cloud_topic" > "$work/reader.out" 2>&1 &
 reader=$!
 for _ in $(seq 100); do [[ -f $work/ready ]] && break; sleep 0.1; done
 [[ -f $work/ready ]] || fail "reader did not start: $(cat "$work/reader.out")"

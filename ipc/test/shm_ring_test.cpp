@@ -36,6 +36,7 @@ class Ring : public testing::Test {
   void TearDown() override {
     sp_shm_reader_close(&reader_);
     (void)ShmPoseWriter::remove(name_);
+    (void)ShmPoseWriter::remove(name_ + "_objects");
   }
   std::string name_;
   sp_shm_reader reader_;
@@ -186,6 +187,61 @@ TEST_F(Ring, ShmTransportAndSubscriberRoundTripAPose) {
   ASSERT_TRUE(n.ok()) << n.error();
   ASSERT_EQ(got.size(), 1u);
   EXPECT_EQ(got[0], p);
+}
+
+// Objects travel in their own ring, one record per object: frames with
+// none, one and several objects come back whole, and the pose reader refuses
+// the objects ring (and the other way round).
+TEST_F(Ring, ShmTransportAndSubscriberRoundTripObjects) {
+  ShmOptions o;
+  o.name = name_;
+  o.capacity = 16;  // the objects ring: 64 records
+  auto t = makeShmTransport(o);
+  ASSERT_TRUE(t.ok()) << t.error();
+  ShmSubscriberOptions so;
+  so.objects = true;
+  auto sub = makeShmSubscriber(o, so);
+  ASSERT_TRUE(sub.ok()) << sub.error();
+  std::vector<ObjectsMessage> got;
+  (*sub)->onObjects([&](const ObjectsMessage& m) { got.push_back(m); });
+  std::vector<ObjectsMessage> sent;
+  for (std::size_t n : {0u, 1u, 3u, 32u}) {
+    ObjectsMessage m;
+    m.sensor_stamp = Timestamp::fromNanoseconds(1000 + static_cast<std::int64_t>(n));
+    m.publish_stamp = Timestamp::fromNanoseconds(2000 + static_cast<std::int64_t>(n));
+    m.frame_counter = 10 + n;
+    m.map_id = 0xFFFFFFFFFFFFFFF0ULL;
+    for (std::size_t j = 0; j < n; ++j) {
+      ObjectMessage x;
+      x.id = static_cast<std::uint32_t>(7 * j + 1);
+      x.label = j % 2 ? "person" : std::string(ObjectsMessage::kMaxLabelLength, 'z');
+      x.sources = static_cast<std::uint8_t>(1 + j % 3);
+      x.centroid = {0.25f * static_cast<float>(j), -1.5f, 3.0f};
+      x.extent = {0.5f, 1.75f, 0.125f};
+      x.velocity = {0.1f, 0.0f, -0.2f};
+      x.has_velocity = j % 2 == 0;
+      x.samples = static_cast<std::uint32_t>(100 + j);
+      m.objects.push_back(x);
+    }
+    ASSERT_TRUE((*t)->publishObjects(m).ok());
+    sent.push_back(m);
+  }
+  auto n = (*sub)->poll(std::chrono::milliseconds(100));
+  ASSERT_TRUE(n.ok()) << n.error();
+  ASSERT_EQ(got.size(), sent.size());
+  for (std::size_t k = 0; k < sent.size(); ++k) EXPECT_EQ(got[k], sent[k]) << "frame " << k;
+
+  ObjectsMessage too_many = sent.back();
+  too_many.objects.push_back(too_many.objects.back());
+  EXPECT_FALSE((*t)->publishObjects(too_many).ok());
+
+  sp_pose_record pose;
+  sp_object_record object;
+  ASSERT_EQ(sp_shm_reader_open(&reader_, (name_ + "_objects").c_str(), SP_SHM_START_OLDEST), SP_SHM_ERR_NOT_A_RING);
+  ASSERT_EQ(sp_shm_reader_open_objects(&reader_, name_.c_str(), SP_SHM_START_OLDEST), SP_SHM_ERR_NOT_A_RING);
+  ASSERT_EQ(sp_shm_reader_open_objects(&reader_, (name_ + "_objects").c_str(), SP_SHM_START_OLDEST), SP_SHM_OK);
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &pose), SP_SHM_ERR_NOT_A_RING);
+  ASSERT_EQ(sp_shm_reader_next_object(&reader_, &object), SP_SHM_OK);
 }
 
 }  // namespace

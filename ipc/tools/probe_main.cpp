@@ -37,13 +37,14 @@ struct Args {
   std::uint32_t domain = 0;
   long count = 100, status_every = 0, statuses = -1, last_status = -1;
   double rate = 500.0, timeout = 10.0;
+  bool objects = false;  // pub: each pose's testObjects too; sub: expect them all
 };
 
 [[noreturn]] void usage(const std::string& why) {
   std::cerr << "ipc_probe: " << why << "\n"
             << "usage: ipc_probe pub|sub --transport lcm|dds --count N [--rate HZ] [--status-every K]\n"
             << "       [--statuses M] [--last-status K] [--ready-file F] [--hold-file F] [--timeout S]\n"
-            << "       [--url URL] [--domain ID] [--dds-config XML|URI] [--suffix S]\n";
+            << "       [--url URL] [--domain ID] [--dds-config XML|URI] [--suffix S] [--objects]\n";
   std::exit(2);
 }
 
@@ -72,13 +73,13 @@ Args parse(int argc, char** argv) {
       else if (k == "--last-status") a.last_status = std::stol(val());
       else if (k == "--rate") a.rate = std::stod(val());
       else if (k == "--timeout") a.timeout = std::stod(val());
+      else if (k == "--objects") a.objects = true;
       else usage("unknown option " + k);
     } catch (const std::exception&) {
       usage("bad value for " + k);
     }
   }
-  if (a.transport != "lcm" && a.transport != "dds" && !(a.transport == "shm" && a.role == "pub"))
-    usage("--transport must be lcm or dds (pub also shm)");
+  if (a.transport != "lcm" && a.transport != "dds" && a.transport != "shm") usage("--transport must be lcm, dds or shm");
   if (a.count < 0 || a.rate <= 0 || a.timeout <= 0) usage("--count, --rate and --timeout must be positive");
   return a;
 }
@@ -93,12 +94,14 @@ IpcOptions optionsFor(const Args& a) {
     o.lcm.url = a.url;
     o.lcm.pose_channel += a.suffix;
     o.lcm.status_channel += a.suffix;
+    o.lcm.objects_channel += a.suffix;
   } else if (a.transport == "dds") {
     o.dds.enabled = true;
     o.dds.domain_id = a.domain;
     o.dds.config = a.dds_config;
     o.dds.pose_topic += a.suffix;
     o.dds.status_topic += a.suffix;
+    o.dds.objects_topic += a.suffix;
   }
   return o;
 }
@@ -141,6 +144,7 @@ int runPub(const Args& a) {
   long statuses = 0;
   for (long k = 1; k <= a.count; ++k) {
     pub.publishPose(probe::testPose(static_cast<std::uint64_t>(k)));
+    if (a.objects) pub.publishObjects(probe::testObjects(static_cast<std::uint64_t>(k)));
     if (a.status_every > 0 && k % a.status_every == 0) pub.publishStatus(probe::testStatus(static_cast<std::uint64_t>(++statuses)));
     next += period;
     std::this_thread::sleep_until(next);
@@ -160,16 +164,33 @@ int runPub(const Args& a) {
 
 int runSub(const Args& a) {
   const IpcOptions o = optionsFor(a);
-  auto sub = a.transport == "lcm" ? makeLcmSubscriber(o.lcm) : makeDdsSubscriber(o.dds, 4096);
+  ShmSubscriberOptions shm;
+  shm.from_oldest = shm.wait_for_ring = true;
+  shm.objects = a.objects;
+  auto sub = a.transport == "lcm"   ? makeLcmSubscriber(o.lcm)
+             : a.transport == "shm" ? makeShmSubscriber(o.shm, shm)
+                                    : makeDdsSubscriber(o.dds, 4096);
   if (!sub) {
     std::cerr << "ipc_probe sub: " << sub.error() << "\n";
     return 1;
   }
-  std::vector<int> seen(static_cast<std::size_t>(a.count) + 1, 0);
+  std::vector<int> seen(static_cast<std::size_t>(a.count) + 1, 0), seen_objects(seen.size(), 0);
+  long objects = 0, bad_objects = 0;
+  std::string first_problem;
+  (*sub)->onObjects([&](const ObjectsMessage& m) {
+    ++objects;
+    if (m.frame_counter < 1 || m.frame_counter > static_cast<std::uint64_t>(a.count) || seen_objects[m.frame_counter]++) {
+      ++bad_objects;
+      return;
+    }
+    if (std::string d = probe::diff(probe::testObjects(m.frame_counter), m); !d.empty()) {
+      ++bad_objects;
+      if (first_problem.empty()) first_problem = "objects " + std::to_string(m.frame_counter) + ": " + d;
+    }
+  });
   long received = 0, mismatched = 0, duplicates = 0, out_of_order = 0, unexpected = 0, statuses = 0,
        bad_status = 0;
   std::uint64_t last = 0;
-  std::string first_problem;
   (*sub)->onPose([&](const PoseMessage& p) {
     ++received;
     if (p.frame_counter < 1 || p.frame_counter > static_cast<std::uint64_t>(a.count)) {
@@ -206,7 +227,9 @@ int runSub(const Args& a) {
       std::ofstream(a.ready_file) << "ready\n";
       ready = true;
     }
-    if (received >= a.count && (!want_status || statuses >= std::max(1L, a.statuses))) break;
+    if (received >= a.count && (!want_status || statuses >= std::max(1L, a.statuses)) &&
+        (!a.objects || objects >= a.count))
+      break;
     auto r = (*sub)->poll(std::chrono::milliseconds(20));
     if (!r) {
       error = r.error();
@@ -217,7 +240,9 @@ int runSub(const Args& a) {
   for (long k = 1; k <= a.count; ++k) missing += seen[static_cast<std::size_t>(k)] == 0;
   std::cout << "sub received=" << received << " missing=" << missing << " mismatched=" << mismatched
             << " duplicates=" << duplicates << " out_of_order=" << out_of_order << " unexpected=" << unexpected
-            << " statuses=" << statuses << " bad_status=" << bad_status << std::endl;
+            << " statuses=" << statuses << " bad_status=" << bad_status;
+  if (a.objects) std::cout << " objects=" << objects << " bad_objects=" << bad_objects;
+  std::cout << std::endl;
   if (!first_problem.empty()) std::cout << "first problem: " << first_problem << std::endl;
   if (!error.empty()) std::cout << "receive error: " << error << std::endl;
   const bool statuses_ok = a.statuses < 0 || statuses == a.statuses;
@@ -225,7 +250,8 @@ int runSub(const Args& a) {
   // out_of_order is reported, not a failure: UDP gives no ordering guarantee even on
   // loopback (two datagrams can sit in different CPUs' backlogs when the sender migrates).
   return missing == 0 && mismatched == 0 && duplicates == 0 && unexpected == 0 &&
-                 bad_status == 0 && statuses_ok && last_ok && (error.empty() || received == a.count)
+                 bad_status == 0 && statuses_ok && last_ok && (error.empty() || received == a.count) &&
+                 (!a.objects || (objects == a.count && bad_objects == 0))
              ? 0
              : 1;
 }

@@ -43,6 +43,37 @@ StatusMessage testStatus(std::uint64_t k) {
   return s;
 }
 
+ObjectsMessage testObjects(std::uint64_t k) {
+  ObjectsMessage m;
+  m.sensor_stamp = testPose(k).sensor_stamp;
+  m.frame_counter = k;
+  m.map_id = 0xC0FFEE0000000000ULL | (k / 100);
+  for (std::uint64_t j = 0; j < k % 4; ++j) {
+    ObjectMessage o;
+    o.id = static_cast<std::uint32_t>(1000 * j + k / 3);
+    o.label = j == 0 ? "person" : j == 1 ? "unknown" : std::string(ObjectsMessage::kMaxLabelLength, 'x');
+    o.sources = static_cast<std::uint8_t>(1 + j % 3);
+    const float f = static_cast<float>(k) / 7.0f + static_cast<float>(j);
+    o.centroid = {f, -f / 3.0f, 1.0f / (f + 1.0f)};
+    o.extent = {0.5f + f / 100.0f, 1.7f, 0.3f};
+    o.velocity = {-0.1f * f, 0.0f, 1e-7f * f};
+    o.has_velocity = (k + j) % 2 == 1;
+    o.samples = static_cast<std::uint32_t>(k * 13 + j);
+    m.objects.push_back(o);
+  }
+  return m;
+}
+
+std::string diff(const ObjectsMessage& e, const ObjectsMessage& g) {
+  if (e.sensor_stamp != g.sensor_stamp) return "sensor_stamp";
+  if (e.frame_counter != g.frame_counter) return "frame_counter";
+  if (e.map_id != g.map_id) return "map_id";
+  if (e.objects.size() != g.objects.size()) return "object count";
+  for (std::size_t j = 0; j < e.objects.size(); ++j)
+    if (!(e.objects[j] == g.objects[j])) return "object " + std::to_string(j);
+  return "";
+}
+
 namespace {
 bool same(double a, double b) { return std::memcmp(&a, &b, sizeof(double)) == 0; }
 }  // namespace

@@ -10,6 +10,10 @@ namespace stillpoint::ipc::probe {
 
 PoseMessage testPose(std::uint64_t k);
 StatusMessage testStatus(std::uint64_t k);
+// Frame k's objects: k % 4 of them (none every fourth frame), the last label
+// of the longest length a message carries.
+ObjectsMessage testObjects(std::uint64_t k);
+std::string diff(const ObjectsMessage& expected, const ObjectsMessage& got);
 // Empty when equal (publish_stamp is ignored: the publisher sets it), else the first
 // differing field.
 std::string diff(const PoseMessage& expected, const PoseMessage& got);

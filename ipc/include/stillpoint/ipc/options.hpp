@@ -17,8 +17,12 @@ struct ShmOptions {
   bool enabled = true;
   std::string name = "stillpoint_pose";  // /dev/shm/<name>
   std::uint32_t capacity = 1024;         // records in the ring, power of two
-  // Dynamic objects in a ring of their own, /dev/shm/<objects_name> (empty: off).
-  std::string objects_name = "stillpoint_objects";
+  // Dynamic objects in a ring of their own: /dev/shm/<objects_name>, by
+  // default <name>_objects.
+  bool objects = true;
+  std::string objects_name;
+  // The objects ring's name; empty when objects are off.
+  std::string objectsRing() const { return !objects ? "" : objects_name.empty() ? name + "_objects" : objects_name; }
 };
 
 struct LcmOptions {
