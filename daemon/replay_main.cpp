@@ -38,7 +38,7 @@ constexpr const char* kUsage =
     "                         [--modules none|geometry,semantic] [--features-out FEATURES.txt]\n"
     "                         [--keyframes-out KEYFRAMES.txt] [--keyframe-trajectory KF_TRAJ.txt]\n"
     "                         [--known-movers] [--max-frames N] [--log-level debug|info|warn|error]\n"
-    "                         [--frame-log FRAMES.txt] [--render DIR] [--render-every N]\n"
+    "                         [--frame-log FRAMES.txt] [--objects-out OBJECTS.txt] [--render DIR] [--render-every N]\n"
     "                         [--render-video FILE.mp4] [--model-card CARD.yaml]\n"
     "                         [--load-map MAP] [--localisation] [--save-map MAP] [--export-cloud CLOUD.ply]\n"
     "                         [--export-dense-cloud CLOUD.ply]\n"
@@ -67,6 +67,9 @@ constexpr const char* kUsage =
     "--save-map writes the maps after the run; --export-cloud writes the map points as a coloured\n"
     "PLY point cloud; --export-dense-cloud the keyframes' depth fused into a static cloud (1 cm\n"
     "voxels; moving and movable pixels, and voxels other keyframes saw through, left out).\n"
+    "--objects-out writes every dynamic object of every frame with a pose, one line each: 'timestamp\n"
+    "  id label sources cx cy cz ex ey ez vx vy vz has_velocity samples' (map frame, metres; sources\n"
+    "  1 geometry, 2 semantic, 3 both).\n"
     "--frame-log writes one line per frame: 'index timestamp state track_ms geometry_ms features\n"
     "in_pose geometry_dynamic semantic_dynamic keyframe(0|1) health dynamic_share outlier_share\n"
     "reprojection_rms_px conditioning' (health: good, degraded, unreliable, lost; docs/pose-health.md) (state: ok, relocalised, new_map,\n"
@@ -81,7 +84,7 @@ constexpr const char* kUsage =
 
 struct Args {
   std::string dataset, camera, output, config, modules, features_out, keyframes_out, keyframe_trajectory, log_level = "warn";
-  std::string frame_log, render_dir, render_video, model_card, load_map, save_map, export_cloud, export_dense;
+  std::string objects_out, frame_log, render_dir, render_video, model_card, load_map, save_map, export_cloud, export_dense;
   bool localisation = false;
   long render_every = 1;
   bool sequential = false, paced = false, known_movers = false;
@@ -128,6 +131,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       args->localisation = true;
     } else if (a == "--model-card") {
       if (!value(&args->model_card)) return false;
+    } else if (a == "--objects-out") {
+      if (!value(&args->objects_out)) return false;
     } else if (a == "--frame-log") {
       if (!value(&args->frame_log)) return false;
     } else if (a == "--render") {
@@ -275,7 +280,7 @@ int main(int argc, char** argv) {
     }
   }
   for (const std::string* path :
-       {&args.output, &args.keyframe_trajectory, &args.keyframes_out, &args.frame_log, &args.save_map, &args.export_cloud,
+       {&args.output, &args.keyframe_trajectory, &args.keyframes_out, &args.frame_log, &args.objects_out, &args.save_map, &args.export_cloud,
         &args.export_dense}) {
     if (path->empty()) continue;
     std::FILE* f = std::fopen(path->c_str(), "a");
@@ -324,6 +329,15 @@ int main(int argc, char** argv) {
     std::fputs("# index timestamp state track_ms geometry_ms features in_pose geometry_dynamic semantic_dynamic "
                "keyframe health dynamic_share outlier_share reprojection_rms_px conditioning\n",
                frame_log);
+  }
+  std::FILE* objects_out = nullptr;
+  if (!args.objects_out.empty()) {
+    objects_out = std::fopen(args.objects_out.c_str(), "w");
+    if (!objects_out) {
+      std::fprintf(stderr, "stillpoint-replay: cannot write %s\n", args.objects_out.c_str());
+      return 1;
+    }
+    std::fputs("# timestamp id label sources cx cy cz ex ey ez vx vy vz has_velocity samples\n", objects_out);
   }
   cv::VideoWriter video;
   if (!args.render_video.empty()) {
@@ -439,6 +453,12 @@ int main(int argc, char** argv) {
                    out->geometry.dynamic_features, out->semantic_features, out->new_keyframe ? 1 : 0, slam::toString(out->quality.health),
                    out->quality.dynamic_share, out->quality.outlier_share, out->quality.reprojection_rms_px,
                    out->quality.conditioning);
+    if (objects_out)
+      for (const slam::DynamicObject& o : out->objects)
+        std::fprintf(objects_out, "%s %u %s %d %.4f %.4f %.4f %.4f %.4f %.4f %.4f %.4f %.4f %d %d\n",
+                     frame->stamp.toSecondsString().c_str(), o.id, o.label.c_str(), o.sources, o.centroid.x(),
+                     o.centroid.y(), o.centroid.z(), o.extent.x(), o.extent.y(), o.extent.z(), o.velocity.x(),
+                     o.velocity.y(), o.velocity.z(), o.has_velocity ? 1 : 0, o.samples);
     if (rendering && has_pose) rendered_poses.push_back({frame->stamp, out->T_w_c});
     if (rendering && i % static_cast<std::size_t>(args.render_every) == 0) {
       render::FrameInput in;
@@ -500,6 +520,10 @@ int main(int argc, char** argv) {
   }
   (*system)->finish();
   if (video.isOpened()) video.release();
+  if (objects_out && (std::ferror(objects_out) | std::fclose(objects_out))) {
+    std::fprintf(stderr, "stillpoint-replay: writing %s failed: %s\n", args.objects_out.c_str(), std::strerror(errno));
+    return 1;
+  }
   if (frame_log && (std::ferror(frame_log) | std::fclose(frame_log))) {
     std::fprintf(stderr, "stillpoint-replay: writing %s failed: %s\n", args.frame_log.c_str(), std::strerror(errno));
     return 1;

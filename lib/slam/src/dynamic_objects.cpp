@@ -22,6 +22,10 @@ constexpr double kGateM = 0.3;
 constexpr double kMaxSpeedMps = 3.0;
 constexpr double kForgetAfterS = 0.5;
 constexpr double kVelocitySmoothing = 0.5;  // weight of the newest measurement
+// A depth cluster is a slab of the view: of a region's samples, keep those
+// within this margin of the depths of the features judged moving in it (the
+// floor or wall beside a mover shares its cluster but not its depth).
+constexpr double kDepthMarginM = 0.25;
 
 struct Region {
   std::vector<Vec3> points;  // map frame
@@ -29,7 +33,7 @@ struct Region {
   std::uint8_t class_id = 0;
   std::uint8_t sources = 0;
   cv::Rect grid_box;  // geometry: its cells, label-grid coordinates
-  int component = -1;
+  std::vector<int> components;  // geometry: its connected regions of the grid
 };
 
 // Median per axis and the 5-95 % range per axis.
@@ -85,11 +89,28 @@ std::vector<DynamicObject> DynamicObjectTracker::update(const Frame& frame, cons
       region_of[k] = static_cast<int>(regions.size());
       Region& g = regions.emplace_back();
       g.sources = DynamicObject::kGeometry;
-      g.component = k;
+      g.components = {k};
       g.grid_box = cv::Rect(stats.at<int>(k, cv::CC_STAT_LEFT), stats.at<int>(k, cv::CC_STAT_TOP),
                             stats.at<int>(k, cv::CC_STAT_WIDTH), stats.at<int>(k, cv::CC_STAT_HEIGHT));
     }
     const int step = std::max(1, L.step), half = step / 2;
+    // The depths of each region's moving features (10-90 %), its gate.
+    std::vector<std::vector<float>> feature_depths(regions.size());
+    for (int i = 0; i < frame.size(); ++i) {
+      if (frame.dynamic[i] != kGeometryDynamic || !(frame.depth[i] > 0)) continue;
+      const int c = std::clamp(static_cast<int>(frame.keys[i].pt.x) / step, 0, components.cols - 1);
+      const int r = std::clamp(static_cast<int>(frame.keys[i].pt.y) / step, 0, components.rows - 1);
+      const int k = components.at<int>(r, c);
+      if (k > 0 && region_of[k] >= 0) feature_depths[region_of[k]].push_back(frame.depth[i]);
+    }
+    std::vector<std::pair<float, float>> gate(regions.size(), {0.0f, 1e9f});
+    for (std::size_t g = 0; g < regions.size(); ++g) {
+      auto& d = feature_depths[g];
+      if (d.size() < 3) continue;
+      std::sort(d.begin(), d.end());
+      gate[g] = {d[d.size() / 10] - static_cast<float>(kDepthMarginM),
+                 d[(d.size() * 9) / 10] + static_cast<float>(kDepthMarginM)};
+    }
     for (int r = 0; r < components.rows; ++r)
       for (int c = 0; c < components.cols; ++c) {
         const int k = components.at<int>(r, c);
@@ -97,7 +118,7 @@ std::vector<DynamicObject> DynamicObjectTracker::update(const Frame& frame, cons
         const int x = c * step + half, y = r * step + half;
         if (x >= L.depth.cols || y >= L.depth.rows) continue;
         const float z = L.depth.at<float>(y, x);
-        if (!(z > 0)) continue;
+        if (!(z > 0) || z < gate[region_of[k]].first || z > gate[region_of[k]].second) continue;
         const Vec2 un = camera_.undistortPixel(Vec2(x, y));
         regions[region_of[k]].points.push_back(T_w_c * camera_.unproject(un, z));
       }
@@ -152,7 +173,9 @@ std::vector<DynamicObject> DynamicObjectTracker::update(const Frame& frame, cons
         const int r = std::clamp(static_cast<int>(frame.keys[i].pt.y) / step, 0, components.rows - 1);
         const int comp = components.at<int>(r, c);
         for (std::size_t g = 0; g < regions.size(); ++g)
-          if (regions[g].component == comp && regions[g].sources & DynamicObject::kGeometry) ++votes[g];
+          if (comp > 0 && std::find(regions[g].components.begin(), regions[g].components.end(), comp) !=
+                              regions[g].components.end())
+            ++votes[g];
       }
       for (std::size_t g = 0; g < regions.size(); ++g)
         if (votes[g] > best_votes) best = static_cast<int>(g), best_votes = votes[g];
