@@ -1,10 +1,12 @@
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 
 #include "stillpoint/ipc/options.hpp"
+#include "stillpoint/ipc/ros2_frames.hpp"
 
 namespace stillpoint::ipc {
 
@@ -102,4 +104,40 @@ TEST(IpcOptions, ShippedConfigEqualsTheDefaults) {
   EXPECT_EQ(o->dds.status_topic, d.dds.status_topic);
 }
 
+}  // namespace stillpoint::ipc
+
+namespace stillpoint::ipc {
+namespace {
+
+// A camera on a robot, 0.5 m up and pitched down 30 degrees: the robot drives
+// 1 m forward. In the first camera's optical frame the camera moved by the
+// world's x axis seen from it, (0, -sin 30, cos 30); the robot's base_link
+// must come out 1 m along the map's x, level, with no rotation.
+TEST(Ros2Frames, APitchedCameraOnADrivingRobotGivesTheBaseItsOwnMotion) {
+  const double half = 0.5 * 30.0 * M_PI / 180.0;
+  const Eigen::Isometry3d X = opticalInChild({0.2, 0.0, 0.5, 0.0, std::sin(half), 0.0, std::cos(half)});
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = Eigen::Vector3d(0, -0.5, std::sqrt(3.0) / 2);
+  const Eigen::Isometry3d base = childInMap(X, T);
+  EXPECT_TRUE(base.translation().isApprox(Eigen::Vector3d(1, 0, 0), 1e-12)) << base.translation().transpose();
+  EXPECT_TRUE(base.linear().isApprox(Eigen::Matrix3d::Identity(), 1e-12));
+  // The first pose is the map's origin, whatever the mounting.
+  EXPECT_TRUE(childInMap(X, Eigen::Isometry3d::Identity()).isApprox(Eigen::Isometry3d::Identity(), 1e-12));
+  // The camera's own body frame (identity extrinsic): optical z forward is x.
+  const Eigen::Isometry3d camera = childInMap(opticalInChild({0, 0, 0, 0, 0, 0, 1}), T);
+  EXPECT_TRUE(camera.translation().isApprox(Eigen::Vector3d(std::sqrt(3.0) / 2, 0, 0.5), 1e-12));
+}
+
+TEST(Ros2Frames, ABadExtrinsicIsRefused) {
+  IpcOptions o;
+  o.ros2.camera_extrinsic = {0, 0, 0, 0, 0, 0, 2};
+  EXPECT_FALSE(o.validate());
+  o.ros2.camera_extrinsic = {0, 0, std::nan(""), 0, 0, 0, 1};
+  EXPECT_FALSE(o.validate());
+  auto parsed = parseIpcOptions(YAML::Load("ros2: {camera_extrinsic: [1, 2, 3]}"));
+  ASSERT_FALSE(parsed);
+  EXPECT_NE(parsed.error().find("camera_extrinsic"), std::string::npos) << parsed.error();
+}
+
+}  // namespace
 }  // namespace stillpoint::ipc

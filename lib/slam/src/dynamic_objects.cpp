@@ -36,8 +36,12 @@ struct Region {
   std::vector<int> components;  // geometry: its connected regions of the grid
 };
 
-// Median per axis and the 5-95 % range per axis.
-void measure(std::vector<Vec3> points, DynamicObject* o) {
+// Median per axis and the 5-95 % range per axis (of at most 512 of the
+// points, evenly taken: the quantiles hardly change, the cost stays flat).
+void measure(const std::vector<Vec3>& all, DynamicObject* o) {
+  std::vector<Vec3> points;
+  const std::size_t stride = (all.size() + 511) / 512;
+  for (std::size_t k = 0; k < all.size(); k += stride) points.push_back(all[k]);
   const std::size_t n = points.size();
   for (int axis = 0; axis < 3; ++axis) {
     std::vector<double> v(n);
@@ -51,7 +55,7 @@ void measure(std::vector<Vec3> points, DynamicObject* o) {
     const double lo = at(0.05), hi = at(0.95);
     o->extent[axis] = hi - lo;
   }
-  o->samples = static_cast<int>(n);
+  o->samples = static_cast<int>(all.size());
 }
 
 }  // namespace

@@ -94,10 +94,14 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   out->new_keyframe = new_keyframe != nullptr;
   out->geometry = std::move(geometry_);
   out->semantic_features = semantic_marked_;
-  if (ok)
-    out->objects = objects_.update(current_, out->geometry, map_id_, [this](std::uint8_t id) { return map_->className(id); });
-  else
-    objects_.missed(current_.stamp);
+  {
+    ScopedStageTimer timer(&out->stages.objects);
+    if (ok)
+      out->objects =
+          objects_.update(current_, out->geometry, map_id_, [this](std::uint8_t id) { return map_->className(id); });
+    else
+      objects_.missed(current_.stamp);
+  }
   markMoverCells(ok);
   if (detector_) detector_->endFrame(current_, ok);
   last_ = std::move(current_);

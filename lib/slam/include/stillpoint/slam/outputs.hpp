@@ -55,6 +55,7 @@ struct StageTimes {
   double pose_optimisation = 0;  // every pose-only optimisation of the frame
   double keyframe = 0;        // keyframe decision and creation
   double geometry = 0;        // waiting for the clusters and judging them (tracking thread)
+  double objects = 0;         // the frame's dynamic objects (TrackOutput::objects)
 };
 
 // A feature matched in the first tracking stage and judged by the geometry
