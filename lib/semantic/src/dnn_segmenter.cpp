@@ -198,8 +198,46 @@ Status checkDeclaredInput(const ModelCard& card, const std::vector<OnnxTensorInf
 
 }  // namespace
 
+namespace {
+
+struct Device {
+  const char* name;
+  cv::dnn::Backend backend;
+  cv::dnn::Target target;
+};
+constexpr Device kDevices[] = {{"cpu", cv::dnn::DNN_BACKEND_OPENCV, cv::dnn::DNN_TARGET_CPU},
+                               {"cuda", cv::dnn::DNN_BACKEND_CUDA, cv::dnn::DNN_TARGET_CUDA},
+                               {"cuda_fp16", cv::dnn::DNN_BACKEND_CUDA, cv::dnn::DNN_TARGET_CUDA_FP16},
+                               {"opencl", cv::dnn::DNN_BACKEND_OPENCV, cv::dnn::DNN_TARGET_OPENCL},
+                               {"opencl_fp16", cv::dnn::DNN_BACKEND_OPENCV, cv::dnn::DNN_TARGET_OPENCL_FP16}};
+
+const Device* findDevice(const std::string& name) {
+  for (const Device& d : kDevices)
+    if (name == d.name) return &d;
+  return nullptr;
+}
+
+// Whether this OpenCV build offers `d` (its backend compiled in, the target
+// usable on this machine).
+bool available(const Device& d) {
+  try {
+    const auto targets = cv::dnn::getAvailableTargets(d.backend);
+    return std::find(targets.begin(), targets.end(), d.target) != targets.end();
+  } catch (const cv::Exception&) {
+    return false;
+  }
+}
+
+}  // namespace
+
+Status checkDevice(const std::string& device) {
+  if (findDevice(device)) return Status::success();
+  return Error{"'" + device + "' is not one of cpu, cuda, cuda_fp16, opencl, opencl_fp16"};
+}
+
 Status SegmenterOptions::validate() const {
   if (threads < 0 || threads > 256) return Error{"segmenter option 'threads' must be in 0..256"};
+  if (Status s = checkDevice(device); !s) return Error{"segmenter option 'device': " + s.error()};
   if (threshold >= 1) return Error{"segmenter option 'threshold' must be below 1 (negative = card value)"};
   if (score_threshold >= 1) return Error{"segmenter option 'score_threshold' must be below 1 (negative = card value)"};
   if (!(min_region_fraction >= 0 && min_region_fraction < 1))
@@ -257,8 +295,14 @@ Result<std::unique_ptr<Segmenter>> createSegmenterOrThrow(const ModelCard& card,
     return Error{where + "OpenCV cannot load model '" + card.model_path.string() + "': " + e.what()};
   }
   if (net.empty()) return Error{where + "OpenCV loaded an empty network from '" + card.model_path.string() + "'"};
-  net.setPreferableBackend(cv::dnn::DNN_BACKEND_OPENCV);
-  net.setPreferableTarget(cv::dnn::DNN_TARGET_CPU);
+  const Device* device = findDevice(options.device);
+  if (!available(*device)) {
+    SP_WARN(logger, "semantic device '" << device->name << "': this OpenCV build (" << CV_VERSION
+                                        << ") cannot run it (no such dnn backend or target); running on the CPU");
+    device = findDevice("cpu");
+  }
+  net.setPreferableBackend(device->backend);
+  net.setPreferableTarget(device->target);
   for (const auto& out : card.decoder.outputs)
     if (net.getLayerId(out) < 0) {
       std::string names_list;
@@ -267,10 +311,23 @@ Result<std::unique_ptr<Segmenter>> createSegmenterOrThrow(const ModelCard& card,
     }
   if (options.threads > 0) cv::setNumThreads(options.threads);
 
-  auto seg = std::make_unique<DnnSegmenter>(card, options, std::move(net), std::move(movable));
   // One warm-up run on a grey frame of the input size: checks the output
-  // shapes against the decoder now, not at the first keyframe.
+  // shapes against the decoder now, not at the first keyframe. A device that
+  // fails it (a GPU without the memory, a broken driver) gives way to the CPU.
   const cv::Mat probe(card.input.height, card.input.width, CV_8UC3, cv::Scalar(128, 128, 128));
+  if (device->target != cv::dnn::DNN_TARGET_CPU) {
+    auto trial = std::make_unique<DnnSegmenter>(card, options, net, movable);
+    if (auto r = trial->segment(probe); r) {
+      SP_INFO(logger, "'" << card.name << "' runs on " << device->name);
+      return std::unique_ptr<Segmenter>(std::move(trial));
+    } else {
+      SP_WARN(logger, "semantic device '" << device->name << "' failed the warm-up (" << r.error()
+                                          << "); running on the CPU");
+      net.setPreferableBackend(cv::dnn::DNN_BACKEND_OPENCV);
+      net.setPreferableTarget(cv::dnn::DNN_TARGET_CPU);
+    }
+  }
+  auto seg = std::make_unique<DnnSegmenter>(card, options, std::move(net), std::move(movable));
   auto result = seg->segment(probe);
   if (!result) return Error{where + "the model's outputs do not match the card: " + result.error()};
   SP_INFO(logger, "loaded '" << card.name << "' (" << card.model_path.string() << "), warm-up "

@@ -74,6 +74,30 @@ TEST(TinySemantic, ArgmaxLabelsMovableMaskAndRegions) {
   EXPECT_EQ(p->labels.at<uchar>(24, 56), 2);
 }
 
+// Every device name is accepted; where this OpenCV build cannot run it (no
+// CUDA here; OpenCL only with a platform), the segmenter falls back to the
+// CPU and labels as it does there. An unknown device is an error.
+TEST(TinySemantic, AnyDeviceRunsAndFallsBackToTheCpu) {
+  auto cpu = createSegmenter(kTestData / "tiny_semantic.yaml");
+  ASSERT_TRUE(cpu.ok()) << cpu.error();
+  auto expected = (*cpu)->segment(bands());
+  ASSERT_TRUE(expected.ok()) << expected.error();
+  for (const char* device : {"cuda", "cuda_fp16", "opencl", "opencl_fp16"}) {
+    SegmenterOptions options;
+    options.device = device;
+    auto seg = createSegmenter(kTestData / "tiny_semantic.yaml", options);
+    ASSERT_TRUE(seg.ok()) << device << ": " << seg.error();
+    auto r = (*seg)->segment(bands());
+    ASSERT_TRUE(r.ok()) << device << ": " << r.error();
+    EXPECT_EQ(r->movable_pixels, expected->movable_pixels) << device;
+  }
+  SegmenterOptions bad;
+  bad.device = "gpu";
+  auto seg = createSegmenter(kTestData / "tiny_semantic.yaml", bad);
+  ASSERT_FALSE(seg.ok());
+  EXPECT_NE(seg.error().find("'gpu' is not one of"), std::string::npos) << seg.error();
+}
+
 TEST(TinySemantic, PostFilterDropsSmallRegionsVisibly) {
   SegmenterOptions options;
   options.min_region_fraction = 0.5;  // both bands are ~37 % of the image

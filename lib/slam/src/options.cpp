@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "stillpoint/core/yaml_file.hpp"
+#include "stillpoint/semantic/segmenter.hpp"
 
 namespace stillpoint::slam {
 
@@ -104,6 +105,7 @@ Status SemanticOptions::validate() const {
   if (sequential_latency_frames < 0 || sequential_latency_frames > 1000)
     return Error{"semantic.sequential_latency_frames must be in 0..1000"};
   if (threads < 0 || threads > 64) return Error{"semantic.threads must be in 0..64"};
+  if (Status s = semantic::checkDevice(device); !s) return Error{"semantic.device: " + s.error()};
   if (!(min_region_fraction >= 0 && min_region_fraction < 1))
     return Error{"semantic.min_region_fraction must be in [0, 1)"};
   if (!(min_region_confidence >= 0 && min_region_confidence <= 1))
@@ -187,6 +189,8 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("semantic", "sequential_latency_frames", o.semantic.sequential_latency_frames,
     "sequential mode only: apply each segmentation this many frames late (a live run's delay)");
   v("semantic", "threads", o.semantic.threads, "OpenCV inference threads (0: leave OpenCV's setting)");
+  v("semantic", "device", o.semantic.device,
+    "cpu, cuda, cuda_fp16, opencl or opencl_fp16: OpenCV dnn's backend and target (the CPU, with a warning, where the build lacks it)");
   v("semantic", "confirm_with_geometry", o.semantic.confirm_with_geometry,
     "card, always or never: whether masks need the geometry module's agreement (card: as the model card says)");
   v("place", "vocabulary", o.place.vocabulary, "vocabulary file (stillpoint-vocab train); empty: the one shipped in models/");

@@ -171,6 +171,7 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
   if (!model) return Error{model.error()};
   semantic::SegmenterOptions so;
   so.threads = options.semantic.threads;
+  so.device = options.semantic.device;
   so.movable_furniture = options.semantic.movable_furniture;
   so.min_region_fraction = options.semantic.min_region_fraction;
   so.min_region_confidence = options.semantic.min_region_confidence;

@@ -19,11 +19,20 @@
 
 namespace stillpoint::semantic {
 
+// "cpu", "cuda", "cuda_fp16", "opencl" or "opencl_fp16"; anything else is an error.
+Status checkDevice(const std::string& device);
+
 struct SegmenterOptions {
   // OpenCV's thread count for inference. OpenCV keeps ONE process-wide
   // setting, so this also affects other OpenCV calls in the process;
   // 0 = leave it as it is.
   int threads = 1;
+  // Where inference runs: "cpu" (OpenCV's own backend), "cuda" or
+  // "cuda_fp16" (OpenCV's CUDA backend: a Jetson's GPU, with an OpenCV built
+  // with CUDA and cuDNN, as JetPack's can be), "opencl" or "opencl_fp16". When
+  // this OpenCV build has no such backend or target, or the warm-up inference
+  // fails on it, the segmenter warns and runs on the CPU.
+  std::string device = "cpu";
   // Also treat the card's optional_movable classes (chairs, furniture) as movable.
   bool movable_furniture = false;
   // Extra class names to treat as movable (must exist in the card).

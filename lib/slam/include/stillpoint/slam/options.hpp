@@ -184,6 +184,10 @@ struct SemanticOptions {
   // frames late, a live run's delay modelled deterministically (0: at once).
   int sequential_latency_frames = 0;
   int threads = 1;  // YAML: OpenCV inference threads (process-wide in OpenCV; 0: leave as is)
+  // YAML: where inference runs (semantic::SegmenterOptions::device): cpu,
+  // cuda, cuda_fp16, opencl or opencl_fp16; the CPU, with a warning, where the
+  // OpenCV build cannot.
+  std::string device = "cpu";
   // YAML: masks need the geometry module's agreement: "card" (as the model
   // card says), "always" or "never".
   std::string confirm_with_geometry = "card";
