@@ -21,7 +21,8 @@ class RectangleSegmenter : public semantic::Segmenter {
   }
   Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
     if (bgr.empty() || bgr.type() != CV_8UC3) return Error{"not a BGR image"};
-    while (gate && !*gate) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    while (gate && !*gate && *calls >= ungated_calls) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    std::this_thread::sleep_for(delay);
     ++*calls;
     semantic::Segmentation seg;
     seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
@@ -41,6 +42,8 @@ class RectangleSegmenter : public semantic::Segmenter {
     seg.movable_pixels = r.area();
     return seg;
   }
+  std::chrono::milliseconds delay{0};  // each segment() takes at least this long
+  int ungated_calls = 0;  // the first calls pass a closed gate
   const semantic::ModelCard& card() const override { return card_; }
   const std::vector<int>& movableClassIds() const override { return ids_; }
   std::shared_ptr<int> calls = std::make_shared<int>(0);  // outlives the segmenter (owned by the system)

@@ -25,6 +25,30 @@
 
 namespace stillpoint::slam {
 namespace {
+
+// Flags the features of `frame` inside the movable regions of `r` as the
+// semantic module does, with their class. Not when that would leave out more
+// than `max_fraction` of the features (the module's own cap for masks
+// nothing confirms). Returns whether it flagged any.
+bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction) {
+  if (r.labels.empty() || r.regions.empty()) return false;
+  std::vector<int> inside;
+  for (int i = 0; i < frame->size(); ++i) {
+    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
+    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
+    const int label = r.labels.at<std::uint8_t>(y, x);
+    if (label > 0 && label <= static_cast<int>(r.regions.size())) inside.push_back(i);
+  }
+  if (inside.empty() || inside.size() > max_fraction * frame->size()) return false;
+  frame->movable_class.resize(frame->size(), 0);
+  for (int i : inside) {
+    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
+    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
+    frame->dynamic[i] = kSemanticDynamic;
+    frame->movable_class[i] = map.classId(r.regions[r.labels.at<std::uint8_t>(y, x) - 1].class_name);
+  }
+  return true;
+}
 log::Logger logger("slam");
 
 // Share of the depth image's pixels with a usable depth (as buildFrame takes
@@ -309,6 +333,22 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   }
   // The tracker keeps it for geometry.freespace_frames frames.
   if (clusters_pending && s.options.geometry.photo_release_ncc > 0) frame.gray = input.gray.clone();
+  // Movers present at start-up: a live run segments the frame that will be
+  // the first keyframe before the map is built from it, so its points on
+  // movable objects never exist and the next frames cannot track on them
+  // while the segmentation would be under way. (A sequential run segments
+  // every keyframe before the next frame anyway.)
+  std::optional<SemanticResult> first_masks;
+  if (s.semantic && !s.options.sequential && !input.bgr.empty() && s.map.mapsStarted() == 0 &&
+      s.tracker.state() == TrackingState::kInitialising) {
+    SemanticResult r = s.semantic->process(
+        SemanticJob{-1, input.bgr.clone(), input.depth_m.empty() ? cv::Mat() : input.depth_m.clone(),
+                    std::chrono::steady_clock::now()});
+    if (r.ok) {
+      markMovable(&frame, r, s.map, s.options.semantic.max_removed_fraction);
+      first_masks = std::move(r);
+    }
+  }
   const auto t1 = std::chrono::steady_clock::now();
 
   if (s.latency.busy()) s.latency.advance(frame.id, [&s](const SemanticJob& job) { s.applySegmentation(job); });
@@ -344,7 +384,10 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
     std::unique_lock lock(s.map.mutex());
     kf->dense = std::move(view);
   }
-  if (kf && s.semantic) {
+  if (kf && first_masks) {
+    first_masks->keyframe_id = kf->id;  // its result, applied as any keyframe's
+    s.mapper.postSemantic(std::move(*first_masks));
+  } else if (kf && s.semantic) {
     if (input.bgr.empty()) {
       ++s.semantic_no_colour;
       SP_WARN_EVERY(logger, s.no_colour_warning,

@@ -519,7 +519,7 @@ bool Tracker::initialise() {
   kf->origin = true;
   KeyFrame* k = map_->addKeyFrame(std::move(kf));
   for (int i = 0; i < k->frame.size(); ++i) {
-    if (k->frame.depth[i] <= 0) continue;
+    if (k->frame.depth[i] <= 0 || k->frame.dynamic[i]) continue;  // movers (known or masked) make no points
     auto p = map_->createPoint(k->frame.unprojectToWorld(i), k);
     k->addObservation(p, i);
     p->updateFromObservations();
