@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The consumer kit's plain-Python reader (ipc/examples/read_poses.py) reads the
 # poses stillpointd writes to the shared-memory ring while it replays the real
-# excerpt: every line has a state and a health, and tracked frames a pose.
+# excerpt: every line has a state and a health, and tracked frames a pose; with
+# --objects it reads the dynamic-objects ring beside it, one line per frame.
 # Skips (77) without python3 or the excerpt.
 # usage: consumer_kit_test.sh BIN_DIR SOURCE_DIR DATA_DIR WORK_DIR
 set -uo pipefail
@@ -22,12 +23,18 @@ daemon=$!
 trap 'kill $daemon 2>/dev/null; wait 2>/dev/null' EXIT
 for _ in $(seq 1 100); do [[ -e /dev/shm/$ring ]] && break; sleep 0.1; done
 [[ -e /dev/shm/$ring ]] || { cat "$work/d.err"; fail "no ring /dev/shm/$ring"; }
+python3 "$src/ipc/examples/read_poses.py" --name "$ring" --objects --count 60 --timeout 20 > "$work/objects.txt" \
+  2> "$work/objects.err" &
+objects=$!
 python3 "$src/ipc/examples/read_poses.py" --name "$ring" --count 60 --timeout 20 > "$work/poses.txt" 2> "$work/py.err" ||
   { cat "$work/py.err"; fail "read_poses.py failed"; }
+wait $objects || { cat "$work/objects.err"; fail "read_poses.py --objects failed"; }
+object_lines=$(grep -c "^frame=[0-9]* t=[0-9.]* map=0 objects=[0-9]*" "$work/objects.txt")
+[[ $object_lines -eq 60 ]] || { head "$work/objects.txt"; fail "$object_lines frames of objects, expected 60"; }
 lines=$(wc -l < "$work/poses.txt")
 with_pose=$(grep -c "state=ok health=[a-z]* map=0 p=\[" "$work/poses.txt")
 [[ $lines -eq 60 ]] || fail "$lines lines, expected 60"
 [[ $with_pose -ge 50 ]] || { head "$work/poses.txt"; fail "only $with_pose of 60 poses tracked with a pose"; }
 # Frames arrive in order.
 awk '{ split($1, a, "="); if (NR > 1 && a[2] <= last) exit 1; last = a[2] }' "$work/poses.txt" || fail "frames out of order"
-echo "PASS: $lines poses read by the Python example, $with_pose tracked"
+echo "PASS: $lines poses read by the Python example, $with_pose tracked; $object_lines frames of objects"

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Reads stillpoint's poses from the shared-memory ring, in plain Python (no packages).
 
-    read_poses.py [--name RING] [--count N] [--timeout S]
+    read_poses.py [--name RING] [--count N] [--timeout S] [--objects]
 
 Attaches to /dev/shm/RING (default stillpoint_pose, what stillpointd writes), starts at the
 newest record and prints one line per pose as it arrives: frame, stamp, tracking state, pose
@@ -10,6 +10,10 @@ ring's layout and protocol are those of the C reader, ipc/include/stillpoint_shm
 schema 2): a record is read between two equal even values of its slot's sequence word, so a
 record the writer is overwriting is never returned. Exit status: 0 after N poses, 1 when the
 ring is missing or not a pose ring of this schema, or nothing arrived within S seconds.
+
+With --objects it reads the dynamic-objects ring next to it (RING_objects) instead: one line per
+frame with a pose, the frame's objects in the map frame (id, label, which module found it,
+centroid and extent [m], speed [m/s]; sp_object_record in stillpoint_shm.h).
 """
 import argparse
 import math
@@ -20,6 +24,7 @@ import sys
 import time
 
 MAGIC = 0x48535053  # "SPSH"
+OBJECTS_MAGIC = 0x4F535053  # "SPSO"
 SCHEMA = 2
 HEADER_SIZE, SLOT_SIZE, RECORD_SIZE = 128, 192, 128
 STATES = ["initialising", "ok", "lost", "relocalised", "no_depth", "new_map"]
@@ -28,18 +33,23 @@ HEALTH = ["good", "degraded", "unreliable", "lost"]
 # tracked, rejected, keyframes, map id, health, dynamic share, reprojection RMS, conditioning.
 RECORD = struct.Struct("<QqqQ3d4dIIIIQIfff")
 assert RECORD.size == RECORD_SIZE
+# sp_object_record: sequence, stamps, frame counter, map id, id, index, count, sources, samples,
+# centroid[3], extent[3], velocity[3], has_velocity, label.
+OBJECT = struct.Struct("<QqqQQIHHII3f3f3fI32s")
+assert OBJECT.size == RECORD_SIZE
+SOURCES = {1: "geometry", 2: "semantic", 3: "both"}
 
 
-def open_ring(name):
+def open_ring(name, magic=MAGIC):
     path = "/dev/shm/" + name
     fd = os.open(path, os.O_RDONLY)
     try:
         ring = mmap.mmap(fd, 0, prot=mmap.PROT_READ)
     finally:
         os.close(fd)
-    magic, schema, header_size, record_size, slot_size, capacity = struct.unpack_from("<IHHIII", ring, 0)
-    if magic != MAGIC:
-        raise ValueError(f"{path} is not a stillpoint pose ring")
+    ring_magic, schema, header_size, record_size, slot_size, capacity = struct.unpack_from("<IHHIII", ring, 0)
+    if ring_magic != magic:
+        raise ValueError(f"{path} is not a stillpoint {'pose' if magic == MAGIC else 'objects'} ring")
     if schema != SCHEMA:
         raise ValueError(f"{path} has pose schema {schema}; this reader knows {SCHEMA}")
     if (header_size, record_size, slot_size) != (HEADER_SIZE, RECORD_SIZE, SLOT_SIZE) or capacity & (capacity - 1):
@@ -51,7 +61,7 @@ def write_count(ring):
     return struct.unpack_from("<Q", ring, 32)[0]
 
 
-def try_read(ring, capacity, n):
+def try_read(ring, capacity, n, layout=RECORD):
     """Record n, or None when its slot does not hold it (not written yet, or overwritten)."""
     offset = HEADER_SIZE + (n & (capacity - 1)) * SLOT_SIZE
     seq = struct.unpack_from("<Q", ring, offset)[0]
@@ -60,7 +70,7 @@ def try_read(ring, capacity, n):
     words = ring[offset + 8:offset + 8 + RECORD_SIZE]
     if struct.unpack_from("<Q", ring, offset)[0] != seq:
         return None
-    return RECORD.unpack(words)
+    return layout.unpack(words)
 
 
 def main():
@@ -68,14 +78,17 @@ def main():
     parser.add_argument("--name", default="stillpoint_pose")
     parser.add_argument("--count", type=int, default=0, help="exit after N poses (0: run until interrupted)")
     parser.add_argument("--timeout", type=float, default=10.0, help="give up when nothing arrives for S seconds")
+    parser.add_argument("--objects", action="store_true", help="read the dynamic objects (RING_objects) instead")
     args = parser.parse_args()
     try:
-        ring, capacity = open_ring(args.name)
+        ring, capacity = open_ring(args.name + "_objects" if args.objects else args.name,
+                                   OBJECTS_MAGIC if args.objects else MAGIC)
     except (OSError, ValueError) as e:
         print(f"read_poses: {e}", file=sys.stderr)
         return 1
     next_n = max(1, write_count(ring))
     received, last_arrival = 0, time.monotonic()
+    frame_objects, frame_open = [], False
     while args.count == 0 or received < args.count:
         newest = write_count(ring)
         if next_n > newest:
@@ -86,9 +99,29 @@ def main():
             continue
         if newest - next_n >= capacity:
             next_n = newest - capacity + 1  # we fell a lap behind: skip what was overwritten
-        r = try_read(ring, capacity, next_n)
+        r = try_read(ring, capacity, next_n, OBJECT if args.objects else RECORD)
         next_n += 1
         if r is None:
+            continue
+        if args.objects:
+            (_, stamp_ns, _, frame, map_id, oid, index, count, sources, samples, cx, cy, cz, ex, ey, ez, vx, vy, vz,
+             has_velocity, label) = r
+            if index == 0:
+                frame_objects, frame_open = [], True
+            elif not frame_open:
+                continue  # joined in the middle of a frame's records
+            if count > 0:
+                speed = f"{math.sqrt(vx * vx + vy * vy + vz * vz):.2f}" if has_velocity else "?"
+                name = label.split(b"\0")[0].decode(errors="replace")
+                frame_objects.append(f"{oid}:{name}({SOURCES.get(sources, sources)}) "
+                                     f"c=[{cx:.3f} {cy:.3f} {cz:.3f}] e=[{ex:.2f} {ey:.2f} {ez:.2f}] v={speed}")
+            if len(frame_objects) < count:
+                continue
+            frame_open = False
+            print(f"frame={frame} t={stamp_ns * 1e-9:.6f} map={map_id} objects={count}"
+                  + "".join(" " + o for o in frame_objects), flush=True)
+            received += 1
+            last_arrival = time.monotonic()
             continue
         (_, stamp_ns, _, frame, px, py, pz, qx, qy, qz, qw, state, tracked, _, _, map_id, health, dynamic,
          rms, conditioning) = r
