@@ -22,6 +22,10 @@ constexpr double kGateM = 0.3;
 constexpr double kMaxSpeedMps = 3.0;
 constexpr double kForgetAfterS = 0.5;
 constexpr double kVelocitySmoothing = 0.5;  // weight of the newest measurement
+// A region only the geometry module saw is reported once it has been
+// followed through this many frames: a cluster misjudged in one or two
+// frames of a static scene is no mover.
+constexpr int kConfirmFrames = 3;
 // A depth cluster is a slab of the view: of a region's samples, keep those
 // within this margin of the depths of the features judged moving in it (the
 // floor or wall beside a mover shares its cluster but not its depth).
@@ -222,6 +226,7 @@ std::vector<DynamicObject> DynamicObjectTracker::update(const Frame& frame, cons
     DynamicObject& o = objects[p.now];
     const Followed& b = followed_[p.before];
     o.id = b.object.id;
+    o.frames = b.object.frames + 1;
     if (o.label == "unknown") o.label = b.object.label;  // a class once seen stays
     const double dt = secondsBetween(frame.stamp, b.seen);
     if (dt > 1e-3) {
@@ -239,6 +244,9 @@ std::vector<DynamicObject> DynamicObjectTracker::update(const Frame& frame, cons
     if (!before_taken[f] && secondsBetween(frame.stamp, followed_[f].seen) <= kForgetAfterS) kept.push_back(followed_[f]);
   for (const DynamicObject& o : objects) kept.push_back({o, frame.stamp});
   followed_ = std::move(kept);
+  std::erase_if(objects, [](const DynamicObject& o) {
+    return !(o.sources & DynamicObject::kSemantic) && o.label == "unknown" && o.frames < kConfirmFrames;
+  });
   return objects;
 }
 

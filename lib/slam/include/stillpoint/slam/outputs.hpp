@@ -140,6 +140,7 @@ struct DynamicObject {
   Vec3 velocity = Vec3::Zero();   // of the centroid [m/s], smoothed; zero until seen twice
   bool has_velocity = false;
   int samples = 0;                // surface points it was measured from
+  int frames = 1;                 // frames it has been followed through, this one included
 };
 
 struct TrackOutput {
