@@ -248,8 +248,26 @@ class Map {
   // the table is full. Any thread; no map lock needed.
   std::uint8_t classId(const std::string& name);
   std::string className(std::uint8_t id) const;  // "unknown" for 0 or an unused id
+  // The semantic module's progress over keyframe ids: the newest keyframe
+  // sent for segmentation, and the newest whose result came back (applied,
+  // failed, or its keyframe gone). Results come in keyframe order, so one
+  // result also ends the wait of the keyframes the full queue dropped
+  // before it. A point made by a keyframe in between awaits its mask, and
+  // tracking keeps it out of pose fits. Any thread; no map lock needed.
+  void maskRequested(std::int64_t keyframe_id) { raiseTo(&mask_requested_, keyframe_id); }
+  void maskResolved(std::int64_t keyframe_id) { raiseTo(&mask_resolved_, keyframe_id); }
+  bool awaitingMask(std::int64_t keyframe_id) const {
+    return keyframe_id > mask_resolved_.load(std::memory_order_relaxed) &&
+           keyframe_id <= mask_requested_.load(std::memory_order_relaxed);
+  }
 
  private:
+  static void raiseTo(std::atomic<std::int64_t>* value, std::int64_t to) {
+    std::int64_t now = value->load(std::memory_order_relaxed);
+    while (now < to && !value->compare_exchange_weak(now, to, std::memory_order_relaxed)) {
+    }
+  }
+  std::atomic<std::int64_t> mask_requested_{-1}, mask_resolved_{-1};
   mutable std::mutex classes_mutex_;
   std::vector<std::string> classes_;
   mutable std::shared_mutex mutex_;

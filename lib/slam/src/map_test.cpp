@@ -167,6 +167,33 @@ TEST(MapPoint, ReferenceIsDroppedWithItsObservation) {
 
 // Keyframes are found by the words of their views; culled ones and those
 // the filter refuses are not, and the best match comes first.
+// The semantic module's hold: the points of a keyframe sent for
+// segmentation wait until a result at or after it comes back. Results come
+// in keyframe order, so a newer keyframe's result also ends the wait of one
+// the full queue dropped; a keyframe never sent (no colour image) after the
+// newest sent one never waits.
+TEST(Map, PointsAwaitTheirKeyframesMaskUntilAResultAtOrAfterItComesBack) {
+  Map map;
+  EXPECT_FALSE(map.awaitingMask(0)) << "nothing sent yet";
+  map.maskRequested(0);
+  map.maskRequested(1);
+  EXPECT_TRUE(map.awaitingMask(0));
+  EXPECT_TRUE(map.awaitingMask(1));
+  EXPECT_FALSE(map.awaitingMask(2)) << "keyframe 2 was not sent";
+  map.maskResolved(0);
+  EXPECT_FALSE(map.awaitingMask(0));
+  EXPECT_TRUE(map.awaitingMask(1));
+  map.maskRequested(2);
+  map.maskRequested(3);
+  map.maskResolved(3);  // 1 and 2 were dropped from the queue
+  for (int id = 0; id <= 3; ++id) EXPECT_FALSE(map.awaitingMask(id)) << "keyframe " << id;
+  map.maskResolved(2);  // late and out of order: changes nothing
+  map.maskRequested(5);
+  EXPECT_FALSE(map.awaitingMask(3));
+  EXPECT_TRUE(map.awaitingMask(4)) << "made while 5 was under way: 5's result ends its wait";
+  EXPECT_TRUE(map.awaitingMask(5));
+}
+
 TEST(PlaceRecognition, SimilarKeyFramesRanksByScoreAndForgetsCulledOnes) {
   Map map;
   std::unique_lock lock(map.mutex());

@@ -29,6 +29,7 @@ std::pair<std::shared_ptr<const cv::Mat>, Timestamp> LocalMapper::latestSemantic
 void LocalMapper::applySemantic(const SemanticResult& r) {
   SemanticStats& st = semantic_stats_;
   st.segment_ms.add(r.segment_ms);
+  map_->maskResolved(r.keyframe_id);  // whatever follows, its points wait no longer
   if (!r.ok) {
     ++st.failures;
     SP_WARN(logger, "keyframe " << r.keyframe_id << ": segmentation failed: " << r.error);

@@ -337,9 +337,10 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   // the first keyframe before the map is built from it, so its points on
   // movable objects never exist and the next frames cannot track on them
   // while the segmentation would be under way. (A sequential run segments
-  // every keyframe before the next frame anyway.)
+  // every keyframe before the next frame anyway, unless it models the delay.)
   std::optional<SemanticResult> first_masks;
-  if (s.semantic && !s.options.sequential && !input.bgr.empty() && s.map.mapsStarted() == 0 &&
+  const bool modelled_delay = s.options.sequential && s.options.semantic.sequential_latency_frames > 0;
+  if (s.semantic && (!s.options.sequential || modelled_delay) && !input.bgr.empty() && s.map.mapsStarted() == 0 &&
       s.tracker.state() == TrackingState::kInitialising) {
     SemanticResult r = s.semantic->process(
         SemanticJob{-1, input.bgr.clone(), input.depth_m.empty() ? cv::Mat() : input.depth_m.clone(),
@@ -386,6 +387,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   }
   if (kf && first_masks) {
     first_masks->keyframe_id = kf->id;  // its result, applied as any keyframe's
+    s.map.maskRequested(kf->id);
     s.mapper.postSemantic(std::move(*first_masks));
   } else if (kf && s.semantic) {
     if (input.bgr.empty()) {
@@ -395,11 +397,11 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
                                 << " so far)");
     } else {
       // The job keeps its own images unless it is segmented right now.
-      const bool delayed = s.options.sequential && s.options.semantic.sequential_latency_frames > 0;
-      const bool inline_now = s.options.sequential && !delayed;
+      const bool inline_now = s.options.sequential && !modelled_delay;
       SemanticJob job{kf->id, inline_now ? input.bgr : input.bgr.clone(),
                       inline_now ? input.depth_m : input.depth_m.clone(), t2};
-      if (delayed) {
+      s.map.maskRequested(kf->id);
+      if (modelled_delay) {
         s.latency.submit(std::move(job), kf->frame.id);
       } else if (inline_now) {
         s.mapper.postSemantic(s.semantic->process(job));  // applied at the start of process(kf)

@@ -449,16 +449,18 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   const auto optimise = [&] {
     return use_prior ? optimizeFramePose(&current_, prior, &sqrt_information) : optimizeFramePose(&current_);
   };
-  // Map points on probation (new, not yet seen to stay put) are left out of
-  // the fit and judged by it: a mover mapped while it went unflagged cannot
-  // pull the pose before it has shown its motion. Only when enough trusted
-  // matches remain; then their inlier flags come from the fitted pose.
+  // Map points on probation (new, not yet seen to stay put) and points of a
+  // keyframe whose segmentation is under way are left out of the fit and
+  // judged by it: a mover mapped while it went unflagged cannot pull the
+  // pose before it has shown its motion or its mask has removed it. Only
+  // when enough trusted matches remain; then their inlier flags come from
+  // the fitted pose.
   std::vector<int> held;
   int trusted = 0;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
     if (!p || p->bad) continue;
-    if (!p->isTemporary() && p->geometry.probation > 0)
+    if (!p->isTemporary() && (p->geometry.probation > 0 || map_->awaitingMask(p->first_keyframe_id)))
       held.push_back(i);
     else
       ++trusted;

@@ -157,6 +157,8 @@ struct GeometryOptions {
   // New map points stay out of pose fits until matched this many frames
   // consistently with a pose fitted without them, while probation_min_trusted
   // other matches remain: a mover mapped unflagged cannot drag the pose (0: off).
+  // probation_min_trusted also bounds the semantic module's hold on the
+  // points of keyframes whose segmentation is under way.
   int probation_frames = 3;
   int probation_min_trusted = 30;
   // Diagnostics, built only when asked for: every judged feature with its
