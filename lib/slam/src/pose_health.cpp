@@ -92,8 +92,9 @@ PoseQuality Tracker::measureQuality(bool ok) {
     const double lo = eig.eigenvalues()(0), hi = eig.eigenvalues()(5);
     q.conditioning = hi > 0 ? static_cast<float>(std::sqrt(std::max(0.0, lo) / hi)) : 0.0f;
   }
-  // Hysteresis: worse at once, better only when it has held a while.
-  const PoseHealth raw = rawHealth(q);
+  // Hysteresis: worse at once, better only when it has held a while. A pose
+  // kept on fallback evidence (movers starved the frame) is unreliable.
+  const PoseHealth raw = starved_ ? PoseHealth::kUnreliable : rawHealth(q);
   if (raw >= health_ || health_ == PoseHealth::kLost) {  // lost -> a pose: its own level at once
     health_ = raw;
     better_frames_ = 0;

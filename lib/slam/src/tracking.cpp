@@ -7,6 +7,7 @@
 #include <cmath>
 #include <mutex>
 #include <unordered_map>
+#include <unordered_set>
 
 #include "matcher.hpp"
 #include "optimizer.hpp"
@@ -37,6 +38,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   times_ = StageTimes{};
   geometry_ = GeometryOutput{};
   semantic_marked_ = 0;
+  starved_ = false;
   carried_.clear();
   const bool tracking = hasPose(state_);
   followWorldMoves();
@@ -60,7 +62,9 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       if (ok) notePoseWorld();
     } else {
       ScopedStageTimer keyframe_timer(&times_.keyframe);
-      if (ok && needNewKeyFrame(mapping_idle)) {
+      // A pose kept on fallback evidence maps nothing: its points would
+      // carry its error into the map.
+      if (ok && !starved_ && needNewKeyFrame(mapping_idle)) {
         lock.unlock();
         std::unique_lock write(map_->mutex());
         new_keyframe = createKeyFrame();
@@ -163,7 +167,10 @@ bool Tracker::trackFrame(bool clusters_pending) {
       geometry_ = detector_->judge(&current_, stage_one, [this] { return timedOptimizePose(); });
     }
     if (ok) discardOutliers();
-    if (ok) ok = trackLocalMap(options_.tracking.min_inliers_local_map);
+    if (ok) {
+      ok = trackLocalMap(options_.tracking.min_inliers_local_map);
+      if (!ok) ok = keepPoseOnStaticEvidence();
+    }
     if (ok && clusters_pending) updateProbation();
   }
   if (ok) {
@@ -422,6 +429,58 @@ bool Tracker::trackLocalMap(int min_inliers) {
     if (!p->observations.empty()) ++inliers_;
   }
   return inliers_ >= min_inliers;
+}
+
+bool Tracker::keepPoseOnStaticEvidence() {
+  // Stage 1 found the pose, but with the features of movers kept out the
+  // local map gave too few inliers. When that removal is what starved the
+  // frame, the flagged features may still match the map's established
+  // points (seen by 3 keyframes, not on probation, not awaiting a mask, not
+  // judged dynamic): masks and depth clusters spill over static background,
+  // and a point the map has held from several views is the most reliable
+  // static evidence there is. The pose is refitted robustly on every match;
+  // it stands on at least half the usual inliers and is reported unreliable.
+  const int min_inliers = options_.tracking.min_inliers_local_map;
+  const auto flagged = std::count_if(current_.dynamic.begin(), current_.dynamic.end(), [](DynamicCause d) { return d; });
+  if (flagged <= inliers_) return false;  // not starved by the removal: lost
+  std::unordered_set<const MapPoint*> matched;
+  for (const auto& p : current_.points)
+    if (p) matched.insert(p.get());
+  std::vector<std::shared_ptr<MapPoint>> established;
+  for (const auto& p : local_points_)
+    if (!p->bad && !matched.count(p.get()) && p->observations.size() >= 3 && p->geometry.probation <= 0 &&
+        !map_->awaitingMask(p->first_keyframe_id))
+      established.push_back(p);
+  const std::vector<DynamicCause> flags = current_.dynamic;
+  for (int i = 0; i < current_.size(); ++i)
+    if (flags[i] && !current_.points[i]) current_.dynamic[i] = kNotDynamic;
+  {
+    ScopedStageTimer search_timer(&times_.local_map);
+    searchLocalPoints(&current_, established, 3.0f);
+  }
+  timedOptimizePose();
+  inliers_ = 0;
+  int readmitted = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    auto& p = current_.points[i];
+    const bool inlier = p && !p->isTemporary() && !current_.outlier[i];
+    if (flags[i] && !current_.dynamic[i]) {
+      if (inlier) {
+        ++readmitted;  // consistent with the map: static after all
+      } else {
+        current_.dynamic[i] = flags[i];
+        p = nullptr;
+        current_.outlier[i] = 0;
+        continue;
+      }
+    }
+    if (inlier && !p->observations.empty()) ++inliers_;
+  }
+  starved_ = readmitted > 0 && inliers_ >= (min_inliers + 1) / 2;
+  SP_DEBUG(logger, "frame " << current_.id << ": starved by " << flagged << " moving features; " << readmitted
+                            << " matched established points, " << inliers_ << " inliers: "
+                            << (starved_ ? "pose kept" : "lost"));
+  return starved_;
 }
 
 int Tracker::discardOutliers() {

@@ -73,6 +73,9 @@ class Tracker {
   bool trackWithMotionModel(bool with_prior = true);
   bool trackReferenceKeyFrame();
   bool trackLocalMap(int min_inliers);
+  // Stage 2 left too few inliers because movers were kept out: the pose on
+  // the established static points (tracking.cpp). Sets starved_.
+  bool keepPoseOnStaticEvidence();
   void updateLocalMap();
   void refreshLastFrame();
   int setAsideCarried();
@@ -167,6 +170,7 @@ class Tracker {
   StageTimes times_;
   GeometryOutput geometry_;
   int semantic_marked_ = 0;
+  bool starved_ = false;  // the pose stands on keepPoseOnStaticEvidence()
   // Stage-1 matches to the last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
   // Per keypoint of the current frame: best / second-best Hamming distance of
