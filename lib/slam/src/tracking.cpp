@@ -72,8 +72,13 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     }
   }
   if (ok && state_ == TrackingState::kOk) lookForOlderMaps();
-  if (options_.report_fates) reportFates(ok, out);
-  out->quality = measureQuality(ok);  // before the outliers are dropped
+  {
+    // Both read map points, whose positions local BA writes under the
+    // exclusive lock.
+    std::shared_lock lock(map_->mutex());
+    if (options_.report_fates) reportFates(ok, out);
+    out->quality = measureQuality(ok);  // before the outliers are dropped
+  }
   if (ok) {
     updateVelocity();
     // Temporary odometry points never outlive the frame they helped track.
