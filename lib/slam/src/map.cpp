@@ -92,8 +92,13 @@ void KeyFrame::updateConnections() {
     for (const auto& [kf, idx] : p->observations)
       if (kf != this && !kf->bad) counts[kf]++;
   }
-  // Drop our side of old links, then link both ways.
-  for (auto& [kf, w] : connections) kf->connections.erase(this);
+  // Drop old links on both sides (a neighbour that kept us in its ordered
+  // list would hold a dangling pointer once we are culled and freed), then
+  // link both ways.
+  for (auto& [kf, w] : connections) {
+    kf->connections.erase(this);
+    std::erase(kf->ordered_neighbours, this);
+  }
   connections.clear();
   KeyFrame* best = nullptr;
   int best_weight = 0;

@@ -194,6 +194,27 @@ TEST(Map, PointsAwaitTheirKeyframesMaskUntilAResultAtOrAfterItComesBack) {
   EXPECT_TRUE(map.awaitingMask(5));
 }
 
+// A keyframe that stops sharing points with a neighbour leaves both sides of
+// the link: the neighbour's ordered list too, or it would point at the
+// keyframe after it is culled and freed (seen as a use-after-free in a live
+// replay).
+TEST(Map, AKeyframeThatLosesItsSharedPointsLeavesItsOldNeighbourEntirely) {
+  Map map;
+  KeyFrame* a = map.addKeyFrame(keyFrame(0, 40, SE3::Identity()));
+  KeyFrame* b = map.addKeyFrame(keyFrame(1, 40, SE3::Identity()));
+  for (int i = 0; i < 30; ++i) {
+    auto p = map.createPoint(Vec3(0.1 * i, 0, 2), a);
+    a->addObservation(p, i);
+    b->addObservation(p, i);
+  }
+  b->updateConnections();
+  ASSERT_EQ(a->bestNeighbours(5), std::vector<KeyFrame*>{b});
+  for (int i = 0; i < 30; ++i) b->eraseObservation(i);
+  b->updateConnections();
+  EXPECT_FALSE(a->connections.count(b));
+  EXPECT_TRUE(std::find(a->ordered_neighbours.begin(), a->ordered_neighbours.end(), b) == a->ordered_neighbours.end());
+}
+
 TEST(PlaceRecognition, SimilarKeyFramesRanksByScoreAndForgetsCulledOnes) {
   Map map;
   std::unique_lock lock(map.mutex());
