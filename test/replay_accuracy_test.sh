@@ -3,15 +3,16 @@
 # the trajectory with stillpoint-eval and fails when the absolute trajectory
 # error exceeds MAX_ATE_M or any frame was lost. Prints what it measured.
 #
-# usage: replay_accuracy_test.sh REPLAY EVAL SEQUENCE_DIR CAMERA OUT_DIR MAX_ATE_M
+# usage: replay_accuracy_test.sh REPLAY EVAL SEQUENCE_DIR CAMERA OUT_DIR MAX_ATE_M [REPLAY_ARG...]
 # exit:  0 pass, 1 fail, 77 skipped (sequence absent)
 set -euo pipefail
 
-if [[ $# -ne 6 ]]; then
-  echo "usage: $0 REPLAY EVAL SEQUENCE_DIR CAMERA OUT_DIR MAX_ATE_M" >&2
+if [[ $# -lt 6 ]]; then
+  echo "usage: $0 REPLAY EVAL SEQUENCE_DIR CAMERA OUT_DIR MAX_ATE_M [REPLAY_ARG...]" >&2
   exit 1
 fi
 replay=$1 eval=$2 sequence=$3 camera=$4 out_dir=$5 max_ate=$6
+shift 6
 
 if [[ ! -f $sequence/rgb.txt || ! -f $sequence/groundtruth.txt ]]; then
   echo "SKIP: sequence $sequence not found (set STILLPOINT_DATA_DIR to the folder holding it)"
@@ -23,9 +24,9 @@ traj=$out_dir/traj.txt
 summary=$out_dir/replay_summary.txt
 rm -f "$traj" "$summary"
 
-echo "+ $replay $sequence --camera $camera --output $traj --sequential"
+echo "+ $replay $sequence --camera $camera --output $traj --sequential $*"
 rc=0
-"$replay" "$sequence" --camera "$camera" --output "$traj" --sequential >"$summary" || rc=$?
+"$replay" "$sequence" --camera "$camera" --output "$traj" --sequential "$@" >"$summary" || rc=$?
 cat "$summary"
 if [[ $rc -ne 0 ]]; then
   echo "FAIL: stillpoint-replay exited with status $rc"

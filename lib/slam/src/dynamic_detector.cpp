@@ -98,7 +98,12 @@ std::unordered_map<const MapPoint*, int> carryMovingFeatures(Frame* last, const 
   return from;
 }
 
-void DynamicDetector::carryMovers(Frame* last) { carried_from_ = carryMovingFeatures(last, last_photo_released_); }
+void DynamicDetector::carryMovers(Frame* last) {
+  carried_moving_.clear();
+  for (int i = 0; i < last->size(); ++i)
+    if (last->depth[i] > 0 && (last->dynamic[i] == kGeometryDynamic || freedInLastFrame(i))) carried_moving_.insert(i);
+  carried_from_ = carryMovingFeatures(last, last_photo_released_);
+}
 
 std::shared_ptr<const geometry::DepthClusters> DynamicDetector::fetchClusters(GeometryOutput* out) {
   if (clusters_fetched_ || !clusters_pending_) return clusters_;
@@ -133,6 +138,7 @@ GeometryOutput DynamicDetector::judge(Frame* frame, const StageOneMatches& stage
   j.free = freeSpace(*frame, *j.clusters);
   j.out.freespace = j.free.share;
   takeNearerAnchors(j, nearer.valid() ? nearer.get() : nearerAnchors(j.frame, j.anchored_in_cluster));
+  j.known_mover = options_.known_mover_min_rest > 0 ? knownMovers(j) : std::vector<char>(j.clusters->clusters, 0);
 
   j.verdict = verdictUnderBestPose(j);
   addFreeSpace(j, &j.verdict);
@@ -170,6 +176,7 @@ void DynamicDetector::gatherEvidence(FrameJudgement& j) {
         if (chain.size() >= max_links) break;
         chain.push_back(p);
       }
+    if (from != carried_from_.end() && carried_moving_.count(from->second)) j.ev[i].seen_moving = true;
     if (j.ev[i].point) continue;
     j.ev[i].point = carried[i];
     j.ev[i].links = static_cast<int>(chain.size());
@@ -215,6 +222,7 @@ void DynamicDetector::gatherEvidence(FrameJudgement& j) {
     e.anchor_distance = features::hammingDistance(anchor.descriptor(k), frame.descriptor(f));
     e.anchor_descriptor = anchor.descriptor(k);
     e.inherited = e.inherited || anchor.dynamic[k];
+    e.seen_moving = e.seen_moving || anchor.dynamic[k] == kGeometryDynamic;
   }
 }
 
@@ -265,6 +273,7 @@ void DynamicDetector::takeNearerAnchors(FrameJudgement& j, const std::vector<Nea
     e.anchor_distance = features::hammingDistance(anchor.descriptor(a.keypoint), j.frame.descriptor(a.feature));
     e.anchor_descriptor = anchor.descriptor(a.keypoint);
     e.inherited = e.inherited || anchor.dynamic[a.keypoint];
+    e.seen_moving = e.seen_moving || anchor.dynamic[a.keypoint] == kGeometryDynamic;
     ++j.anchored_in_cluster[j.frame.cluster[a.feature]];
   }
 }
@@ -331,10 +340,54 @@ geometry::ClusterVerdict DynamicDetector::judgeClusters(FrameJudgement& j, bool 
   return geometry::classifyClusters(j.residuals, j.clusters->clusters, options_.verdict);
 }
 
+std::vector<char> DynamicDetector::knownMovers(const FrameJudgement& j) const {
+  // A cluster is a known mover when most of its anchor-matched features
+  // (at least verdict.min_features) were matched to features this module
+  // found moving: the mover already found in the frames behind.
+  const int n = j.clusters->clusters;
+  std::vector<int> anchored(n, 0), moving(n, 0);
+  for (int i = 0; i < j.frame.size(); ++i) {
+    const int c = j.frame.cluster[i];
+    if (c < 0 || !j.ev[i].has_anchor) continue;
+    ++anchored[c];
+    moving[c] += j.ev[i].seen_moving;
+  }
+  std::vector<char> known(n, 0);
+  for (int c = 0; c < n; ++c)
+    known[c] = anchored[c] >= options_.verdict.min_features && moving[c] >= options_.verdict.hold_fraction * anchored[c];
+  return known;
+}
+
+bool DynamicDetector::poseDisagreesWithView(const FrameJudgement& j, const geometry::ClusterVerdict& verdict) const {
+  // The second motion hypothesis. Most of the judged view moving under the
+  // pose has two explanations: the pose is wrong (stage 1 had few map
+  // points), or a mover that was already found has grown to fill most of the
+  // view (a person walking up to the camera). The clusters that mostly follow
+  // a known mover tell them apart: the view veto is applied to the rest,
+  // when the rest has enough evidence to hold the pose. A wrong pose fails
+  // the rest too; a grown mover leaves it passing.
+  int judged = 0, dynamic = 0, rest = 0, rest_dynamic = 0;
+  for (std::size_t k = 0; k < verdict.clusters.size(); ++k) {
+    const geometry::ClusterScore& c = verdict.clusters[k];
+    if (!c.judged) continue;
+    judged += c.features;
+    dynamic += c.dynamic ? c.features : 0;
+    if (j.known_mover[k]) continue;
+    rest += c.features;
+    rest_dynamic += c.dynamic ? c.features : 0;
+  }
+  const double fraction = options_.max_dynamic_fraction;
+  if (options_.known_mover_min_rest > 0 && rest >= options_.known_mover_min_rest)
+    return geometry::mostOfViewDynamic(rest_dynamic, rest, fraction);
+  return geometry::mostOfViewDynamic(dynamic, judged, fraction);
+}
+
 bool DynamicDetector::adoptConsensusPose(FrameJudgement& j) const {
   // Features matched to ones found moving before do not vote for the static
-  // world: where a known mover holds most of the anchor matches (a poster
-  // filling the view), the consensus would be its motion.
+  // world, nor do the other features of a cluster most of whose matches are
+  // such (a mover's fresh features): where a known mover holds most of the
+  // anchor matches (a poster filling the view), the consensus would be its
+  // motion.
   Frame& frame = j.frame;
   const double far = options_.evidence_depth_max_m;
   ConsensusProblem problem;
@@ -344,7 +397,7 @@ bool DynamicDetector::adoptConsensusPose(FrameJudgement& j) const {
   problem.seed = static_cast<std::uint32_t>(frame.id);
   for (int i = 0; i < frame.size(); ++i) {
     const FeatureEvidence& e = j.ev[i];
-    if (!e.has_anchor || frame.cluster[i] < 0 || e.inherited) continue;
+    if (!e.has_anchor || frame.cluster[i] < 0 || e.inherited || j.known_mover[frame.cluster[i]]) continue;
     Observation o = observationOf(frame, i);
     const double z = frame.depth[i];
     // As in the evidence error: depth beyond evidence_depth_max_m is no
@@ -382,20 +435,16 @@ geometry::ClusterVerdict DynamicDetector::verdictUnderBestPose(FrameJudgement& j
   j.out.consensus_pose = consensus;
   geometry::ClusterVerdict verdict = judgeClusters(j, j.anchored);
   // Anchor matches measure the initial pose independently of stage 1: when
-  // most of the view disagrees with it, the pose is what is wrong (stage 1
-  // had few map points), not the world; the frame is judged by its stage-1
-  // matches instead, which are consistent with the pose they produced.
-  if (j.anchored) {
-    int judged = 0, dynamic = 0;
-    for (const geometry::ClusterScore& c : verdict.clusters)
-      if (c.judged) judged += c.features, dynamic += c.dynamic ? c.features : 0;
-    if (geometry::mostOfViewDynamic(dynamic, judged, options_.max_dynamic_fraction)) {
-      j.anchored = false;
-      j.frame.T_c_w = initial_pose;
-      j.out.consensus_pose = false;
-      verdict = judgeClusters(j, false);
-      j.out.anchor_fallback = true;
-    }
+  // most of the view that is not a known mover disagrees with it, the pose is
+  // what is wrong (stage 1 had few map points), not the world; the frame is
+  // judged by its stage-1 matches instead, which are consistent with the pose
+  // they produced.
+  if (j.anchored && poseDisagreesWithView(j, verdict)) {
+    j.anchored = false;
+    j.frame.T_c_w = initial_pose;
+    j.out.consensus_pose = false;
+    verdict = judgeClusters(j, false);
+    j.out.anchor_fallback = true;
   }
   if (consensus) j.frame.T_c_w = initial_pose;
   return verdict;

@@ -11,6 +11,7 @@
 #include <future>
 #include <memory>
 #include <unordered_map>
+#include <unordered_set>
 #include <utility>
 #include <vector>
 
@@ -98,6 +99,8 @@ class DynamicDetector {
   geometry::ClusterVerdict judgeClusters(FrameJudgement& j, bool anchored) const;
   bool staticExplains(const FrameJudgement& j, int i, const Vec3& p_w, const std::uint8_t* descriptor,
                       int distance) const;
+  std::vector<char> knownMovers(const FrameJudgement& j) const;
+  bool poseDisagreesWithView(const FrameJudgement& j, const geometry::ClusterVerdict& verdict) const;
   bool adoptConsensusPose(FrameJudgement& j) const;
   geometry::ClusterVerdict verdictUnderBestPose(FrameJudgement& j) const;
   void addFreeSpace(FrameJudgement& j, geometry::ClusterVerdict* verdict) const;
@@ -127,8 +130,10 @@ class DynamicDetector {
   // depth, final pose; no matches), oldest first: the evidence baseline.
   std::deque<Frame> anchors_;
   std::deque<SeenFrame> seen_;
-  // The last frame's feature each carried evidence point stands for.
+  // The last frame's feature each carried evidence point stands for, and
+  // those of its features this module found moving (not a mask's).
   std::unordered_map<const MapPoint*, int> carried_from_;
+  std::unordered_set<int> carried_moving_;
   // Per feature of the current / last frame: the world positions of the chain
   // of moving features it was carried from, the last frame's first, at most
   // geometry.carried_frames (empty: not carried).

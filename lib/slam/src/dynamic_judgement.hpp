@@ -26,6 +26,9 @@ struct FeatureEvidence {
   // Matched to a feature that was moving before (carried, an anchor's
   // dynamic feature, or a semantic mask's): its cluster's memory.
   bool inherited = false;
+  // Matched to a feature this module found moving (carried, or an anchor's
+  // geometry-dynamic feature): a mask's movable class is not motion.
+  bool seen_moving = false;
   Vec3 residual = Vec3::Zero();  // of its last judgement, over the level sigma
   double carried_chi2 = 0;       // judged by carried evidence: its chi2 (lone_moving_chi2)
   bool released = false;         // in a dynamic cluster but static (moved-surface split, photometric test)
@@ -54,6 +57,8 @@ struct DynamicDetector::FrameJudgement {
   // Map points of ambiguous matches: they still learn their cluster's verdict.
   std::vector<std::pair<int, std::shared_ptr<MapPoint>>> ambiguous_points{};
   std::vector<int> anchored_in_cluster{};  // anchor matches per cluster
+  // Per cluster: most of its anchor matches were seen moving (knownMovers()).
+  std::vector<char> known_mover{};
   bool anchored = false;                 // judged by the anchor evidence (else stage-1 matches)
   // The latest judgement: residuals (lib/geometry's input) and, per entry, who.
   std::vector<geometry::FeatureResidual> residuals{};

@@ -65,6 +65,7 @@ Status GeometryOptions::validate() const {
   if (near_anchor_frames != 0 && (near_anchor_frames < 2 || near_anchor_frames > 30))
     return Error{"geometry.near_anchor_frames must be 0 (off) or in [2, 30]"};
   if (!(consensus_ratio >= 0 && consensus_ratio <= 1)) return Error{"geometry.consensus_ratio must be in [0, 1] (0: off)"};
+  if (known_mover_min_rest < 0) return Error{"geometry.known_mover_min_rest must be >= 0"};
   if (consensus_samples < 1 || consensus_samples > 10000)
     return Error{"geometry.consensus_samples must be in [1, 10000]"};
   if (!(lone_moving_chi2 >= 0)) return Error{"geometry.lone_moving_chi2 must be >= 0 (0: off)"};

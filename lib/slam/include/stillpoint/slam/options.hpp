@@ -102,6 +102,12 @@ struct GeometryOptions {
   // The view veto: more than this share of the view dynamic means the pose
   // is wrong, not the world (anchor evidence, free space, photometric cues).
   double max_dynamic_fraction = 0.6;
+  // Known movers (clusters most of whose anchor matches were found moving
+  // before) do not vote for the consensus pose, and the view veto is applied
+  // to the rest of the judged view when that holds at least this many judged
+  // features: a mover grown to fill the view is not a wrong pose (0: off, the
+  // veto counts the whole view).
+  int known_mover_min_rest = 20;
   // The frame is judged under the pose that best explains the anchor matches
   // when its truncated cost is below this share of the initial pose's: a
   // slowly starting mover leaves a compromise both it and the room pass (0: off).
