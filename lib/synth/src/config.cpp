@@ -97,7 +97,7 @@ Result<MoverShape> parseShape(const std::string& s) {
 
 Result<MoverSpec> readMover(const Reader& r, const YAML::Node& n, const std::string& f) {
   MoverSpec m;
-  SP_TRY(r.checkKeys(n, f, {"name", "shape", "texture", "cutout", "face_camera", "size", "yaw_deg", "yaw_rate_deg_s", "path"}));
+  SP_TRY(r.checkKeys(n, f, {"name", "shape", "texture", "cutout", "video", "face_camera", "size", "yaw_deg", "yaw_rate_deg_s", "path"}));
   SP_TRY(r.read(n, "name", f + ".name", &m.name));
   std::string shape = "poster";
   SP_TRY(r.read(n, "shape", f + ".shape", &shape));
@@ -107,6 +107,7 @@ Result<MoverSpec> readMover(const Reader& r, const YAML::Node& n, const std::str
   if (m.shape == MoverShape::kWalker) m.size = Vec3(0.45, 1.75, 0.25);
   SP_TRY(r.read(n, "texture", f + ".texture", &m.texture));
   SP_TRY(r.read(n, "cutout", f + ".cutout", &m.cutout));
+  SP_TRY(r.read(n, "video", f + ".video", &m.video));
   SP_TRY(r.read(n, "face_camera", f + ".face_camera", &m.face_camera));
   SP_TRY(r.readVec3(n, "size", f + ".size", &m.size, 2));
   SP_TRY(r.read(n, "yaw_deg", f + ".yaw_deg", &m.yaw_deg));
@@ -216,6 +217,8 @@ Status SynthConfig::validate() const {
     }
     if (m.texture.empty()) return bad("texture", "must not be empty");
     if (!m.cutout.empty() && m.shape != MoverShape::kPoster) return bad("cutout", "is for posters only");
+    if (!m.video.empty() && m.shape != MoverShape::kPoster) return bad("video", "is for posters only");
+    if (!m.video.empty() && !m.cutout.empty()) return bad("video", "cuts its own walker out: no cutout with it");
     if (m.face_camera && m.shape != MoverShape::kPoster) return bad("face_camera", "is for posters only");
     if (!std::isfinite(m.yaw_deg)) return bad("yaw_deg", "must be finite");
     if (!std::isfinite(m.yaw_rate_deg_s)) return bad("yaw_rate_deg_s", "must be finite");

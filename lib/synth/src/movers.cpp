@@ -6,6 +6,7 @@
 #include <numbers>
 
 #include "stillpoint/synth/textures.hpp"
+#include "stillpoint/synth/video_walker.hpp"
 
 namespace stillpoint::synth {
 namespace {
@@ -197,6 +198,15 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
         makeTexture(TextureStyle::kSkin, 64, 64, seed + 2), false));
     out.textures.push_back(std::make_shared<const Texture>(
         makeTexture(TextureStyle::kStone, 64, 64, seed + 3), false));
+  } else if (!spec.video.empty()) {
+    std::filesystem::path p(spec.video);
+    if (p.is_relative() && !base_dir.empty()) p = std::filesystem::path(base_dir) / p;
+    Result<WalkerClip> clip = cutWalkerFromVideo(p.string());
+    if (!clip.ok()) return Error{"mover '" + spec.name + "': " + clip.error()};
+    for (std::size_t i = 0; i < clip->colour.size(); ++i)
+      out.video_frames.push_back(std::make_shared<const Texture>(clip->colour[i], false, clip->keep[i]));
+    out.video_fps = clip->fps;
+    out.textures.push_back(out.video_frames.front());
   } else {
     Result<TexturePtr> main = photoOrStyle(spec.texture, TextureStyle::kPaper, 512, 512, seed);
     if (!main.ok()) return Error{main.error()};
@@ -229,6 +239,10 @@ void addMover(Mesh* mesh, const MoverSpec& spec, const MoverTextures& tx, const 
   }
   const SE3 T_w_m = yawPose(T_w_s, s.position, yaw);
   const Texture* tex = tx.textures[0].get();
+  if (!tx.video_frames.empty()) {
+    const auto k = static_cast<std::size_t>(std::max(0.0, std::floor(t * tx.video_fps)));
+    tex = tx.video_frames[k % tx.video_frames.size()].get();
+  }
   if (spec.shape == MoverShape::kPoster) {
     const double hw = 0.5 * spec.size.x(), hh = 0.5 * spec.size.y();
     // Normal along -y (towards the first camera); texture top-left at (-x, +z).

@@ -62,6 +62,12 @@ struct MoverSpec {
   // elsewhere, in colour, depth and the ground-truth masks alike: e.g. a person
   // cut out of a photo (stillpoint-segment --out writes such masks). "" = none.
   std::string cutout;
+  // Poster only: a video of people walking past a still camera. The poster
+  // shows one walker cut out of it frame by frame (video_walker.hpp), played
+  // at the video's rate and looped; `texture` and `cutout` are not used. The
+  // walker's window is 0.75 as wide as high and the walker about 0.8 of its
+  // height: size [1.6, 2.15] shows a 1.75 m person. "" = none.
+  std::string video;
   // Poster only: turn about the vertical to face the camera in every frame
   // (yaw_deg is added), as a person's cut-out would keep looking like a person
   // from any side; a flat poster seen edge-on is a sliver no network knows.
@@ -75,6 +81,9 @@ struct MoverSpec {
 // The textures one mover needs, owned here, built once per sequence.
 struct MoverTextures {
   std::vector<TexturePtr> textures;  // poster/box: [main]; walker: [shirt, trousers, skin, shoes]
+  // A video poster: its walker's frames, cut out, and their rate.
+  std::vector<TexturePtr> video_frames;
+  double video_fps = 25.0;
 };
 
 // Resolves `spec.texture` and `spec.cutout` (relative paths against base_dir). Errors name the
