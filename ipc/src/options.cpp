@@ -12,13 +12,26 @@
 
 namespace stillpoint::ipc {
 
+namespace {
+
+// A shared-memory object name: 1-200 characters from [A-Za-z0-9._-], not
+// starting with '.'.
+bool ringName(const std::string& name) {
+  return !name.empty() && name.size() <= 200 && name[0] != '.' &&
+         name.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") ==
+             std::string::npos;
+}
+
+// ROS 2 maps topic /a/b to DDS topic rt/a/b.
+bool ros2TopicForm(const std::string& topic) { return topic.rfind("rt/", 0) == 0 && topic.size() >= 4; }
+
+}  // namespace
+
 Status IpcOptions::validate() const {
   if (queue_capacity < 1 || queue_capacity > 4096) return Error{"ipc.queue_capacity must be in [1, 4096]"};
   if (shm.capacity < 2 || shm.capacity > (1u << 20) || (shm.capacity & (shm.capacity - 1)) != 0)
     return Error{"ipc.shm.capacity must be a power of two in [2, 1048576]"};
-  if (shm.name.empty() || shm.name.size() > 200 || shm.name[0] == '.' ||
-      shm.name.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") !=
-          std::string::npos)
+  if (!ringName(shm.name))
     return Error{"ipc.shm.name must be 1-200 characters from [A-Za-z0-9._-], not starting with '.'"};
   if (lcm.url.empty()) return Error{"ipc.lcm.url must not be empty"};
   if (lcm.pose_channel.empty() || lcm.status_channel.empty() || lcm.pose_channel == lcm.status_channel)
@@ -28,8 +41,7 @@ Status IpcOptions::validate() const {
   if (dds.pose_topic.empty() || dds.status_topic.empty() || dds.pose_topic == dds.status_topic)
     return Error{"ipc.dds.pose_topic and ipc.dds.status_topic must be non-empty and differ"};
   if (ros2.domain_id > 230) return Error{"ipc.ros2.domain_id must be in [0, 230]"};
-  // ROS 2 maps topic /a/b to DDS topic rt/a/b.
-  if (ros2.pose_topic.rfind("rt/", 0) != 0 || ros2.pose_topic.size() < 4)
+  if (!ros2TopicForm(ros2.pose_topic))
     return Error{"ipc.ros2.pose_topic must be a DDS topic name of ROS 2's form, rt/<name> (ROS 2 topic /<name>)"};
   if (ros2.frame_id.empty()) return Error{"ipc.ros2.frame_id must not be empty"};
   for (const auto& [key, topic] : {std::pair<const char*, const std::string*>{"odometry_topic", &ros2.odometry_topic},
@@ -37,7 +49,7 @@ Status IpcOptions::validate() const {
                                    {"diagnostics_topic", &ros2.diagnostics_topic},
                                    {"objects_topic", &ros2.objects_topic},
                                    {"map_cloud_topic", &ros2.map_cloud_topic}})
-    if (!topic->empty() && (topic->rfind("rt/", 0) != 0 || topic->size() < 4))
+    if (!topic->empty() && !ros2TopicForm(*topic))
       return Error{std::string("ipc.ros2.") + key + " must be empty (off) or of ROS 2's form, rt/<name>"};
   if (ros2.child_frame_id.empty() || ros2.child_frame_id == ros2.frame_id)
     return Error{"ipc.ros2.child_frame_id must be set and differ from frame_id"};
@@ -53,10 +65,7 @@ Status IpcOptions::validate() const {
       return Error{"ipc.ros2.camera_extrinsic's quaternion (qx qy qz qw) must have unit norm, has " +
                    std::to_string(std::sqrt(n2))};
   }
-  if (const std::string ring = shm.objectsRing();
-      !ring.empty() && (ring == shm.name || ring.size() > 200 || ring[0] == '.' ||
-                        ring.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789._-") !=
-                            std::string::npos))
+  if (const std::string ring = shm.objectsRing(); !ring.empty() && (ring == shm.name || !ringName(ring)))
     return Error{"ipc.shm.objects_name ('" + ring +
                  "') must be 1-200 characters from [A-Za-z0-9._-], not starting with '.', and differ from "
                  "ipc.shm.name"};
