@@ -345,12 +345,11 @@ std::vector<char> DynamicDetector::knownMovers(const FrameJudgement& j) const {
   // (at least verdict.min_features) were matched to features this module
   // found moving: the mover already found in the frames behind.
   const int n = j.clusters->clusters;
-  std::vector<int> anchored(n, 0), moving(n, 0);
+  const std::vector<int>& anchored = j.anchored_in_cluster;
+  std::vector<int> moving(n, 0);
   for (int i = 0; i < j.frame.size(); ++i) {
     const int c = j.frame.cluster[i];
-    if (c < 0 || !j.ev[i].has_anchor) continue;
-    ++anchored[c];
-    moving[c] += j.ev[i].seen_moving;
+    if (c >= 0 && j.ev[i].has_anchor) moving[c] += j.ev[i].seen_moving;
   }
   std::vector<char> known(n, 0);
   for (int c = 0; c < n; ++c)

@@ -73,24 +73,23 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   }
   if (ok && state_ == TrackingState::kOk) lookForOlderMaps();
   {
-    // Both read map points, whose positions local BA writes under the
-    // exclusive lock.
+    // Map point positions and keyframe poses change under local BA, which
+    // holds the exclusive lock.
     std::shared_lock lock(map_->mutex());
     if (options_.report_fates) reportFates(ok, out);
     out->quality = measureQuality(ok);  // before the outliers are dropped
-  }
-  if (ok) {
-    updateVelocity();
-    // Temporary odometry points never outlive the frame they helped track.
-    for (int i = 0; i < current_.size(); ++i)
-      if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
-        current_.points[i] = nullptr;
-    std::shared_lock lock(map_->mutex());  // keyframe poses change under local BA
-    catchUpWithWorld();
-    T_last_reference_ = renormalized(current_.T_c_w * reference_->T_c_w().inverse());
-    seen_epoch_ = map_->epoch();
-    trajectory_.record({current_.stamp, reference_->anchor(), T_last_reference_, map_id_});
-    out->T_w_c = current_.T_c_w.inverse();
+    if (ok) {
+      updateVelocity();
+      // Temporary odometry points never outlive the frame they helped track.
+      for (int i = 0; i < current_.size(); ++i)
+        if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
+          current_.points[i] = nullptr;
+      catchUpWithWorld();
+      T_last_reference_ = renormalized(current_.T_c_w * reference_->T_c_w().inverse());
+      seen_epoch_ = map_->epoch();
+      trajectory_.record({current_.stamp, reference_->anchor(), T_last_reference_, map_id_});
+      out->T_w_c = current_.T_c_w.inverse();
+    }
   }
   SP_DEBUG(logger, "frame " << current_.id << " state " << toString(state_) << " inliers " << inliers_
                               << " local kfs " << local_keyframes_.size() << " local points " << local_points_.size()
