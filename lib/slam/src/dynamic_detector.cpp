@@ -79,6 +79,7 @@ void DynamicDetector::startFrame(const Frame& frame, bool clusters_pending, bool
   clusters_fetched_ = false;
   clusters_.reset();
   photo_released_.assign(frame.size(), 0);
+  on_known_mover_.assign(frame.size(), 0);
   // Reads only the frame's keypoints and descriptors, which stage 1 leaves
   // alone, and the anchor, which stays until the frame is done.
   if (match_now && clusters_pending_ && !anchors_.empty() && helper_)
@@ -139,6 +140,13 @@ GeometryOutput DynamicDetector::judge(Frame* frame, const StageOneMatches& stage
   j.out.freespace = j.free.share;
   takeNearerAnchors(j, nearer.valid() ? nearer.get() : nearerAnchors(j.frame, j.anchored_in_cluster));
   j.known_mover = options_.known_mover_min_rest > 0 ? knownMovers(j) : std::vector<char>(j.clusters->clusters, 0);
+  // The known mover's features: those seen moving, and its fresh ones (no
+  // anchor match). An anchor match not seen moving is a static surface that
+  // shares the mover's depth cluster (a teddy in front of a person).
+  for (int i = 0; i < frame->size(); ++i) {
+    const FeatureEvidence& e = j.ev[i];
+    on_known_mover_[i] = frame->cluster[i] >= 0 && j.known_mover[frame->cluster[i]] && (e.seen_moving || !e.has_anchor);
+  }
 
   j.verdict = verdictUnderBestPose(j);
   addFreeSpace(j, &j.verdict);

@@ -75,6 +75,10 @@ class DynamicDetector {
   // Map points found in dynamic clusters since the last call (for the next
   // keyframe: local mapping culls those that stay dynamic).
   std::vector<std::shared_ptr<MapPoint>> takeSuspects();
+  // Whether feature i of the current frame is on a known mover: in the depth
+  // cluster of one, and seen moving or new there (no anchor match). False
+  // before judge() or when the frame was not judged.
+  bool onKnownMover(int i) const { return i < static_cast<int>(on_known_mover_.size()) && on_known_mover_[i]; }
 
  private:
   struct FrameJudgement;  // per-frame working state (dynamic_detector.cpp)
@@ -142,6 +146,7 @@ class DynamicDetector {
   // dynamic cluster (with geometry.photo_release_memory).
   std::vector<char> photo_released_, last_photo_released_;
   std::vector<std::shared_ptr<MapPoint>> suspects_;
+  std::vector<char> on_known_mover_;  // per feature of the current frame
 };
 
 // Gives the moving features of `last` (Frame::dynamic, or `freed` by the

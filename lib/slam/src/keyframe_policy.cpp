@@ -84,7 +84,11 @@ KeyFrame* Tracker::createKeyFrame() {
   for (const auto& [z, i] : by_depth) {
     if (z > close_depth_ && created >= options_.keyframes.min_new_points) break;
     auto p = map_->createPoint(kf->frame.unprojectToWorld(i), kf);
-    if (detector_) p->geometry.probation = options_.geometry.probation_frames;
+    if (detector_) {
+      p->geometry.on_mover = detector_->onKnownMover(i);
+      p->geometry.probation =
+          p->geometry.on_mover ? options_.geometry.mover_probation_frames : options_.geometry.probation_frames;
+    }
     kf->addObservation(p, i);
     p->updateFromObservations();
     current_.points[i] = p;

@@ -88,6 +88,10 @@ class MapPoint {
     // without it before it may enter the pose (geometry.probation_frames; 0:
     // trusted). Tracking only.
     int probation = 0;
+    // Made on a feature of a known mover (DynamicDetector::onKnownMover): its
+    // probation is geometry.mover_probation_frames, and it is the last to
+    // join a fit short of trusted matches. Tracking only.
+    bool on_mover = false;
   } geometry;
   // The semantic module's state (local mapping only): segmented keyframes
   // that observed this point, and how many of them saw it in a movable mask.

@@ -97,6 +97,8 @@ Status GeometryOptions::validate() const {
   if (probation_frames < 0 || probation_frames > 100) return Error{"geometry.probation_frames must be in [0, 100]"};
   if (probation_min_trusted < 10 || probation_min_trusted > 1000)
     return Error{"geometry.probation_min_trusted must be in [10, 1000]"};
+  if (mover_probation_frames < 0 || mover_probation_frames > 1000)
+    return Error{"geometry.mover_probation_frames must be in [0, 1000]"};
   return Status::success();
 }
 

@@ -138,6 +138,7 @@ TEST(SlamOptionsValidate, FreeSpaceFieldsNameThemselves) {
       {"geometry.consensus_ratio", [](SlamOptions& o) { o.geometry.consensus_ratio = -0.1; }},
       {"geometry.consensus_samples", [](SlamOptions& o) { o.geometry.consensus_samples = 0; }},
       {"geometry.known_mover_min_rest", [](SlamOptions& o) { o.geometry.known_mover_min_rest = -1; }},
+      {"geometry.mover_probation_frames", [](SlamOptions& o) { o.geometry.mover_probation_frames = -1; }},
       {"geometry.evidence_depth_max_m", [](SlamOptions& o) { o.geometry.evidence_depth_max_m = -1; }},
       {"geometry.static_match_margin", [](SlamOptions& o) { o.geometry.static_match_margin = 300; }},
       {"geometry.photo_release_ncc", [](SlamOptions& o) { o.geometry.photo_release_ncc = 1.5; }},

@@ -517,7 +517,9 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   // judged by it: a mover mapped while it went unflagged cannot pull the
   // pose before it has shown its motion or its mask has removed it. Only
   // when enough trusted matches remain; then their inlier flags come from
-  // the fitted pose.
+  // the fitted pose. With fewer, every held point joins the fit but those
+  // made on a known mover, which join fewest-frames-to-go first only while
+  // still too few.
   std::vector<int> held;
   int trusted = 0;
   for (int i = 0; i < current_.size(); ++i) {
@@ -528,7 +530,20 @@ int Tracker::timedOptimizePose(const SE3* prior) {
     else
       ++trusted;
   }
-  if (held.empty() || trusted < options_.geometry.probation_min_trusted) return optimise();
+  const int min_trusted = options_.geometry.probation_min_trusted;
+  if (!held.empty() && trusted < min_trusted) {
+    std::erase_if(held, [&](int i) {
+      if (current_.points[i]->geometry.on_mover) return false;
+      ++trusted;
+      return true;
+    });
+    std::stable_sort(held.begin(), held.end(), [this](int a, int b) {
+      return current_.points[a]->geometry.probation < current_.points[b]->geometry.probation;
+    });
+    const int join = std::clamp(min_trusted - trusted, 0, static_cast<int>(held.size()));
+    held.erase(held.begin(), held.begin() + join);
+  }
+  if (held.empty()) return optimise();
   std::vector<std::shared_ptr<MapPoint>> aside;
   aside.reserve(held.size());
   for (int i : held) aside.push_back(std::move(current_.points[i]));

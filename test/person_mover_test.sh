@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# A real person in front of the camera: the astronaut photo, cut out along
+# the silhouette COCO finds in it, composited into the real fr3 excerpt
+# (stillpoint-synth overlay), there from the first frame. Deterministic
+# replay with the geometry module alone; fails above MAX_ATE_M or on any
+# lost frame. PATH picks the walk:
+#   near         0.8 m away, still for 1.5 s, then walking slowly across,
+#                covering up to 58 % of the image and most of the features;
+#   stop-and-go  1.3 m away at 0.4 m/s, 18 % / 37 % of the image: walks,
+#                slows to a stop and walks on (its points made while it
+#                stood must not hold the pose when it goes).
+#
+# usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
+# exit:  0 pass, 1 fail, 77 skipped (excerpt or model absent)
+set -euo pipefail
+
+if [[ $# -ne 10 ]]; then
+  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go" >&2
+  exit 1
+fi
+replay=$1 eval=$2 synth=$3 segment=$4 source_dir=$5 data_dir=$6 models_dir=$7 out_dir=$8 max_ate=$9 walk=${10}
+case $walk in
+  #             from x, depth, to x, m/s, period s, hold s
+  near)        path=(-0.35 0.8 0.35 0.12 8 1.5) ;;
+  stop-and-go) path=(-0.8 1.3 0.8 0.4 4 0.5) ;;
+  *)
+    echo "unknown PATH '$walk' (near or stop-and-go)" >&2
+    exit 1
+    ;;
+esac
+excerpt=$data_dir/tum_fr3_teddy_200
+photo=$models_dir/testdata/astronaut.png
+card=$source_dir/models/coco_yolov5s_seg_320.yaml
+
+for f in "$excerpt/rgb.txt" "$photo" "$models_dir/coco_yolov5s_seg_320.onnx"; do
+  if [[ ! -f $f ]]; then
+    echo "SKIP: $f not found"
+    exit 77
+  fi
+done
+
+rm -rf "$out_dir"
+mkdir -p "$out_dir"
+echo "+ $segment --card $card --model-dir $models_dir --out $out_dir $photo"
+"$segment" --card "$card" --model-dir "$models_dir" --out "$out_dir" "$photo"
+cutout=$out_dir/astronaut_mask.png
+if [[ ! -f $cutout ]]; then
+  echo "FAIL: stillpoint-segment wrote no $cutout"
+  exit 1
+fi
+
+cat >"$out_dir/movers.yaml" <<YAML
+movers:
+  - name: person
+    shape: poster
+    texture: $photo
+    size: [1.4, 1.4, 0]
+    path:
+      type: walk
+      start: [${path[0]}, ${path[1]}, 0.9]
+      end: [${path[2]}, ${path[1]}, 0.9]
+      speed: ${path[3]}
+      period_s: ${path[4]}
+      hold_s: ${path[5]}
+      go_s: 1
+      stop_s: 1
+      phase_s: 0
+YAML
+sequence=$out_dir/sequence
+echo "+ $synth overlay $excerpt $sequence --camera fr3 --config $out_dir/movers.yaml --cutout $cutout --face-camera"
+"$synth" overlay "$excerpt" "$sequence" --camera fr3 --config "$out_dir/movers.yaml" --cutout "$cutout" --face-camera
+
+bash "$(dirname "$0")/replay_accuracy_test.sh" "$replay" "$eval" "$sequence" fr3 "$out_dir/replay" "$max_ate" \
+  --modules geometry
