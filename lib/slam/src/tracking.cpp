@@ -480,7 +480,10 @@ bool Tracker::keepPoseOnStaticEvidence() {
     }
     if (inlier && !p->observations.empty()) ++inliers_;
   }
-  starved_ = readmitted > 0 && inliers_ >= (min_inliers + 1) / 2;
+  // The pose stands on what is left even when nothing was readmitted: a
+  // few inliers short of the bar is still the best static evidence there
+  // is, and losing the frame throws away the motion model with it.
+  starved_ = inliers_ >= (min_inliers + 1) / 2;
   SP_DEBUG(logger, "frame " << current_.id << ": starved by " << flagged << " moving features; " << readmitted
                             << " matched established points, " << inliers_ << " inliers: "
                             << (starved_ ? "pose kept" : "lost"));
