@@ -2,6 +2,8 @@
 #include <lcm/lcm-cpp.hpp>
 
 #include <cstring>
+#include <string>
+#include <string_view>
 
 #include "stillpoint/ipc/transport.hpp"
 #include "stillpoint_lcm/objects_t.hpp"
@@ -215,10 +217,15 @@ class LcmSubscriber final : public Subscriber {
     // returned from poll() instead of being dropped silently.
     // LCM drops messages beyond a subscription's queue capacity (default 30) when the
     // caller polls late; a subscriber descheduled for 30 ms at 1 kHz would lose poses.
-    lcm_.subscribeFunction(options_.pose_channel, &LcmSubscriber::onRawPose, this)->setQueueCapacity(1024);
-    lcm_.subscribeFunction(options_.status_channel, &LcmSubscriber::onRawStatus, this)->setQueueCapacity(64);
+    lcm_.subscribeFunction(options_.pose_channel, &onRaw<stillpoint_lcm::pose_t, &LcmSubscriber::pose_handler_>, this)
+        ->setQueueCapacity(1024);
+    lcm_.subscribeFunction(options_.status_channel, &onRaw<stillpoint_lcm::status_t, &LcmSubscriber::status_handler_>,
+                           this)
+        ->setQueueCapacity(64);
     if (!options_.objects_channel.empty())
-      lcm_.subscribeFunction(options_.objects_channel, &LcmSubscriber::onRawObjects, this)->setQueueCapacity(1024);
+      lcm_.subscribeFunction(options_.objects_channel,
+                             &onRaw<stillpoint_lcm::objects_t, &LcmSubscriber::objects_handler_>, this)
+          ->setQueueCapacity(1024);
     return Status::success();
   }
 
@@ -236,48 +243,25 @@ class LcmSubscriber final : public Subscriber {
   }
 
  private:
-  static void onRawPose(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
-    stillpoint_lcm::pose_t m;
+  // One raw callback per message type: a message that does not decode as
+  // Wire (another schema on our channel) or does not convert becomes poll()'s
+  // error; a good one goes to the handler the member pointer names.
+  template <typename Wire, auto handler>
+  static void onRaw(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
+    Wire m;
     if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
-      self->error_ = "lcm: cannot decode a pose_t on " + channel + " (different schema?)";
+      const std::string type = Wire::getTypeName();
+      const char* article = std::string_view("aeiou").find(type.front()) == std::string_view::npos ? "a " : "an ";
+      self->error_ = "lcm: cannot decode " + (article + type) + " on " + channel + " (different schema?)";
       return;
     }
-    auto pose = fromLcm(m);
-    if (!pose) {
-      self->error_ = pose.error();
+    auto message = fromLcm(m);
+    if (!message) {
+      self->error_ = message.error();
       return;
     }
     ++self->handled_;
-    if (self->pose_handler_) self->pose_handler_(*pose);
-  }
-  static void onRawStatus(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
-    stillpoint_lcm::status_t m;
-    if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
-      self->error_ = "lcm: cannot decode a status_t on " + channel + " (different schema?)";
-      return;
-    }
-    auto status = fromLcm(m);
-    if (!status) {
-      self->error_ = status.error();
-      return;
-    }
-    ++self->handled_;
-    if (self->status_handler_) self->status_handler_(*status);
-  }
-
-  static void onRawObjects(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
-    stillpoint_lcm::objects_t m;
-    if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
-      self->error_ = "lcm: cannot decode an objects_t on " + channel + " (different schema?)";
-      return;
-    }
-    auto objects = fromLcm(m);
-    if (!objects) {
-      self->error_ = objects.error();
-      return;
-    }
-    ++self->handled_;
-    if (self->objects_handler_) self->objects_handler_(*objects);
+    if (self->*handler) (self->*handler)(*message);
   }
   LcmOptions options_;
   lcm::LCM lcm_;
