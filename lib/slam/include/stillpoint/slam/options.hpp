@@ -170,8 +170,8 @@ struct GeometryOptions {
   // Points made on a known mover (a person who stopped) serve this many
   // frames instead: a mover that stands still for a moment must not hold the
   // pose when it walks on. When fewer than probation_min_trusted other
-  // matches remain, points on probation join the fit fewest-frames-to-go
-  // first, those on a known mover last.
+  // matches remain, every other held point joins the fit, and these only as
+  // many as are still missing, fewest frames to go first.
   int mover_probation_frames = 15;
   // Diagnostics, built only when asked for: every judged feature with its
   // evidence in GeometryOutput::judged (stillpoint-replay --features-out, tests).
