@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cstdint>
 #include <mutex>
+#include <thread>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
@@ -39,8 +40,27 @@ struct OpenNI2Source::Impl : public openni::OpenNI::DeviceDisconnectedListener {
   int file_colour_frames = 0, file_depth_frames = 0;
   int colour_read = 0, depth_read = 0;
   std::chrono::steady_clock::time_point last_read;
+  // Pacing of a recording: the first pair's stamp and when it was delivered.
+  bool paced = false;
+  std::int64_t first_stamp_us = 0;
+  std::chrono::steady_clock::time_point first_delivered;
   // Latest frame of each stream, paired by timestamp.
   openni::VideoFrameRef last_colour, last_depth;
+
+  // Holds a recording's pair until its stamp is due at the recorded rate,
+  // counted from the first pair. A gap longer than a second is not waited for
+  // (as in ReplaySource); a consumer behind the recording is not made to wait.
+  void pace(std::uint64_t stamp_us) {
+    const auto now = std::chrono::steady_clock::now();
+    const std::int64_t offset_us = static_cast<std::int64_t>(stamp_us) - first_stamp_us;
+    if (!paced || offset_us < 0 || now + std::chrono::seconds(1) < first_delivered + std::chrono::microseconds(offset_us)) {
+      paced = true;
+      first_stamp_us = static_cast<std::int64_t>(stamp_us);
+      first_delivered = now;
+      return;
+    }
+    std::this_thread::sleep_until(first_delivered + std::chrono::microseconds(offset_us));
+  }
 
   void onDeviceDisconnected(const openni::DeviceInfo* info) override {
     if (uri == info->getUri()) gone = true;
@@ -101,9 +121,15 @@ Status OpenNI2Source::open() {
       s = Error{lastError("no playback control for " + options_.uri)};
     } else {
       playback->setRepeatEnabled(false);
+      // Manual speed: the player makes a frame available only once the last
+      // one was read, so none is lost when this process is slow (at the
+      // recorded speed the player overwrites a frame not read within a frame
+      // period: 1 of 20 frames under load). next() paces the pairs instead.
       impl->file_colour_frames = playback->getNumberOfFrames(impl->colour);
       impl->file_depth_frames = playback->getNumberOfFrames(impl->depth);
-      if (impl->file_colour_frames <= 0 || impl->file_depth_frames <= 0)
+      if (playback->setSpeed(-1.0f) != openni::STATUS_OK)
+        s = Error{lastError("manual playback speed for " + options_.uri)};
+      else if (impl->file_colour_frames <= 0 || impl->file_depth_frames <= 0)
         s = Error{"openni2: " + options_.uri + ": recording holds " + std::to_string(impl->file_colour_frames) +
                   " colour and " + std::to_string(impl->file_depth_frames) + " depth frames"};
     }
@@ -188,6 +214,7 @@ SourceResult OpenNI2Source::next(CameraFrame& frame, std::chrono::milliseconds t
       d.release();
       return {SourceEvent::kBadFrame, "frame size differs from the camera's"};
     }
+    if (impl_->file) impl_->pace(c.getTimestamp());
     const cv::Mat rgb(c.getHeight(), c.getWidth(), CV_8UC3, const_cast<void*>(c.getData()), c.getStrideInBytes());
     const cv::Mat mm(d.getHeight(), d.getWidth(), CV_16UC1, const_cast<void*>(d.getData()), d.getStrideInBytes());
     cv::cvtColor(rgb, frame.gray, cv::COLOR_RGB2GRAY);

@@ -104,9 +104,8 @@ int dump(const std::string& in, const fs::path& dir, const std::string& camera_s
     std::fprintf(stderr, "stillpoint-oni: %s\n", s.error().c_str());
     return 1;
   }
-  // Frames are kept in memory and written at the end: the player runs at the
-  // recorded rate and a stream holds only its newest frame, so a reader slowed
-  // down by PNG encoding would lose frames.
+  // Frames are kept in memory and written at the end, so that the time between
+  // the first and the last frame's arrival is the source's pacing alone.
   std::vector<stillpoint::platform::CameraFrame> frames;
   const auto until = std::chrono::steady_clock::now() + 120s;
   while (std::chrono::steady_clock::now() < until) {
@@ -141,6 +140,11 @@ int dump(const std::string& in, const fs::path& dir, const std::string& camera_s
     depth_list << stamp << " depth/" << stamp << ".png\n";
   }
   std::printf("frames=%zu\n", frames.size());
+  if (frames.size() > 1) {
+    const double played_s = std::chrono::duration<double>(frames.back().arrival - frames.front().arrival).count();
+    const double recorded_s = (frames.back().stamp.nanoseconds() - frames.front().stamp.nanoseconds()) / 1e9;
+    std::printf("played_s=%.3f recorded_s=%.3f\n", played_s, recorded_s);
+  }
   return 0;
 }
 
