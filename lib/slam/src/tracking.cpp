@@ -164,8 +164,9 @@ bool Tracker::trackFrame(bool clusters_pending) {
   } else {
     if (options_.semantic.enabled && options_.semantic.propagate_masks) markSemanticMovers();
     ok = initialPose();
+    const bool judged = ok && clusters_pending;
     // Stage 1 keeps its outliers so the detector sees every match.
-    if (ok && clusters_pending) {
+    if (judged) {
       ScopedStageTimer timer(&times_.geometry);
       const StageOneMatches stage_one{&carried_, &match_ratio_, reference_};
       geometry_ = detector_->judge(&current_, stage_one, [this] { return timedOptimizePose(); });
@@ -174,8 +175,10 @@ bool Tracker::trackFrame(bool clusters_pending) {
     if (ok) {
       ok = trackLocalMap(options_.tracking.min_inliers_local_map);
       if (!ok) ok = keepPoseOnStaticEvidence();
+    } else {
+      ok = keepPredictedPoseOnStaticEvidence();
     }
-    if (ok && clusters_pending) updateProbation();
+    if (ok && judged) updateProbation();  // not on a frame the detector did not judge
   }
   if (ok) {
     state_ = was_lost ? TrackingState::kRelocalised : TrackingState::kOk;
@@ -395,8 +398,8 @@ void Tracker::updateLocalMap() {
   }
 }
 
-bool Tracker::trackLocalMap(int min_inliers) {
-  updateLocalMap();
+bool Tracker::trackLocalMap(int min_inliers, bool refresh) {
+  if (refresh) updateLocalMap();
   // Points already matched are seen; don't search them again.
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
@@ -433,6 +436,29 @@ bool Tracker::trackLocalMap(int min_inliers) {
     if (!p->observations.empty()) ++inliers_;
   }
   return inliers_ >= min_inliers;
+}
+
+bool Tracker::keepPredictedPoseOnStaticEvidence() {
+  // Stage 1 matches the last frame and the reference keyframe without the
+  // flagged features. When those are most of the frame (a mask or a depth
+  // cluster over most of a static view), stage 1 can fail for want of
+  // matches although the view is the map's. From the pose the motion model
+  // predicts, the local map and its established points (stage 2 and
+  // keepPoseOnStaticEvidence) still decide; the pose is reported
+  // unreliable and makes no keyframe whichever of them holds it.
+  if (!has_last_ || !hasPose(state_) || !reference_) return false;
+  const auto flagged = std::count_if(current_.dynamic.begin(), current_.dynamic.end(), [](DynamicCause d) { return d; });
+  if (2 * flagged <= current_.size()) return false;  // not starved by the flags: lost
+  current_.clearMatches();
+  current_.T_c_w = has_velocity_ ? predictedPose(last_.T_c_w) : last_.T_c_w;
+  if (trackLocalMap(options_.tracking.min_inliers_local_map, false)) {
+    starved_ = true;
+  } else if (!keepPoseOnStaticEvidence()) {
+    return false;
+  }
+  SP_DEBUG(logger, "frame " << current_.id << ": stage 1 starved by " << flagged
+                            << " flagged features; pose kept from the prediction on " << inliers_ << " inliers");
+  return true;
 }
 
 bool Tracker::keepPoseOnStaticEvidence() {

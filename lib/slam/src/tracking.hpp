@@ -72,10 +72,15 @@ class Tracker {
   // the last pose standing in for one).
   bool trackWithMotionModel(bool with_prior = true);
   bool trackReferenceKeyFrame();
-  bool trackLocalMap(int min_inliers);
+  // refresh: rebuild the local map from the frame's matches first (false:
+  // the last frame's local map, for a frame with too few matches of its own).
+  bool trackLocalMap(int min_inliers, bool refresh = true);
   // Stage 2 left too few inliers because movers were kept out: the pose on
   // the established static points (tracking.cpp). Sets starved_.
   bool keepPoseOnStaticEvidence();
+  // Stage 1 failed on a frame whose flagged features are most of it: the
+  // same, from the predicted pose (tracking.cpp). Sets starved_.
+  bool keepPredictedPoseOnStaticEvidence();
   void updateLocalMap();
   void refreshLastFrame();
   int setAsideCarried();
