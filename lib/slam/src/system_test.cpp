@@ -392,33 +392,41 @@ TEST(SlamSystemKnownMovers, MasksKeepTheBoardOutOfThePoseAndTheMap) {
 // feature budget on it and more on the room (tracking.mover_cells_*), and the
 // room is still tracked as well. The board holds 6-10 % of the features: under
 // a minimum share of 20 % it keeps them all.
+// The room with a known-mover mask over 90 % of the view (all but its right
+// tenth) on frames first..last: every frame must keep a pose. Counts the
+// masked frames reported unreliable.
+void trackRoomUnderMask(const Sequence& seq, std::size_t first, std::size_t last, PoseErrors* errors,
+                        int* unreliable) {
+  cv::Mat mask(seq.camera.height, seq.camera.width, CV_8UC1, cv::Scalar(1));
+  mask.colRange(seq.camera.width - seq.camera.width / 10, seq.camera.width).setTo(0);
+  auto system = makeSystem(seq.camera);
+  ASSERT_TRUE(system);
+  std::vector<SE3> online;
+  *unreliable = 0;
+  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+    RgbdInput input = seq.frames[i];
+    const bool masked = i >= first && i <= last;
+    if (masked) input.movers = mask;
+    const auto out = system->track(input);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i << ", masked from frame " << first;
+    if (masked) *unreliable += out->quality.health == PoseHealth::kUnreliable;
+    online.push_back(out->T_w_c);
+  }
+  system->finish();
+  *errors = compare(online, seq.T_w_c);
+}
+
 // A mask over 90 % of a static view (a person crossing close in front,
 // whose mask spills over the background) leaves the first masked frame too
 // few inliers in stage 2: without help it is lost. The masked features
 // that match established map points keep its pose, the pose health says it
 // is unreliable, and the frames after it track on.
 TEST(SlamSystemKnownMovers, AMaskOverMostOfTheViewKeepsThePoseOnEstablishedPoints) {
-  const Sequence seq = roomSequence(45);
-  const std::size_t first_masked = 20, last_masked = 24;
-  cv::Mat mask(seq.camera.height, seq.camera.width, CV_8UC1, cv::Scalar(1));
-  mask.colRange(seq.camera.width - seq.camera.width / 10, seq.camera.width).setTo(0);  // 90 % masked
-  auto system = makeSystem(seq.camera);
-  ASSERT_TRUE(system);
-  std::vector<SE3> online;
+  PoseErrors e;
   int unreliable = 0;
-  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
-    RgbdInput input = seq.frames[i];
-    const bool masked = i >= first_masked && i <= last_masked;
-    if (masked) input.movers = mask;
-    const auto out = system->track(input);
-    ASSERT_TRUE(out.ok()) << out.error();
-    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
-    if (masked) unreliable += out->quality.health == PoseHealth::kUnreliable;
-    online.push_back(out->T_w_c);
-  }
-  system->finish();
+  ASSERT_NO_FATAL_FAILURE(trackRoomUnderMask(roomSequence(45), 20, 24, &e, &unreliable));
   EXPECT_GT(unreliable, 0) << "the masked frames' pose health";
-  const PoseErrors e = compare(online, seq.T_w_c);
   EXPECT_LT(e.max_translation, 0.02) << "frame " << e.worst_frame;
 }
 
@@ -429,27 +437,11 @@ TEST(SlamSystemKnownMovers, AMaskOverMostOfTheViewKeepsThePoseOnEstablishedPoint
 // starts, on maps of two to four keyframes; before, every one lost frames.
 TEST(SlamSystemKnownMovers, AMaskThatStarvesTheFirstMatchesKeepsThePredictedPose) {
   const Sequence seq = roomSequence(30);
-  cv::Mat mask(seq.camera.height, seq.camera.width, CV_8UC1, cv::Scalar(1));
-  mask.colRange(seq.camera.width - seq.camera.width / 10, seq.camera.width).setTo(0);  // 90 % masked
   for (std::size_t first_masked : {12u, 14u, 16u}) {
-    const std::size_t last_masked = first_masked + 2;
-    auto system = makeSystem(seq.camera);
-    ASSERT_TRUE(system);
-    std::vector<SE3> online;
+    PoseErrors e;
     int unreliable = 0;
-    for (std::size_t i = 0; i < seq.frames.size(); ++i) {
-      RgbdInput input = seq.frames[i];
-      const bool masked = i >= first_masked && i <= last_masked;
-      if (masked) input.movers = mask;
-      const auto out = system->track(input);
-      ASSERT_TRUE(out.ok()) << out.error();
-      ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i << ", masked from frame " << first_masked;
-      if (masked) unreliable += out->quality.health == PoseHealth::kUnreliable;
-      online.push_back(out->T_w_c);
-    }
-    system->finish();
+    ASSERT_NO_FATAL_FAILURE(trackRoomUnderMask(seq, first_masked, first_masked + 2, &e, &unreliable));
     EXPECT_EQ(unreliable, 3) << "the masked frames' pose health, masked from frame " << first_masked;
-    const PoseErrors e = compare(online, seq.T_w_c);
     std::printf("mask over 90 %% from frame %zu: max error %.2f mm (frame %zu)\n", first_masked,
                 e.max_translation * 1e3, e.worst_frame);
     EXPECT_LT(e.max_translation, 0.02) << "frame " << e.worst_frame << ", masked from frame " << first_masked;

@@ -17,6 +17,7 @@
 namespace stillpoint::slam {
 namespace {
 log::Logger logger("tracking");
+bool isFlagged(DynamicCause d) { return d != kNotDynamic; }
 }  // namespace
 
 Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map,
@@ -440,14 +441,15 @@ bool Tracker::trackLocalMap(int min_inliers, bool refresh) {
 
 bool Tracker::keepPredictedPoseOnStaticEvidence() {
   // Stage 1 matches the last frame and the reference keyframe without the
-  // flagged features. When those are most of the frame (a mask or a depth
-  // cluster over most of a static view), stage 1 can fail for want of
+  // flagged features (masks and known movers; the geometry module judges
+  // later). When those are most of the frame (a mask spilling over most of
+  // a static view), stage 1 can fail for want of
   // matches although the view is the map's. From the pose the motion model
   // predicts, the local map and its established points (stage 2 and
   // keepPoseOnStaticEvidence) still decide; the pose is reported
   // unreliable and makes no keyframe whichever of them holds it.
   if (!has_last_ || !hasPose(state_) || !reference_) return false;
-  const auto flagged = std::count_if(current_.dynamic.begin(), current_.dynamic.end(), [](DynamicCause d) { return d; });
+  const auto flagged = std::count_if(current_.dynamic.begin(), current_.dynamic.end(), isFlagged);
   if (2 * flagged <= current_.size()) return false;  // not starved by the flags: lost
   current_.clearMatches();
   current_.T_c_w = has_velocity_ ? predictedPose(last_.T_c_w) : last_.T_c_w;
@@ -471,7 +473,7 @@ bool Tracker::keepPoseOnStaticEvidence() {
   // static evidence there is. The pose is refitted robustly on every match;
   // it stands on at least half the usual inliers and is reported unreliable.
   const int min_inliers = options_.tracking.min_inliers_local_map;
-  const auto flagged = std::count_if(current_.dynamic.begin(), current_.dynamic.end(), [](DynamicCause d) { return d; });
+  const auto flagged = std::count_if(current_.dynamic.begin(), current_.dynamic.end(), isFlagged);
   if (flagged <= inliers_) return false;  // not starved by the removal: lost
   std::unordered_set<const MapPoint*> matched;
   for (const auto& p : current_.points)
