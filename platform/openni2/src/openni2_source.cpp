@@ -215,6 +215,8 @@ SourceResult OpenNI2Source::next(CameraFrame& frame, std::chrono::milliseconds t
       return {SourceEvent::kBadFrame, "frame size differs from the camera's"};
     }
     if (impl_->file) impl_->pace(c.getTimestamp());
+    // Arrived now: the conversions below are this process's time, not the source's.
+    const auto arrival = std::chrono::steady_clock::now();
     const cv::Mat rgb(c.getHeight(), c.getWidth(), CV_8UC3, const_cast<void*>(c.getData()), c.getStrideInBytes());
     const cv::Mat mm(d.getHeight(), d.getWidth(), CV_16UC1, const_cast<void*>(d.getData()), d.getStrideInBytes());
     cv::cvtColor(rgb, frame.gray, cv::COLOR_RGB2GRAY);
@@ -223,7 +225,7 @@ SourceResult OpenNI2Source::next(CameraFrame& frame, std::chrono::milliseconds t
     mm.convertTo(frame.depth_m, CV_32FC1, 0.001);
     frame.stamp = Timestamp::fromNanoseconds(static_cast<std::int64_t>(c.getTimestamp()) * 1000);
     frame.sequence = impl_->delivered++;
-    frame.arrival = std::chrono::steady_clock::now();
+    frame.arrival = arrival;
     c.release();
     d.release();
     return {SourceEvent::kFrame, ""};
