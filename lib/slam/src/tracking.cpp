@@ -362,6 +362,17 @@ void Tracker::updateLocalMap() {
     for (const auto& [kf, idx] : p->observations)
       if (!kf->bad) votes[kf]++;
   }
+  if (votes.empty()) {
+    // No match of this frame is left to vote (the detector flagged every
+    // one): the camera is still where the last frame's local map is, and
+    // an empty one would leave nothing to search, not even the established
+    // points the starved-frame rule falls back on.
+    std::erase_if(local_keyframes_, [](const KeyFrame* kf) { return kf->bad; });
+    std::erase_if(local_points_, [](const auto& p) { return p->bad; });
+    for (KeyFrame* kf : local_keyframes_) kf->local_for_frame = current_.id;
+    for (const auto& p : local_points_) p->local_for_frame = current_.id;
+    return;
+  }
   local_keyframes_.clear();
   KeyFrame* best = nullptr;
   int best_votes = 0;
