@@ -212,10 +212,14 @@ void DynamicDetector::gatherEvidence(FrameJudgement& j) {
   for (int i = 0; i < n; ++i) {
     FeatureEvidence& e = j.ev[i];
     e.from_map = e.point && e.point == frame.points[i];
+    // Carried from the last frame's flagged features, whatever flagged them:
+    // a mover followed frame to frame. A semantic mask's mark on the feature
+    // itself, or on its anchor match below, is not motion and holds no
+    // cluster: masks spill over static objects touching their person (a
+    // dilated outline, growth over the same surface), and the hold would
+    // take those objects out of the pose with the person while it is still
+    // or slow. The mark alone keeps the feature out of the pose and the map.
     e.inherited = i < static_cast<int>(carried.size()) && carried[i] != nullptr && !e.ambiguous;
-    // Features following a semantic mask count as moving before too: they
-    // keep their anchor evidence and hold their cluster like the module's own.
-    e.inherited = e.inherited || frame.dynamic[i] == kSemanticDynamic;
   }
   // The anchor frame's depth point wins over all of these: its baseline is
   // fixed, so a slow mover's error is not one frame's motion.
@@ -229,7 +233,7 @@ void DynamicDetector::gatherEvidence(FrameJudgement& j) {
     e.has_anchor = true;
     e.anchor_distance = features::hammingDistance(anchor.descriptor(k), frame.descriptor(f));
     e.anchor_descriptor = anchor.descriptor(k);
-    e.inherited = e.inherited || anchor.dynamic[k];
+    e.inherited = e.inherited || anchor.dynamic[k] == kGeometryDynamic;
     e.seen_moving = e.seen_moving || anchor.dynamic[k] == kGeometryDynamic;
   }
 }
@@ -280,7 +284,7 @@ void DynamicDetector::takeNearerAnchors(FrameJudgement& j, const std::vector<Nea
     e.has_anchor = true;
     e.anchor_distance = features::hammingDistance(anchor.descriptor(a.keypoint), j.frame.descriptor(a.feature));
     e.anchor_descriptor = anchor.descriptor(a.keypoint);
-    e.inherited = e.inherited || anchor.dynamic[a.keypoint];
+    e.inherited = e.inherited || anchor.dynamic[a.keypoint] == kGeometryDynamic;
     e.seen_moving = e.seen_moving || anchor.dynamic[a.keypoint] == kGeometryDynamic;
     ++j.anchored_in_cluster[j.frame.cluster[a.feature]];
   }

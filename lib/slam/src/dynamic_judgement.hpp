@@ -23,8 +23,9 @@ struct FeatureEvidence {
   int anchor_distance = 0;  // Hamming distance of that match
   const std::uint8_t* anchor_descriptor = nullptr;
   int anchor_baseline = 0;  // frames back
-  // Matched to a feature that was moving before (carried, an anchor's
-  // dynamic feature, or a semantic mask's): its cluster's memory.
+  // Matched to a feature that was moving before (carried from the last
+  // frame's flagged ones, or an anchor's geometry-dynamic feature; a semantic
+  // mask's mark alone is not motion): its cluster's memory.
   bool inherited = false;
   // Matched to a feature this module found moving (carried, or an anchor's
   // geometry-dynamic feature): a mask's movable class is not motion.

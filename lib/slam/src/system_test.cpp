@@ -448,6 +448,41 @@ TEST(SlamSystemKnownMovers, AMaskThatStarvesTheFirstMatchesKeepsThePredictedPose
   }
 }
 
+// A mask is not motion. In the first frame a mask covers part of a static
+// view (a keyframe's mask spilling over the background), its features stay
+// out of the pose, but the geometry module judges them on their own evidence:
+// matched to nothing it saw moving, they hold no depth cluster, and none is
+// flagged.
+TEST(SlamSystemKnownMovers, AMaskIsNotMotionToTheGeometryModule) {
+  const Sequence seq = roomSequence(30);
+  cv::Mat mask(seq.camera.height, seq.camera.width, CV_8UC1, cv::Scalar(0));
+  mask.colRange(0, seq.camera.width / 3).setTo(1);
+  auto system = makeSystem(seq.camera);
+  ASSERT_TRUE(system);
+  int judged = 0, inherited = 0, flagged = 0;
+  for (std::size_t i = 0; i < seq.frames.size(); ++i) {
+    RgbdInput input = seq.frames[i];
+    const bool masked = i == 12 || i == 20;
+    if (masked) input.movers = mask;
+    const auto out = system->track(input);
+    ASSERT_TRUE(out.ok()) << out.error();
+    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i;
+    if (!masked) continue;
+    for (const JudgedFeature& f : out->geometry.judged) {
+      if (!mask.at<std::uint8_t>(std::clamp(cvRound(f.v), 0, mask.rows - 1), std::clamp(cvRound(f.u), 0, mask.cols - 1)))
+        continue;
+      ++judged;
+      inherited += f.inherited;
+      flagged += f.dynamic;
+    }
+  }
+  system->finish();
+  std::printf("masked static features judged %d: inherited %d, flagged %d\n", judged, inherited, flagged);
+  EXPECT_GT(judged, 20);
+  EXPECT_EQ(inherited, 0);
+  EXPECT_EQ(flagged, 0);
+}
+
 TEST(SlamSystemKnownMovers, MoversGetLessOfTheFeatureBudget) {
   const MovingBoardSequence data = movingBoardSequence(30);
   SlamOptions options = sequentialOptions();
