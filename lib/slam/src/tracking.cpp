@@ -364,9 +364,10 @@ void Tracker::updateLocalMap() {
   }
   if (votes.empty()) {
     // No match of this frame is left to vote (the detector flagged every
-    // one): the camera is still where the last frame's local map is, and
+    // one, or stage 1 found too few and the frame starts from the predicted
+    // pose): the camera is still where the last frame's local map is, and
     // an empty one would leave nothing to search, not even the established
-    // points the starved-frame rule falls back on.
+    // points the starved-frame rules fall back on.
     std::erase_if(local_keyframes_, [](const KeyFrame* kf) { return kf->bad; });
     std::erase_if(local_points_, [](const auto& p) { return p->bad; });
     for (KeyFrame* kf : local_keyframes_) kf->local_for_frame = current_.id;
@@ -410,8 +411,8 @@ void Tracker::updateLocalMap() {
   }
 }
 
-bool Tracker::trackLocalMap(int min_inliers, bool refresh) {
-  if (refresh) updateLocalMap();
+bool Tracker::trackLocalMap(int min_inliers) {
+  updateLocalMap();
   // Points already matched are seen; don't search them again.
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
@@ -464,7 +465,7 @@ bool Tracker::keepPredictedPoseOnStaticEvidence() {
   if (2 * flagged <= current_.size()) return false;  // not starved by the flags: lost
   current_.clearMatches();
   current_.T_c_w = has_velocity_ ? predictedPose(last_.T_c_w) : last_.T_c_w;
-  if (trackLocalMap(options_.tracking.min_inliers_local_map, false)) {
+  if (trackLocalMap(options_.tracking.min_inliers_local_map)) {  // on the last frame's local map
     starved_ = true;
   } else if (!keepPoseOnStaticEvidence()) {
     return false;

@@ -72,9 +72,9 @@ class Tracker {
   // the last pose standing in for one).
   bool trackWithMotionModel(bool with_prior = true);
   bool trackReferenceKeyFrame();
-  // refresh: rebuild the local map from the frame's matches first (false:
-  // the last frame's local map, for a frame with too few matches of its own).
-  bool trackLocalMap(int min_inliers, bool refresh = true);
+  // Rebuilds the local map from the frame's matches first; a frame with no
+  // match left to vote keeps the last frame's (updateLocalMap).
+  bool trackLocalMap(int min_inliers);
   // Stage 2 left too few inliers because movers were kept out: the pose on
   // the established static points (tracking.cpp). Sets starved_.
   bool keepPoseOnStaticEvidence();
