@@ -95,6 +95,20 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     if (r.regions[k].continued) ++st.instances_continued;
   }
 
+  // The segmentation is the keyframe's word on what is movable in it. Marks
+  // that followed an object into the keyframe's frame (masks of earlier
+  // keyframes, chained and grown: markSemanticMovers) outside every region
+  // it found are dropped: a keyframe whose segmentation found no one would
+  // otherwise hand its stale marks on to later frames as its own masks, and
+  // their growth over a static object touching the person would go on
+  // spreading from keyframe to keyframe.
+  int unmarked = 0;
+  for (int i = 0; i < f.size(); ++i) {
+    if (region_of[i] != 0 || f.dynamic[i] != kSemanticDynamic) continue;
+    f.dynamic[i] = kNotDynamic;
+    if (i < static_cast<int>(f.movable_class.size())) f.movable_class[i] = 0;
+    ++unmarked;
+  }
   std::vector<std::uint8_t> class_of(n_regions + 1, 0);
   for (int k = 0; k < n_regions; ++k)
     if (applied[k + 1]) class_of[k + 1] = map_->classId(r.regions[k].class_name);
@@ -152,7 +166,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - r.created).count());
   SP_DEBUG(logger, "keyframe " << kf->id << ": " << n_regions << " movable regions, " << features_removed
                                << " features dropped, " << points_removed << " points removed, " << points_culled
-                               << " culled");
+                               << " culled, " << unmarked << " earlier marks dropped");
 }
 
 

@@ -378,6 +378,61 @@ TEST(SemanticModule, MoreLookupsFollowAMovingCardThroughDetectorMisses) {
   }
 }
 
+// Paints the rectangle in its first `masked` calls only, then finds no one.
+class FirstCallsSegmenter : public RectangleSegmenter {
+ public:
+  explicit FirstCallsSegmenter(int masked) : RectangleSegmenter(kRect, false), masked_(masked) {}
+  Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
+    if (calls_++ < masked_) return RectangleSegmenter::segment(bgr);
+    semantic::Segmentation seg;
+    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
+    seg.movable_mask = cv::Mat(bgr.size(), CV_8U, cv::Scalar(0));
+    return seg;
+  }
+
+ private:
+  int masked_, calls_ = 0;
+};
+
+// A mask over static texture in the first keyframe only: its marks follow
+// that texture into the next frames, and into the keyframes made from them.
+// Once those keyframes are segmented and nothing is found, their marks are
+// dropped, and the newest segmented keyframe hands none on: the marks end
+// instead of chaining (and growing) from keyframe to keyframe for good.
+TEST(SemanticModule, AKeyframeWhoseSegmentationFindsNoOneEndsTheMarks) {
+  const Frames& frames = planeFrames();
+  SlamOptions options = semanticOptions();
+  options.semantic.propagate_masks = true;
+  options.geometry.enabled = false;  // every flag is then a mark
+  auto system = SlamSystem::create(frames.camera, options, std::make_unique<FirstCallsSegmenter>(1));
+  ASSERT_TRUE(system.ok()) << system.error();
+  std::vector<int> marked;
+  for (const RgbdInput& input : frames.inputs) {
+    const auto out = (*system)->track(input);
+    ASSERT_TRUE(out.ok()) << out.error();
+    EXPECT_EQ(out->state, TrackingState::kOk);
+    marked.push_back(out->semantic_features);
+  }
+  (*system)->finish();
+  const std::vector<KeyFrameView> keyframes = (*system)->keyframes();
+  ASSERT_GE(keyframes.size(), 3u);
+  int marked_in_empty = 0;
+  for (std::size_t k = 1; k < keyframes.size(); ++k) {
+    EXPECT_TRUE(keyframes[k].segmented) << "keyframe " << keyframes[k].id;
+    for (const KeyFrameFeature& f : keyframes[k].features) marked_in_empty += f.dynamic;
+  }
+  // The first keyframe's marks did follow the texture.
+  int followed = 0;
+  for (int m : marked) followed += m;
+  EXPECT_GT(followed, 20);
+  EXPECT_EQ(marked_in_empty, 0) << "marks kept by keyframes whose segmentation found no one";
+  // The last frames come after the second keyframe (frame 23 of 30), which
+  // was segmented and found empty before the next frame (sequential mode).
+  int last_marked = 0;
+  for (std::size_t i = marked.size() - 5; i < marked.size(); ++i) last_marked += marked[i];
+  EXPECT_EQ(last_marked, 0);
+}
+
 TEST(SemanticModule, SequentialModeIsDeterministic) {
   const RunResult a = runWith(semanticOptions(), std::make_unique<RectangleSegmenter>(kRect, false));
   const RunResult b = runWith(semanticOptions(), std::make_unique<RectangleSegmenter>(kRect, false));
