@@ -39,14 +39,15 @@ using namespace stillpoint;
 constexpr const char* kUsage =
     "usage: stillpoint-bench --sequence DIR:CAMERA [--sequence DIR:CAMERA ...] --out DIR\n"
     "                        [--modules none,geometry,semantic,geometry+semantic] [--runs N]\n"
-    "                        [--sequential] [--config SLAM.yaml] [--model-card CARD.yaml ...]\n"
+    "                        [--sequential | --paced] [--config SLAM.yaml] [--model-card CARD.yaml ...]\n"
     "                        [--max-frames N] [--render-every N] [--no-plots] [--replay PATH]\n"
     "       stillpoint-bench --help | --version\n"
     "\n"
     "Replays every sequence (a TUM RGB-D layout folder; CAMERA as stillpoint-replay --camera:\n"
     "fr1, fr2, fr3 or a camera YAML) with every module set, N times (default 3), each run in a\n"
     "stillpoint-replay process of its own, threaded as stillpointd runs (--sequential: one\n"
-    "thread, deterministic). Writes into --out:\n"
+    "thread, deterministic; --paced: frames at their recorded rate, as a camera delivers them to\n"
+    "stillpointd, so the modules' threads have the time a live run gives them). Writes into --out:\n"
     "  report.md     machine, commit, command, the accuracy table (ATE RMSE, RPE: median and\n"
     "                min-max over runs, and the share of frames with a pose), the runtime table\n"
     "                (semantic part per keyframe, geometry part and tracking per frame, frames\n"
@@ -75,7 +76,7 @@ struct Args {
   std::string out, config, replay;
   int runs = 3;
   long max_frames = 0, render_every = 0;
-  bool sequential = false, plots = true;
+  bool sequential = false, paced = false, plots = true;
 };
 
 bool parsePositive(const std::string& text, long* out) {
@@ -161,6 +162,8 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       args->replay = v;
     } else if (a == "--sequential") {
       args->sequential = true;
+    } else if (a == "--paced") {
+      args->paced = true;
     } else if (a == "--no-plots") {
       args->plots = false;
     } else {
@@ -170,6 +173,7 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
   }
   if (args->sequences.empty()) *error = "no --sequence given";
   else if (args->out.empty()) *error = "missing --out";
+  else if (args->sequential && args->paced) *error = "--sequential and --paced exclude each other";
   // Two sequences of one name would share a run folder: number them.
   std::map<std::string, int> seen;
   for (SequenceArg& s : args->sequences)
@@ -302,6 +306,7 @@ void runOnce(const Args& args, const std::string& replay, const SequenceArg& seq
                                 "--frame-log", (dir / "frames.txt").string(), "--modules",
                                 modules == "geometry+semantic" ? "geometry,semantic" : modules};
   if (args.sequential) argv.push_back("--sequential");
+  if (args.paced) argv.push_back("--paced");
   if (!args.config.empty()) argv.insert(argv.end(), {"--config", args.config});
   if (!card.empty()) argv.insert(argv.end(), {"--model-card", card});
   if (args.max_frames > 0) argv.insert(argv.end(), {"--max-frames", std::to_string(args.max_frames)});
@@ -563,7 +568,10 @@ bool writeReport(const Args& args, const std::string& command, const std::string
   md << "| machine | " << cpuModel() << ", " << std::thread::hardware_concurrency() << " cores |\n";
   md << "| load average (1, 5, 15 min) | at start " << load_start << "; at end " << loadAverage() << " |\n";
   md << "| started | " << started << " |\n";
-  md << "| mode | " << (args.sequential ? "sequential (one thread, deterministic)" : "threaded (as stillpointd runs)")
+  md << "| mode | "
+     << (args.sequential ? "sequential (one thread, deterministic)"
+         : args.paced    ? "threaded (as stillpointd runs), paced at the recorded frame rate"
+                         : "threaded (as stillpointd runs), as fast as tracking goes")
      << ", " << args.runs << (args.runs == 1 ? " run" : " runs") << " per cell"
      << (args.max_frames > 0 ? ", first " + std::to_string(args.max_frames) + " frames" : "") << " |\n";
   md << "| command | `" << command << "` |\n\n";
