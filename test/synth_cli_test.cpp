@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "cli_runner.hpp"
 
@@ -92,6 +93,39 @@ TEST_F(SynthCli, EditCoversCutsAndPlaysBack) {
   }
   EXPECT_EQ(frames, 19);
   EXPECT_EQ(synth({"edit", room.string(), (scratch_ / "bad").string(), "--cover", "1"}).exit_code, 2);
+}
+
+// Every example config of config/synth generates (its first frames, without
+// writing them): the teddy_* ones over the real excerpt, the others in the
+// room. A config whose footage is not installed (opencv-doc) fails naming it.
+TEST_F(SynthCli, EveryExampleConfigGenerates) {
+  const fs::path configs = fs::path(STILLPOINT_SOURCE_DIR) / "config" / "synth";
+  const fs::path excerpt = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
+  int checked = 0;
+  for (const auto& entry : fs::directory_iterator(configs)) {
+    if (entry.path().extension() != ".yaml") continue;
+    const std::string name = entry.path().filename().string();
+    SCOPED_TRACE(name);
+    const bool overlay = name.rfind("teddy_", 0) == 0;
+    if (overlay && !fs::is_directory(excerpt)) continue;
+    std::vector<std::string> args{"room", (scratch_ / "out").string()};
+    if (overlay) args = {"overlay", excerpt.string(), (scratch_ / "out").string(), "--camera", "fr3"};
+    args.insert(args.end(), {"--config", entry.path().string(), "--max-frames", "3", "--no-write"});
+    const RunResult r = synth(args);
+    ++checked;
+    const std::string text = test::readFile(entry.path());
+    if (const auto at = text.find("video: "); at != std::string::npos) {
+      const std::string video = text.substr(at + 7, text.find('\n', at) - at - 7);
+      if (!fs::exists(video)) {
+        EXPECT_EQ(r.exit_code, 1);
+        EXPECT_TRUE(contains(r.err, video));
+        continue;
+      }
+    }
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_TRUE(contains(test::lastLine(r.out), "frames=3 "));
+  }
+  EXPECT_GE(checked, 5);
 }
 
 TEST_F(SynthCli, BadInputExitsOneWithAMessage) {
