@@ -171,6 +171,7 @@ void Map::replacePoint(const std::shared_ptr<MapPoint>& old, const std::shared_p
   by->found += old->found;
   old->observations.clear();
   old->bad = true;
+  old->replaced_by = by;
   old->reference = nullptr;
   by->updateFromObservations();
 }

@@ -79,6 +79,8 @@ class MapPoint {
   int visible = 1;  // times it was inside a tracked frame's view (tracking; see the locking rule)
   int found = 1;    // times it was matched there (tracking)
   bool bad = false;
+  // The point this one was fused into (Map::replacePoint), once bad.
+  std::weak_ptr<MapPoint> replaced_by;
   // The geometry module's state of the point.
   struct Geometry {
     // Exponentially weighted share of recent observations that fell in

@@ -135,6 +135,16 @@ void Tracker::followWorldMoves() {
   std::shared_lock lock(map_->mutex());
   if (map_->epoch() == seen_epoch_ || reference_->bad) return;
   last_.T_c_w = renormalized(T_last_reference_ * reference_->T_c_w());
+  // A loop closure fuses the points it found again into the older ones: the
+  // last frame's matches follow them there, or the next frame's motion model
+  // finds mostly odometry points, and a keyframe made from it maps again what
+  // the fusion just joined.
+  for (auto& p : last_.points)
+    for (int hops = 0; p && p->bad && hops < 4; ++hops) {
+      std::shared_ptr<MapPoint> by = p->replaced_by.lock();
+      if (!by) break;
+      p = std::move(by);
+    }
   seen_epoch_ = map_->epoch();
   if (detector_) detector_->forgetHistory();
 }
