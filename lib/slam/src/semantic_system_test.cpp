@@ -308,10 +308,7 @@ class MissingSegmenter : public BlueFreeSegmenter {
   Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
     const int call = calls_++;
     if (call < first_ || call >= last_) return BlueFreeSegmenter::segment(bgr);
-    semantic::Segmentation seg;
-    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
-    seg.movable_mask = cv::Mat(bgr.size(), CV_8U, cv::Scalar(0));
-    return seg;
+    return noOneFound(bgr.size());
   }
 
  private:
@@ -384,10 +381,7 @@ class FirstCallsSegmenter : public RectangleSegmenter {
   explicit FirstCallsSegmenter(int masked) : RectangleSegmenter(kRect, false), masked_(masked) {}
   Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
     if (calls_++ < masked_) return RectangleSegmenter::segment(bgr);
-    semantic::Segmentation seg;
-    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
-    seg.movable_mask = cv::Mat(bgr.size(), CV_8U, cv::Scalar(0));
-    return seg;
+    return noOneFound(bgr.size());
   }
 
  private:

@@ -10,6 +10,14 @@
 
 namespace stillpoint::slam {
 
+// A segmentation that found no one in an image of `size`.
+inline semantic::Segmentation noOneFound(const cv::Size& size) {
+  semantic::Segmentation seg;
+  seg.labels = cv::Mat(size, CV_8U, cv::Scalar(semantic::kNoLabel));
+  seg.movable_mask = cv::Mat(size, CV_8U, cv::Scalar(0));
+  return seg;
+}
+
 // Labels one fixed rectangle as a "person" in every image.
 class RectangleSegmenter : public semantic::Segmenter {
  public:
@@ -24,9 +32,7 @@ class RectangleSegmenter : public semantic::Segmenter {
     while (gate && !*gate && *calls >= ungated_calls) std::this_thread::sleep_for(std::chrono::milliseconds(1));
     std::this_thread::sleep_for(delay);
     ++*calls;
-    semantic::Segmentation seg;
-    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
-    seg.movable_mask = cv::Mat(bgr.size(), CV_8U, cv::Scalar(0));
+    semantic::Segmentation seg = noOneFound(bgr.size());
     const cv::Rect r = rect_ & cv::Rect(cv::Point(0, 0), bgr.size());
     seg.labels(r).setTo(0);
     seg.movable_mask(r).setTo(255);
