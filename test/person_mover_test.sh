@@ -2,8 +2,10 @@
 # A real person in front of the camera: the astronaut photo, cut out along
 # the silhouette COCO finds in it, composited into the real fr3 excerpt
 # (stillpoint-synth overlay), there from the first frame. Deterministic
-# replay with the geometry module alone; fails above MAX_ATE_M or on any
-# lost frame. PATH picks the walk:
+# replay with the geometry module alone, or with both modules when
+# MASK_DELAY_FRAMES is given (each keyframe's mask applied that many frames
+# late, as a live run's segmentation comes; semantic.sequential_latency_frames);
+# fails above MAX_ATE_M or on any lost frame. PATH picks the walk:
 #   near         0.8 m away, still for 1.5 s, then walking slowly across,
 #                covering up to 58 % of the image and most of the features;
 #   stop-and-go  1.3 m away at 0.4 m/s, 18 % / 37 % of the image: walks,
@@ -11,14 +13,17 @@
 #                stood must not hold the pose when it goes).
 #
 # usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
+#                              [MASK_DELAY_FRAMES]
 # exit:  0 pass, 1 fail, 77 skipped (excerpt or model absent)
 set -euo pipefail
 
-if [[ $# -ne 10 ]]; then
-  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go" >&2
+if [[ $# -ne 10 && $# -ne 11 ]]; then
+  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go" \
+    "[MASK_DELAY_FRAMES]" >&2
   exit 1
 fi
 replay=$1 eval=$2 synth=$3 segment=$4 source_dir=$5 data_dir=$6 models_dir=$7 out_dir=$8 max_ate=$9 walk=${10}
+mask_delay=${11:-}
 case $walk in
   #             from x, depth, to x, m/s, period s, hold s
   near)        path=(-0.35 0.8 0.35 0.12 8 1.5) ;;
@@ -70,5 +75,14 @@ sequence=$out_dir/sequence
 echo "+ $synth overlay $excerpt $sequence --camera fr3 --config $out_dir/movers.yaml --cutout $cutout --face-camera"
 "$synth" overlay "$excerpt" "$sequence" --camera fr3 --config "$out_dir/movers.yaml" --cutout "$cutout" --face-camera
 
+modules=(--modules geometry)
+if [[ -n $mask_delay ]]; then
+  cat >"$out_dir/slam.yaml" <<YAML
+semantic:
+  model_dirs: [$models_dir]
+  sequential_latency_frames: $mask_delay
+YAML
+  modules=(--modules geometry,semantic --config "$out_dir/slam.yaml")
+fi
 bash "$(dirname "$0")/replay_accuracy_test.sh" "$replay" "$eval" "$sequence" fr3 "$out_dir/replay" "$max_ate" \
-  --modules geometry
+  "${modules[@]}"

@@ -259,7 +259,8 @@ class Map {
   // failed, or its keyframe gone). Results come in keyframe order, so one
   // result also ends the wait of the keyframes the full queue dropped
   // before it. A point made by a keyframe in between awaits its mask, and
-  // tracking keeps it out of pose fits. Any thread; no map lock needed.
+  // tracking without the geometry module keeps it out of pose fits (with
+  // it, the point's probation does). Any thread; no map lock needed.
   void maskRequested(std::int64_t keyframe_id) { raiseTo(&mask_requested_, keyframe_id); }
   void maskResolved(std::int64_t keyframe_id) { raiseTo(&mask_resolved_, keyframe_id); }
   bool awaitingMask(std::int64_t keyframe_id) const {
