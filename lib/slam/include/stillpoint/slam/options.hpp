@@ -234,13 +234,16 @@ struct SemanticOptions {
   // movable instance, a detection overlapping it (IoU >= track_iou) at
   // track_score_ratio x the card's threshold is kept too, for at most
   // track_max_keyframes keyframes, for tracks seen strongly track_min_hits
-  // times; any class may continue it (COCO calls a person in front of a
-  // teddy bear "teddy bear"). 0: off.
+  // times. 0: off. track_any_class: a detection of another class may continue
+  // it too (COCO sometimes calls a person in front of a teddy bear "teddy
+  // bear"); off, because the teddy bear the person stands behind is
+  // labelled on the person's box as confidently, and its mask then held the
+  // static bear out of tracking (docs/dynamic-objects.md).
   double track_score_ratio = 0.5;
   double track_iou = 0.3;
   int track_max_keyframes = 8;
   int track_min_hits = 2;
-  bool track_any_class = true;
+  bool track_any_class = false;
   Status validate() const;
 };
 
