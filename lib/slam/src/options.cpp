@@ -22,6 +22,7 @@ Status TrackingOptions::validate() const {
   if (relocalisation_candidates < 1) return Error{"tracking.relocalisation_candidates must be >= 1"};
   if (!(new_map_after_lost_s >= 0 && new_map_after_lost_s <= 3600))
     return Error{"tracking.new_map_after_lost_s must be in [0, 3600] (0: never)"};
+  if (new_map_min_static_matches < 0) return Error{"tracking.new_map_min_static_matches must be >= 0 (0: off)"};
   if (!(min_depth_share >= 0 && min_depth_share < 1)) return Error{"tracking.min_depth_share must be in [0, 1)"};
   if (trajectory_records < -1) return Error{"tracking.trajectory_records must be >= -1 (-1: every frame)"};
   if (motion_prior_sigma_m < 0) return Error{"tracking.motion_prior_sigma_m must be >= 0 (0: no prior)"};

@@ -1,5 +1,7 @@
 #include <opencv2/calib3d.hpp>
 
+#include <Eigen/Geometry>
+
 #include "matcher.hpp"
 #include "optimizer.hpp"
 #include "stillpoint/core/log.hpp"
@@ -109,6 +111,50 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     }
   }
   return false;
+}
+
+int Tracker::staticSupport() {
+  static_support_.clear();
+  moving_since_last_.clear();
+  if (!has_last_) return 0;
+  // Mutual descriptor matches to the last frame with depth in both, as
+  // points in each camera's frame.
+  std::vector<int> feature;
+  std::vector<Vec3> from, to;
+  for (const auto& [j, i] : matchByDescriptor(current_, last_, 0.7f, false, true)) {
+    if (current_.depth[j] <= 0 || last_.depth[i] <= 0) continue;
+    feature.push_back(j);
+    from.push_back(camera_.unproject(Vec2(last_.un[i].x, last_.un[i].y), last_.depth[i]));
+    to.push_back(camera_.unproject(Vec2(current_.un[j].x, current_.un[j].y), current_.depth[j]));
+  }
+  const int n = static_cast<int>(feature.size());
+  // From the motion the camera had, rounds of: the matches it explains, and
+  // the rigid motion that fits them best. The first round allows for the
+  // prediction's error (the camera may have sped up or turned since), the
+  // later ones only for depth noise, which grows with the square of depth.
+  // A consensus of the most matches instead would follow a mover that
+  // fills most of the view; the prediction picks the static scene.
+  SE3 motion = loss_velocity_;
+  std::vector<char> agree(n, 0);
+  int count = 0;
+  constexpr int kRounds = 4;
+  for (int round = 0; round < kRounds; ++round) {
+    count = 0;
+    for (int k = 0; k < n; ++k) {
+      const double z = to[k].z();
+      const double tolerance = round == 0 ? 0.04 + 0.02 * z : 0.01 + 0.01 * z * z;
+      agree[k] = (to[k] - motion * from[k]).norm() < tolerance;
+      count += agree[k];
+    }
+    if (count < 3) return 0;
+    if (round + 1 == kRounds) break;
+    Eigen::Matrix3Xd a(3, count), b(3, count);
+    for (int k = 0, c = 0; k < n; ++k)
+      if (agree[k]) a.col(c) = from[k], b.col(c++) = to[k];
+    motion = SE3(Eigen::umeyama(a, b, false));
+  }
+  for (int k = 0; k < n; ++k) (agree[k] ? static_support_ : moving_since_last_).push_back(feature[k]);
+  return count;
 }
 
 }  // namespace stillpoint::slam

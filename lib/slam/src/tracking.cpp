@@ -197,6 +197,7 @@ bool Tracker::trackFrame(bool clusters_pending) {
     blind_since_.reset();
   } else {
     state_ = TrackingState::kLost;
+    if (!lost_since_) loss_velocity_ = has_velocity_ ? velocity_ : SE3::Identity();
     has_velocity_ = false;
     if (!lost_since_) lost_since_ = blind_since_.value_or(current_.stamp);
   }
@@ -215,12 +216,23 @@ void Tracker::noDepth(Timestamp stamp) {
   if (!blind_since_) blind_since_ = stamp;
 }
 
-bool Tracker::newMapDue() const {
+bool Tracker::newMapDue() {
   const double after_s = options_.tracking.new_map_after_lost_s;
+  static_support_.clear();
+  moving_since_last_.clear();
   if (options_.localisation || after_s <= 0 || state_ != TrackingState::kLost || !lost_since_) return false;
-  if (secondsBetween(current_.stamp, *lost_since_) < after_s) return false;
   const auto with_depth = std::count_if(current_.depth.begin(), current_.depth.end(), [](float d) { return d > 0; });
-  return with_depth >= options_.tracking.min_init_features;
+  if (with_depth < options_.tracking.min_init_features) return false;
+  if (secondsBetween(current_.stamp, *lost_since_) >= after_s) return true;
+  // Sooner when the view is a static scene the camera moves through as it
+  // did before the loss: relocalisation has failed on it (ground the map
+  // has not seen), and waiting would only lose more frames. A mover that
+  // still fills the view moves otherwise, and its matches do not count.
+  const int needed = options_.tracking.new_map_min_static_matches;
+  if (needed <= 0) return false;
+  const int support = staticSupport();
+  SP_DEBUG(logger, "frame " << current_.id << ": lost, " << support << " matches to the last frame move as the camera did");
+  return support >= needed;
 }
 
 bool Tracker::startNewMap() {
@@ -229,6 +241,10 @@ bool Tracker::startNewMap() {
                            << " (map " << map_->activeMapId() << " is kept)");
   current_.clearMatches();
   std::fill(current_.dynamic.begin(), current_.dynamic.end(), kNotDynamic);
+  // Started sooner on the view's static support: the map stands on it alone
+  // (a mover's features that were not matched are not known to move), and
+  // what moved otherwise is flagged.
+  for (int i : moving_since_last_) current_.dynamic[i] = kGeometryDynamic;
   reference_ = nullptr;
   local_keyframes_.clear();
   local_points_.clear();
@@ -236,7 +252,7 @@ bool Tracker::startNewMap() {
   last_reloc_frame_id_ = -100;
   reloc_window_next_id_ = -1;
   if (detector_) detector_->takeSuspects();  // points of the old map
-  if (!initialise()) return false;
+  if (!initialise(static_support_.empty() ? nullptr : &static_support_)) return false;
   state_ = TrackingState::kNewMap;
   lost_since_.reset();
   blind_since_.reset();
@@ -642,7 +658,7 @@ void Tracker::updateProbation() {
   }
 }
 
-bool Tracker::initialise() {
+bool Tracker::initialise(const std::vector<int>* only) {
   int with_depth = 0;
   for (float d : current_.depth) with_depth += d > 0;
   if (with_depth < options_.tracking.min_init_features) {
@@ -655,8 +671,11 @@ bool Tracker::initialise() {
   auto kf = std::make_unique<KeyFrame>(map_->nextKeyFrameId(), current_);
   kf->origin = true;
   KeyFrame* k = map_->addKeyFrame(std::move(kf));
+  std::vector<char> allowed(k->frame.size(), only ? 0 : 1);
+  if (only)
+    for (int i : *only) allowed[i] = 1;
   for (int i = 0; i < k->frame.size(); ++i) {
-    if (k->frame.depth[i] <= 0 || k->frame.dynamic[i]) continue;  // movers (known or masked) make no points
+    if (k->frame.depth[i] <= 0 || k->frame.dynamic[i] || !allowed[i]) continue;  // movers (known or masked) make no points
     auto p = map_->createPoint(k->frame.unprojectToWorld(i), k);
     k->addObservation(p, i);
     p->updateFromObservations();

@@ -61,9 +61,17 @@ class Tracker {
  private:
   // State machine (tracking.cpp).
   bool trackFrame(bool clusters_pending);
-  bool initialise();
-  // Lost for tracking.new_map_after_lost_s, and the frame could start a map.
-  bool newMapDue() const;
+  // Starts a map at the current frame: from every feature with depth not
+  // flagged, or from `only` these when given.
+  bool initialise(const std::vector<int>* only = nullptr);
+  // Lost for tracking.new_map_after_lost_s, or the view moves as the camera
+  // did (staticSupport), and the frame could start a map.
+  bool newMapDue();
+  // While lost: the matches of this frame to the last one that agree with
+  // the camera's motion before the loss (a rigid motion fitted from that
+  // prediction), how many; the features that do are left in static_support_,
+  // the matched ones that do not in moving_since_last_ (relocalisation.cpp).
+  int staticSupport();
   // Leaves the lost map as it is and starts a new one at the current frame
   // (map lock held exclusively).
   bool startNewMap();
@@ -165,6 +173,10 @@ class Tracker {
   std::int64_t reloc_window_next_id_ = -1;
   SE3 velocity_ = SE3::Identity();
   bool has_velocity_ = false;
+  // The velocity when the loss began (identity without one), and the
+  // features of the lost frame that moved otherwise (staticSupport).
+  SE3 loss_velocity_ = SE3::Identity();
+  std::vector<int> static_support_, moving_since_last_;
   double velocity_dt_ = 0;  // s between the two frames velocity_ was measured on
   int inliers_ = 0;
   std::vector<KeyFrame*> local_keyframes_;

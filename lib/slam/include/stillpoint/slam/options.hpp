@@ -27,6 +27,11 @@ struct TrackingOptions {
   // loss included) with relocalisation failing, tracking starts a new map at
   // the next frame that can start one and keeps the old map (0: never).
   double new_map_after_lost_s = 1.0;
+  // Sooner (not in YAML): at a lost frame whose matches to the last frame
+  // agree with the camera's motion before the loss this many times, a
+  // static view a map can stand on, the mover that caused the loss left out
+  // (0: only after new_map_after_lost_s). Relocalisation failed on it.
+  int new_map_min_static_matches = 100;
   // YAML: a frame whose share of pixels with valid depth is below this has
   // no pose and the state kNoDepth (a covered or blinded camera).
   double min_depth_share = 0.02;
