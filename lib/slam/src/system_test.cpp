@@ -295,9 +295,7 @@ TEST(SlamSystemRecovery, AnUnmappedPlaceStartsANewMapOnceItsViewMovesAsTheCamera
   seq.camera = RoomScene::camera();
   std::vector<cv::Mat> board(kFrames);
   for (int k = 0; k < kFrames; ++k) {
-    const double s = static_cast<double>(k) / 15.0;  // roomSequence's path
-    const SE3 T_w_c = pose(Vec3(0.08 * std::sin(1.3 * s), 0.25 * std::sin(0.9 * s), 0.06 * std::sin(0.7 * s)),
-                           Vec3(0.5 * std::sin(0.8 * s), 0.1 * std::sin(1.1 * s), 0.4 * (1 - std::cos(0.9 * s))));
+    const SE3 T_w_c = roomPath(k);
     seq.T_w_c.push_back(T_w_c);
     const Vec3 board_offset(0.04 * (k - kJump), 0, 0);  // 1.2 m/s
     seq.frames.push_back(k < kJump ? mapped.render(seq.camera, T_w_c, frameStamp(k))

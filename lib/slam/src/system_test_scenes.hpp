@@ -162,15 +162,20 @@ inline Timestamp frameStamp(int k) { return Timestamp::fromNanoseconds(1'000'000
 
 // A smooth hand-held-like path through the room at 30 Hz: in 60 frames about
 // 1.5 m of travel and up to 14 degrees of rotation, up to 2.8 cm per frame.
+inline SE3 roomPath(int k) {
+  const double s = static_cast<double>(k) / 15.0;  // path time runs at twice the frame clock
+  const Vec3 rotation(0.08 * std::sin(1.3 * s), 0.25 * std::sin(0.9 * s), 0.06 * std::sin(0.7 * s));
+  const Vec3 translation(0.5 * std::sin(0.8 * s), 0.1 * std::sin(1.1 * s), 0.4 * (1 - std::cos(0.9 * s)));
+  return pose(rotation, translation);
+}
+
+// The room seen along roomPath.
 inline Sequence roomSequence(int n_frames) {
   const RoomScene scene(5);
   Sequence out;
   out.camera = RoomScene::camera();
   for (int k = 0; k < n_frames; ++k) {
-    const double s = static_cast<double>(k) / 15.0;  // path time runs at twice the frame clock
-    const Vec3 rotation(0.08 * std::sin(1.3 * s), 0.25 * std::sin(0.9 * s), 0.06 * std::sin(0.7 * s));
-    const Vec3 translation(0.5 * std::sin(0.8 * s), 0.1 * std::sin(1.1 * s), 0.4 * (1 - std::cos(0.9 * s)));
-    const SE3 T_w_c = pose(rotation, translation);
+    const SE3 T_w_c = roomPath(k);
     out.T_w_c.push_back(T_w_c);
     out.frames.push_back(scene.render(out.camera, T_w_c, frameStamp(k)));
   }
