@@ -505,7 +505,7 @@ bool Tracker::keepPoseOnStaticEvidence() {
   // Stage 1 found the pose, but with the features of movers kept out the
   // local map gave too few inliers. When that removal is what starved the
   // frame, the flagged features may still match the map's established
-  // points (seen by 3 keyframes, not on probation, not awaiting a mask, not
+  // points (seen by 3 keyframes, not on probation, not held for its mask, not
   // judged dynamic): masks and depth clusters spill over static background,
   // and a point the map has held from several views is the most reliable
   // static evidence there is. The pose is refitted robustly on every match;
@@ -519,7 +519,7 @@ bool Tracker::keepPoseOnStaticEvidence() {
   std::vector<std::shared_ptr<MapPoint>> established;
   for (const auto& p : local_points_)
     if (!p->bad && !matched.count(p.get()) && p->observations.size() >= 3 && p->geometry.probation <= 0 &&
-        !map_->awaitingMask(p->first_keyframe_id))
+        !heldForMask(*p))
       established.push_back(p);
   const std::vector<DynamicCause> flags = current_.dynamic;
   for (int i = 0; i < current_.size(); ++i)
@@ -581,24 +581,20 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   const auto optimise = [&] {
     return use_prior ? optimizeFramePose(&current_, prior, &sqrt_information) : optimizeFramePose(&current_);
   };
-  // Map points on probation (new, not yet seen to stay put) and, without
-  // the geometry module, points of a keyframe whose segmentation is under
-  // way are left out of the fit and judged by it: a mover mapped while it
-  // went unflagged cannot pull the pose before it has shown its motion or
-  // its mask has removed it. With the geometry module, probation is the
-  // hold: points held until their mask came left tracking only the map's
-  // older points whenever segmentation fell behind the keyframes, and it
-  // drifted (docs/dynamic-objects.md, "Points waiting for their mask").
-  // Only when enough trusted matches remain; then their inlier flags come
-  // from the fitted pose. With fewer, every held point joins the fit but
-  // those made on a known mover, which join fewest-frames-to-go first only
-  // while still too few.
+  // Map points on probation (new, not yet seen to stay put) and points
+  // held for their mask (heldForMask) are left out of the fit and judged by
+  // it: a mover mapped while it went unflagged cannot pull the pose before
+  // it has shown its motion or its mask has removed it. Only when enough
+  // trusted matches remain; then their inlier flags come from the fitted
+  // pose. With fewer, every held point joins the fit but those made on a
+  // known mover, which join fewest-frames-to-go first only while still too
+  // few.
   std::vector<int> held;
   int trusted = 0;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
     if (!p || p->bad) continue;
-    if (!p->isTemporary() && (p->geometry.probation > 0 || (!detector_ && map_->awaitingMask(p->first_keyframe_id))))
+    if (!p->isTemporary() && (p->geometry.probation > 0 || heldForMask(*p)))
       held.push_back(i);
     else
       ++trusted;

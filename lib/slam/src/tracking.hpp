@@ -125,6 +125,12 @@ class Tracker {
   // Frees the keyframes local mapping culled, after dropping our own pointers
   // to them (map lock held exclusively).
   void releaseCulledKeyFrames();
+  // A point of a keyframe whose segmentation is under way stays out of pose
+  // fits without the geometry module. With it, the point's probation is its
+  // hold: points held until their mask came left tracking only the map's
+  // older points whenever segmentation fell behind the keyframes, and it
+  // drifted (docs/dynamic-objects.md, "Points waiting for their mask").
+  bool heldForMask(const MapPoint& p) const { return !detector_ && map_->awaitingMask(p.first_keyframe_id); }
   // Semantic masks between keyframes (semantic_masks.cpp).
   void markSemanticMovers();
 
