@@ -11,6 +11,12 @@ log::Logger logger("tracking");
 bool Tracker::needNewKeyFrame(bool mapping_idle) const {
   const KeyframeOptions& o = options_.keyframes;
   if (!reference_ || options_.localisation) return false;
+  // A map started on the view's static support while a mover still hides
+  // much of it stands on a slice of the view: the frames right after are
+  // poorly conditioned (in rotation above all), and keyframes made from
+  // them bend the map for good. They track against the first keyframe
+  // until the geometry module has its full baseline in the new map.
+  if (current_.id <= young_map_until_frame_) return false;
   const std::size_t keyframes = map_->goodKeyFrameCount(map_->activeMapId());
   if (current_.id < last_reloc_frame_id_ + 30 && keyframes > 30) return false;
   // Every map point of the reference keyframe counts: a point seen by one

@@ -1,3 +1,5 @@
+#include <algorithm>
+
 #include <opencv2/calib3d.hpp>
 
 #include <Eigen/Geometry>
@@ -5,6 +7,7 @@
 #include "matcher.hpp"
 #include "optimizer.hpp"
 #include "stillpoint/core/log.hpp"
+#include "stillpoint/features/descriptor.hpp"
 #include "tracking.hpp"
 
 namespace stillpoint::slam {
@@ -113,10 +116,9 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
   return false;
 }
 
-int Tracker::staticSupport() {
-  static_support_.clear();
-  moving_since_last_.clear();
-  if (!has_last_) return 0;
+Tracker::StaticSupport Tracker::staticSupport(const SE3& predicted, bool predicted_loosely) const {
+  StaticSupport support;
+  if (!has_last_) return support;
   // Mutual descriptor matches to the last frame with depth in both, as
   // points in each camera's frame.
   std::vector<int> feature;
@@ -128,33 +130,86 @@ int Tracker::staticSupport() {
     to.push_back(camera_.unproject(Vec2(current_.un[j].x, current_.un[j].y), current_.depth[j]));
   }
   const int n = static_cast<int>(feature.size());
-  // From the motion the camera had, rounds of: the matches it explains, and
-  // the rigid motion that fits them best. The first round allows for the
-  // prediction's error (the camera may have sped up or turned since), the
-  // later ones only for depth noise, which grows with the square of depth.
+  // From the predicted motion, rounds of: the matches it explains, and the
+  // rigid motion that fits them best. A loose prediction's first round
+  // allows for its error (the camera may have sped up or turned since), the
+  // other rounds only for depth noise, which grows with the square of depth.
   // A consensus of the most matches instead would follow a mover that
   // fills most of the view; the prediction picks the static scene.
-  SE3 motion = loss_velocity_;
+  SE3 motion = predicted;
   std::vector<char> agree(n, 0);
-  int count = 0;
   constexpr int kRounds = 4;
   for (int round = 0; round < kRounds; ++round) {
-    count = 0;
+    int count = 0;
     for (int k = 0; k < n; ++k) {
       const double z = to[k].z();
-      const double tolerance = round == 0 ? 0.04 + 0.02 * z : 0.01 + 0.01 * z * z;
+      const double tolerance = round == 0 && predicted_loosely ? 0.04 + 0.02 * z : 0.01 + 0.01 * z * z;
       agree[k] = (to[k] - motion * from[k]).norm() < tolerance;
       count += agree[k];
     }
-    if (count < 3) return 0;
+    if (count < 3) return support;
     if (round + 1 == kRounds) break;
     Eigen::Matrix3Xd a(3, count), b(3, count);
     for (int k = 0, c = 0; k < n; ++k)
       if (agree[k]) a.col(c) = from[k], b.col(c++) = to[k];
     motion = SE3(Eigen::umeyama(a, b, false));
   }
-  for (int k = 0; k < n; ++k) (agree[k] ? static_support_ : moving_since_last_).push_back(feature[k]);
-  return count;
+  // The descriptor matches are few where the view changes a lot from frame
+  // to frame (a mover uncovering the scene): with the motion found, look
+  // for every feature of the last frame where that motion puts it.
+  support.motion = motion;
+  std::vector<char> guided = guidedStaticMatches(motion);
+  for (int k = 0; k < n; ++k) guided[feature[k]] = guided[feature[k]] || agree[k];
+  for (int k = 0; k < n; ++k)
+    if (!guided[feature[k]]) support.moved.push_back(feature[k]);
+  for (int j = 0; j < current_.size(); ++j)
+    if (guided[j]) support.agree.push_back(j);
+  return support;
+}
+
+std::vector<char> Tracker::guidedStaticMatches(const SE3& motion) const {
+  std::vector<char> agree(current_.size(), 0);
+  std::vector<int> best_distance(current_.size(), 256);
+  std::vector<float> rotation(current_.size(), 0);
+  const LevelInfo& lv = *current_.levels;
+  for (int i = 0; i < last_.size(); ++i) {
+    if (last_.depth[i] <= 0) continue;
+    const Vec3 p = motion * camera_.unproject(Vec2(last_.un[i].x, last_.un[i].y), last_.depth[i]);
+    if (p.z() <= 0) continue;
+    const Vec2 uv = camera_.project(p);
+    const int level = last_.keys[i].octave;
+    const float r = kGuidedRadiusPx * static_cast<float>(lv.scales[level]);
+    int best = 256, best_j = -1, second = 256;
+    for (int j : current_.grid.query(current_.keys, current_.un, static_cast<float>(uv.x()), static_cast<float>(uv.y()),
+                                     r, std::max(0, level - 1), std::min(lv.levels - 1, level + 1))) {
+      const int d = features::hammingDistance(last_.descriptor(i), current_.descriptor(j));
+      if (d < best) {
+        second = best;
+        best = d;
+        best_j = j;
+      } else if (d < second) {
+        second = d;
+      }
+    }
+    if (best_j < 0 || best > kMatchThresholdLow || best > 0.8 * second || current_.depth[best_j] <= 0) continue;
+    const Vec3 q = camera_.unproject(Vec2(current_.un[best_j].x, current_.un[best_j].y), current_.depth[best_j]);
+    if ((q - p).norm() >= 0.01 + 0.01 * q.z() * q.z()) continue;
+    if (best >= best_distance[best_j]) continue;
+    best_distance[best_j] = best;
+    agree[best_j] = 1;
+    rotation[best_j] = last_.keys[i].angle - current_.keys[best_j].angle;
+  }
+  // A mover's repeated texture can put a like feature where a static one was
+  // predicted; its keypoint orientation then seldom turns as the view's does.
+  std::vector<int> matched;
+  std::vector<float> rotations;
+  for (int j = 0; j < current_.size(); ++j)
+    if (agree[j]) matched.push_back(j), rotations.push_back(rotation[j]);
+  std::vector<int> kept = matched;
+  filterByOrientation(rotations, &kept);
+  std::fill(agree.begin(), agree.end(), 0);
+  for (int j : kept) agree[j] = 1;
+  return agree;
 }
 
 }  // namespace stillpoint::slam

@@ -218,8 +218,7 @@ void Tracker::noDepth(Timestamp stamp) {
 
 bool Tracker::newMapDue() {
   const double after_s = options_.tracking.new_map_after_lost_s;
-  static_support_.clear();
-  moving_since_last_.clear();
+  static_support_ = {};
   if (options_.localisation || after_s <= 0 || state_ != TrackingState::kLost || !lost_since_) return false;
   const auto with_depth = std::count_if(current_.depth.begin(), current_.depth.end(), [](float d) { return d > 0; });
   if (with_depth < options_.tracking.min_init_features) return false;
@@ -230,7 +229,8 @@ bool Tracker::newMapDue() {
   // still fills the view moves otherwise, and its matches do not count.
   const int needed = options_.tracking.new_map_min_static_matches;
   if (needed <= 0) return false;
-  const int support = staticSupport();
+  static_support_ = staticSupport(loss_velocity_, true);
+  const int support = static_cast<int>(static_support_.agree.size());
   SP_DEBUG(logger, "frame " << current_.id << ": lost, " << support << " matches to the last frame move as the camera did");
   return support >= needed;
 }
@@ -244,7 +244,7 @@ bool Tracker::startNewMap() {
   // Started sooner on the view's static support: the map stands on it alone
   // (a mover's features that were not matched are not known to move), and
   // what moved otherwise is flagged.
-  for (int i : moving_since_last_) current_.dynamic[i] = kGeometryDynamic;
+  for (int i : static_support_.moved) current_.dynamic[i] = kGeometryDynamic;
   reference_ = nullptr;
   local_keyframes_.clear();
   local_points_.clear();
@@ -252,8 +252,9 @@ bool Tracker::startNewMap() {
   last_reloc_frame_id_ = -100;
   reloc_window_next_id_ = -1;
   if (detector_) detector_->takeSuspects();  // points of the old map
-  if (!initialise(static_support_.empty() ? nullptr : &static_support_)) return false;
+  if (!initialise(static_support_.agree.empty() ? nullptr : &static_support_.agree)) return false;
   state_ = TrackingState::kNewMap;
+  young_map_until_frame_ = static_support_.agree.empty() ? -1 : current_.id + options_.geometry.anchor_frames;
   lost_since_.reset();
   blind_since_.reset();
   return true;
@@ -285,6 +286,12 @@ bool Tracker::initialPose() {
 void Tracker::updateVelocity() {
   if (has_last_ && current_.id == last_.id + 1 && state_ == TrackingState::kOk) {
     velocity_ = renormalized(current_.T_c_w * last_.T_c_w.inverse());
+    velocity_dt_ = secondsBetween(current_.stamp, last_.stamp);
+    has_velocity_ = true;
+  } else if (state_ == TrackingState::kNewMap && !static_support_.agree.empty() && current_.id == last_.id + 1) {
+    // A map started on the view's static support: that support's motion
+    // is the camera's, and the next frame is searched where it predicts.
+    velocity_ = static_support_.motion;
     velocity_dt_ = secondsBetween(current_.stamp, last_.stamp);
     has_velocity_ = true;
   } else if (state_ != TrackingState::kOk) {

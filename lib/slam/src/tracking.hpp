@@ -67,11 +67,20 @@ class Tracker {
   // Lost for tracking.new_map_after_lost_s, or the view moves as the camera
   // did (staticSupport), and the frame could start a map.
   bool newMapDue();
-  // While lost: the matches of this frame to the last one that agree with
-  // the camera's motion before the loss (a rigid motion fitted from that
-  // prediction), how many; the features that do are left in static_support_,
-  // the matched ones that do not in moving_since_last_ (relocalisation.cpp).
-  int staticSupport();
+  // The features of current_ that moved from last_ as the camera did: from
+  // the `predicted` motion (last_ to current_; loosely: allowing for its
+  // error), the matches it explains refitted (relocalisation.cpp).
+  struct StaticSupport {
+    std::vector<int> agree;  // ascending
+    std::vector<int> moved;  // matched, moved otherwise
+    SE3 motion = SE3::Identity();  // last_ to current_, fitted to `agree`
+  };
+  StaticSupport staticSupport(const SE3& predicted, bool predicted_loosely) const;
+  // The features of current_ found near where `motion` (last_ to current_)
+  // puts a feature of last_ with depth, by descriptor, at the depth that
+  // motion predicts.
+  std::vector<char> guidedStaticMatches(const SE3& motion) const;
+  static constexpr float kGuidedRadiusPx = 6;
   // Leaves the lost map as it is and starts a new one at the current frame
   // (map lock held exclusively).
   bool startNewMap();
@@ -179,10 +188,13 @@ class Tracker {
   std::int64_t reloc_window_next_id_ = -1;
   SE3 velocity_ = SE3::Identity();
   bool has_velocity_ = false;
-  // The velocity when the loss began (identity without one), and the
-  // features of the lost frame that moved otherwise (staticSupport).
+  // The velocity when the loss began (identity without one), and the lost
+  // frame's static support (staticSupport).
   SE3 loss_velocity_ = SE3::Identity();
-  std::vector<int> static_support_, moving_since_last_;
+  StaticSupport static_support_;
+  // The last frame of a map started on static support that makes no
+  // keyframe (needNewKeyFrame).
+  std::int64_t young_map_until_frame_ = -1;
   double velocity_dt_ = 0;  // s between the two frames velocity_ was measured on
   int inliers_ = 0;
   std::vector<KeyFrame*> local_keyframes_;
