@@ -116,7 +116,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
   return false;
 }
 
-Tracker::StaticSupport Tracker::staticSupport(const SE3& predicted, bool predicted_loosely) const {
+Tracker::StaticSupport Tracker::staticSupport(const SE3& predicted) const {
   StaticSupport support;
   if (!has_last_) return support;
   // Mutual descriptor matches to the last frame with depth in both, as
@@ -131,8 +131,8 @@ Tracker::StaticSupport Tracker::staticSupport(const SE3& predicted, bool predict
   }
   const int n = static_cast<int>(feature.size());
   // From the predicted motion, rounds of: the matches it explains, and the
-  // rigid motion that fits them best. A loose prediction's first round
-  // allows for its error (the camera may have sped up or turned since), the
+  // rigid motion that fits them best. The first round allows for the
+  // prediction's error (the camera may have sped up or turned since), the
   // other rounds only for depth noise, which grows with the square of depth.
   // A consensus of the most matches instead would follow a mover that
   // fills most of the view; the prediction picks the static scene.
@@ -143,7 +143,7 @@ Tracker::StaticSupport Tracker::staticSupport(const SE3& predicted, bool predict
     int count = 0;
     for (int k = 0; k < n; ++k) {
       const double z = to[k].z();
-      const double tolerance = round == 0 && predicted_loosely ? 0.04 + 0.02 * z : 0.01 + 0.01 * z * z;
+      const double tolerance = round == 0 ? 0.04 + 0.02 * z : 0.01 + 0.01 * z * z;
       agree[k] = (to[k] - motion * from[k]).norm() < tolerance;
       count += agree[k];
     }

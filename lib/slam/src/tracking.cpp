@@ -229,7 +229,7 @@ bool Tracker::newMapDue() {
   // still fills the view moves otherwise, and its matches do not count.
   const int needed = options_.tracking.new_map_min_static_matches;
   if (needed <= 0) return false;
-  static_support_ = staticSupport(loss_velocity_, true);
+  static_support_ = staticSupport(loss_velocity_);
   const int support = static_cast<int>(static_support_.agree.size());
   SP_DEBUG(logger, "frame " << current_.id << ": lost, " << support << " matches to the last frame move as the camera did");
   return support >= needed;

@@ -68,14 +68,14 @@ class Tracker {
   // did (staticSupport), and the frame could start a map.
   bool newMapDue();
   // The features of current_ that moved from last_ as the camera did: from
-  // the `predicted` motion (last_ to current_; loosely: allowing for its
-  // error), the matches it explains refitted (relocalisation.cpp).
+  // the `predicted` motion (last_ to current_, allowing for its error), the
+  // matches it explains refitted (relocalisation.cpp).
   struct StaticSupport {
     std::vector<int> agree;  // ascending
     std::vector<int> moved;  // matched, moved otherwise
     SE3 motion = SE3::Identity();  // last_ to current_, fitted to `agree`
   };
-  StaticSupport staticSupport(const SE3& predicted, bool predicted_loosely) const;
+  StaticSupport staticSupport(const SE3& predicted) const;
   // The features of current_ found near where `motion` (last_ to current_)
   // puts a feature of last_ with depth, by descriptor, at the depth that
   // motion predicts.
