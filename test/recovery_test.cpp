@@ -2,7 +2,8 @@
 // colour, zero depth), and a view tracking cannot place (mirrored frames). Frames without depth
 // must say so, and once depth is back at least 95 % of the frames must have a
 // pose: found in the map again, or in a new map started after
-// tracking.new_map_after_lost_s.
+// tracking.new_map_after_lost_s. And the other side of it: the untouched
+// static scene is never distrusted.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -30,9 +31,10 @@ class Recovery : public ::testing::Test {
     camera_ = *cameraPreset("fr3");
   }
 
-  std::unique_ptr<slam::SlamSystem> makeSystem() {
+  std::unique_ptr<slam::SlamSystem> makeSystem(int num_features = 0) {
     slam::SlamOptions options;
     options.sequential = true;
+    if (num_features > 0) options.orb.num_features = num_features;
     auto system = slam::SlamSystem::create(camera_, options);
     EXPECT_TRUE(system.ok()) << system.error();
     return system.ok() ? std::move(*system) : nullptr;
@@ -134,6 +136,35 @@ TEST_F(Recovery, AViewThatCannotBePlacedStartsANewMapWithinASecond) {
   EXPECT_GE(system->mapStats().maps, 2u);
   std::printf("unplaceable view: %zu of %zu frames after the jump have a pose, longest loss %zu frames, %u maps\n",
               after_with_pose, after, longest_lost_run, system->mapStats().maps);
+}
+
+// The excerpt is a static scene, well tracked: no frame's pose is to be
+// distrusted, whatever the feature budget. The geometry module judges near
+// surfaces against an anchor frame whose pose is a few millimetres off; judged
+// under that pose as it stands, the teddy bear looked like a mover on 29 % of
+// the view at 900 features and pose health said `degraded` for 15 frames.
+TEST_F(Recovery, AStaticSceneIsTrustedOnEveryFrameAtEveryFeatureBudget) {
+  for (const int budget : {900, 1000, 1100}) {
+    auto system = makeSystem(budget);
+    ASSERT_TRUE(system);
+    std::size_t good = 0;
+    double worst_share = 0;
+    for (std::size_t i = 0; i < data_->size(); ++i) {
+      auto frame = data_->load(i);
+      ASSERT_TRUE(frame.ok()) << frame.error();
+      auto out = system->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
+      ASSERT_TRUE(out.ok()) << out.error();
+      ASSERT_TRUE(slam::hasPose(out->state)) << budget << " features, frame " << i << ": " << toString(out->state);
+      good += out->quality.health == slam::PoseHealth::kGood;
+      worst_share = std::max(worst_share, static_cast<double>(out->quality.dynamic_share));
+      EXPECT_EQ(out->quality.health, slam::PoseHealth::kGood)
+          << budget << " features, frame " << i << ": " << toString(out->quality.health) << ", "
+          << out->quality.dynamic_share << " dynamic";
+    }
+    system->finish();
+    std::printf("%d features: %zu of %zu frames good, largest dynamic share %.3f\n", budget, good, data_->size(),
+                worst_share);
+  }
 }
 
 }  // namespace

@@ -390,8 +390,11 @@ ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initia
     const double cost = truncatedPoseCost(matches, T, problem.cap, nullptr, result.cost);
     if (cost < result.cost) result.cost = cost, best = T;
   }
-  if (result.cost >= result.initial_cost) return result;
-  // Refitted on the inliers of the best hypothesis, while that lowers the cost.
+  // Refitted on the inliers of the best hypothesis, or of the initial pose
+  // when none beat it, while that lowers the cost. The refit of the initial
+  // pose is the local search: the anchor frame's own pose is a few
+  // millimetres off, which near surfaces show as a coherent shift of several
+  // sigma, and a hypothesis from three noisy depth samples rarely beats it.
   result.T_c_w = best;
   for (int round = 0; round < 2; ++round) {
     PoseProblem inliers;

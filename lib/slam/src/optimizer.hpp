@@ -74,8 +74,10 @@ struct ConsensusResult {
   int initial_inliers = 0;  // matches under the cap at the initial pose
 };
 
-// Returns the initial pose (cost == initial_cost) when no hypothesis beats it
-// or the search did not run (min_initial_inliers).
+// The best hypothesis, or the initial pose when none beats it, refitted on
+// its inliers. Returns the initial pose (cost == initial_cost) when neither
+// beats it or the search did not run (min_initial_inliers, fewer than three
+// sampleable matches).
 ConsensusResult consensusPose(const ConsensusProblem& problem, const SE3& initial);
 
 // sum min(chi2, cap) over the problem's matches under T_c_w; `inliers`
