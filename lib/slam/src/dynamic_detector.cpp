@@ -540,25 +540,37 @@ void DynamicDetector::report(FrameJudgement& j) {
   }
 }
 
-void DynamicDetector::endFrame(const Frame& frame, bool tracked) {
+void DynamicDetector::endFrame(const Frame& frame, bool tracked, const Placement& where) {
   if (anchor_matches_.valid()) anchor_matches_.wait();  // not used: stage 1 failed
   anchor_matches_ = {};
-  if (tracked) {
-    rememberFrame(frame);
-  } else {
-    anchors_.clear();
-    seen_.clear();
-  }
+  if (tracked)
+    rememberFrame(frame, where);
+  else
+    forgetHistory();
   last_photo_released_ = std::move(photo_released_);
   last_chain_ = std::move(chain_);
   chain_.clear();
 }
 
-void DynamicDetector::rememberFrame(const Frame& frame) {
+void DynamicDetector::followWorld(std::uint64_t epoch) {
+  auto follow = [epoch](SE3* T_c_w, Placement* where) {
+    if (where->epoch == epoch) return true;
+    if (!where->reference) return false;
+    *T_c_w = renormalized(where->T_c_ref * where->reference->T_c_w());
+    where->epoch = epoch;
+    return true;
+  };
+  bool placed = true;
+  for (std::size_t k = 0; k < anchors_.size(); ++k) placed = follow(&anchors_[k].T_c_w, &anchor_places_[k]) && placed;
+  for (SeenFrame& s : seen_) placed = follow(&s.T_c_w, &s.where) && placed;
+  if (!placed) forgetHistory();
+}
+
+void DynamicDetector::rememberFrame(const Frame& frame, const Placement& where) {
   const GeometryOptions& g = options_;
   const auto keep_seen =
       static_cast<std::size_t>(std::max(g.freespace_frames, g.photo_release_ncc > 0 ? g.photo_frames_back : 0));
-  seen_.push_back({clusters_ ? clusters_->depth : cv::Mat(), frame.gray, frame.T_c_w});
+  seen_.push_back({clusters_ ? clusters_->depth : cv::Mat(), frame.gray, frame.T_c_w, where});
   while (seen_.size() > keep_seen) seen_.pop_front();
   const auto keep = static_cast<std::size_t>(g.anchor_frames);
   if (keep == 0) return;
@@ -576,7 +588,11 @@ void DynamicDetector::rememberFrame(const Frame& frame) {
     if (photo_released_[i]) a.dynamic[i] = kGeometryDynamic;  // memory only: anchors are evidence, never in a pose
   a.T_c_w = frame.T_c_w;
   anchors_.push_back(std::move(a));
-  while (anchors_.size() > keep) anchors_.pop_front();
+  anchor_places_.push_back(where);
+  while (anchors_.size() > keep) {
+    anchors_.pop_front();
+    anchor_places_.pop_front();
+  }
 }
 
 std::vector<std::shared_ptr<MapPoint>> DynamicDetector::takeSuspects() {

@@ -65,11 +65,26 @@ class DynamicDetector {
   // surfaces from its matches (marking them Frame::dynamic), and refits the
   // pose through `refit`. Returns what it saw.
   GeometryOutput judge(Frame* frame, const StageOneMatches& stage_one, const PoseRefit& refit);
-  // The frame is done: `tracked` frames become history, a lost one clears it.
-  void endFrame(const Frame& frame, bool tracked);
+  // Where a remembered frame's pose hangs: relative to its reference
+  // keyframe's anchor, taken in map epoch `epoch` (Map::epoch).
+  struct Placement {
+    std::shared_ptr<const PoseAnchor> reference;
+    SE3 T_c_ref = SE3::Identity();
+    std::uint64_t epoch = 0;
+  };
+  // The frame is done: `tracked` frames become history (placed at `where`),
+  // a lost one clears it.
+  void endFrame(const Frame& frame, bool tracked, const Placement& where);
+  // A loop closure or a global BA moved the world (the map is in `epoch`
+  // now; a map lock held): the history's poses follow their keyframes. The
+  // evidence it holds is frame to frame and stays valid; the map right after
+  // a loop closure is not yet consistent, and judged by map points alone
+  // static surfaces look moving.
+  void followWorld(std::uint64_t epoch);
   // The world frame moved under the history (maps merged): forget it.
   void forgetHistory() {
     anchors_.clear();
+    anchor_places_.clear();
     seen_.clear();
   }
   // Map points found in dynamic clusters since the last call (for the next
@@ -91,6 +106,7 @@ class DynamicDetector {
     cv::Mat depth;  // empty: none
     cv::Mat gray;   // empty unless the photometric test is on
     SE3 T_c_w;
+    Placement where;
   };
 
   std::shared_ptr<const geometry::DepthClusters> fetchClusters(GeometryOutput* out);
@@ -115,7 +131,7 @@ class DynamicDetector {
   void releasePhotometrically(FrameJudgement& j, const PoseRefit& refit);
   int photoVerdict(const FrameJudgement& j, int i) const;
   void report(FrameJudgement& j);
-  void rememberFrame(const Frame& frame);
+  void rememberFrame(const Frame& frame, const Placement& where);
 
   const CameraModel& camera_;
   const LevelInfo& levels_;
@@ -133,6 +149,7 @@ class DynamicDetector {
   // The last geometry.anchor_frames tracked frames (keypoints, descriptors,
   // depth, final pose; no matches), oldest first: the evidence baseline.
   std::deque<Frame> anchors_;
+  std::deque<Placement> anchor_places_;  // one per anchor
   std::deque<SeenFrame> seen_;
   // The last frame's feature each carried evidence point stands for, and
   // those of its features this module found moving (not a mask's).

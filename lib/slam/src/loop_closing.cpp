@@ -28,6 +28,7 @@ constexpr int kCandidateNeighbours = 10;  // the older side's keyframes whose po
 constexpr int kStrongCovisibility = 100;  // covisibility edges of the essential graph
 constexpr int kGlobalBaIterations = 10;
 constexpr std::size_t kVerifiedPerKeyFrame = 3;
+constexpr float kFuseRadiusPx = 4.0f;  // the group's search for the older side's points
 
 // The rigid motion (no scale) taking `from` onto `to` (least squares).
 SE3 rigidFit(const std::vector<Vec3>& from, const std::vector<Vec3>& to) {
@@ -185,6 +186,38 @@ bool LoopCloser::detect(std::int64_t keyframe_id, Loop* loop) {
   return false;
 }
 
+std::vector<std::shared_ptr<MapPoint>> LoopCloser::olderPoints(const KeyFrame& candidate) const {
+  std::vector<const KeyFrame*> older{&candidate};
+  for (const KeyFrame* n : candidate.bestNeighbours(kCandidateNeighbours)) older.push_back(n);
+  std::vector<std::shared_ptr<MapPoint>> out;
+  std::unordered_set<const MapPoint*> seen;
+  for (const KeyFrame* k : older)
+    for (const auto& p : k->frame.points)
+      if (p && !p->bad && !p->isTemporary() && p->geometry.dynamic_score.load() <= 0.5f && seen.insert(p.get()).second)
+        out.push_back(p);
+  return out;
+}
+
+std::vector<std::shared_ptr<MapPoint>> LoopCloser::seenAt(const Frame& a, const SE3& T_a_w,
+                                                          const std::vector<std::shared_ptr<MapPoint>>& points,
+                                                          float radius) const {
+  std::vector<int> best_distance(a.size(), features::kDescriptorBytes * 8 + 1);
+  std::vector<std::shared_ptr<MapPoint>> found(a.size());
+  for (const auto& p : points) {
+    if (p->bad) continue;
+    const Vec3 pc = T_a_w * p->position;
+    if (pc.z() < camera_.min_depth || pc.z() > camera_.max_depth) continue;
+    const Vec2 uv = camera_.project(pc);
+    if (uv.x() < 0 || uv.y() < 0 || uv.x() >= camera_.width || uv.y() >= camera_.height) continue;
+    for (int i : a.grid.query(a.keys, a.un, static_cast<float>(uv.x()), static_cast<float>(uv.y()), radius, 0, -1)) {
+      if (a.dynamic[i]) continue;
+      const int d = features::hammingDistance(a.descriptor(i), p->descriptor.data());
+      if (d < kMatchThresholdLow && d < best_distance[i]) best_distance[i] = d, found[i] = p;
+    }
+  }
+  return found;
+}
+
 bool LoopCloser::verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loop) const {
   const Frame& a = kf.frame;
   const Frame& b = candidate.frame;
@@ -243,33 +276,10 @@ bool LoopCloser::verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loo
   // repetitive texture let through finds few. The keyframe's pose is then
   // refitted on them by reprojection (the 3D-3D fit carries the depth
   // noise of both sides), and searched and refitted once more.
-  std::vector<const KeyFrame*> older{&candidate};
-  for (const KeyFrame* n : candidate.bestNeighbours(kCandidateNeighbours)) older.push_back(n);
-  std::vector<std::shared_ptr<MapPoint>> older_points;
-  {
-    std::unordered_set<const MapPoint*> seen;
-    for (const KeyFrame* k : older)
-      for (const auto& p : k->frame.points)
-        if (p && !p->bad && !p->isTemporary() && p->geometry.dynamic_score.load() <= 0.5f && seen.insert(p.get()).second)
-          older_points.push_back(p);
-  }
+  const std::vector<std::shared_ptr<MapPoint>> older_points = olderPoints(candidate);
   SE3 T_a_w = T_a_b * b.T_c_w;
   std::vector<std::shared_ptr<MapPoint>> found;
-  auto search = [&](float radius) {
-    std::vector<int> best_distance(a.size(), features::kDescriptorBytes * 8 + 1);
-    found.assign(a.size(), nullptr);
-    for (const auto& p : older_points) {
-      const Vec3 pc = T_a_w * p->position;
-      if (pc.z() < camera_.min_depth || pc.z() > camera_.max_depth) continue;
-      const Vec2 uv = camera_.project(pc);
-      if (uv.x() < 0 || uv.y() < 0 || uv.x() >= camera_.width || uv.y() >= camera_.height) continue;
-      for (int i : a.grid.query(a.keys, a.un, static_cast<float>(uv.x()), static_cast<float>(uv.y()), radius, 0, -1)) {
-        if (a.dynamic[i]) continue;
-        const int d = features::hammingDistance(a.descriptor(i), p->descriptor.data());
-        if (d < kMatchThresholdLow && d < best_distance[i]) best_distance[i] = d, found[i] = p;
-      }
-    }
-  };
+  auto search = [&](float radius) { found = seenAt(a, T_a_w, older_points, radius); };
   auto refit = [&]() {
     PoseProblem problem;
     problem.camera = &camera_;
@@ -356,19 +366,32 @@ void LoopCloser::correct(const Loop& loop) {
     group[g]->T_c_w() = initial[index.at(group[g])];
     for (const auto& [n, w] : group[g]->connections) links_before[g].insert(n);
   }
-  // Fuse: the keyframe's features take the older side's points.
+  // Fuse: the keyframe's features take the older side's points, and so do
+  // the rest of the group's where the loop puts them. A point this lap mapped
+  // again and only a neighbour sees would otherwise stay beside its older
+  // copy, both in the local map and never quite together after the pose
+  // graph: stage 1 matches either, the pose is pulled both ways, and a
+  // static surface looks moving.
   int fused = 0;
-  for (const auto& [i, older] : loop.fused) {
-    if (older->bad) continue;
-    const std::shared_ptr<MapPoint> current = kf->frame.points[i];
-    if (current == older) continue;
+  auto fuse = [&](KeyFrame* k, int i, const std::shared_ptr<MapPoint>& older) {
+    if (older->bad) return;
+    const std::shared_ptr<MapPoint> current = k->frame.points[i];
+    if (current == older) return;
     if (current && !current->bad) {
       map_->replacePoint(current, older);
       ++fused;
-    } else if (!older->observations.count(kf)) {
-      kf->addObservation(older, i);
+    } else if (!older->observations.count(k)) {
+      k->addObservation(older, i);
       ++fused;
     }
+  };
+  for (const auto& [i, older] : loop.fused) fuse(kf, i, older);
+  const std::vector<std::shared_ptr<MapPoint>> older_points = olderPoints(*candidate);
+  for (KeyFrame* g : group) {
+    if (g == kf) continue;
+    const std::vector<std::shared_ptr<MapPoint>> seen = seenAt(g->frame, g->T_c_w(), older_points, kFuseRadiusPx);
+    for (int i = 0; i < g->frame.size(); ++i)
+      if (seen[i]) fuse(g, i, seen[i]);
   }
   for (KeyFrame* g : group) g->updateConnections();
 

@@ -72,6 +72,13 @@ class LoopCloser {
   bool detect(std::int64_t keyframe_id, Loop* loop);  // shared lock inside
   bool verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loop) const;
   void correct(const Loop& loop);  // exclusive lock inside
+  // The candidate's and its best neighbours' static points (a map lock held).
+  std::vector<std::shared_ptr<MapPoint>> olderPoints(const KeyFrame& candidate) const;
+  // Per feature of `a` at pose T_a_w: the point among `points` that projects
+  // within `radius` px and matches its descriptor best (null: none).
+  std::vector<std::shared_ptr<MapPoint>> seenAt(const Frame& a, const SE3& T_a_w,
+                                                const std::vector<std::shared_ptr<MapPoint>>& points,
+                                                float radius) const;
   void run(std::stop_token stop);
 
   SlamOptions options_;

@@ -46,6 +46,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   if (detector_) detector_->startFrame(current_, clusters_pending, tracking);
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
+  DynamicDetector::Placement placed;  // where the frame's pose hangs
   if (state_ == TrackingState::kInitialising) {
     std::unique_lock lock(map_->mutex());
     ok = initialise();
@@ -88,6 +89,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       catchUpWithWorld();
       T_last_reference_ = renormalized(current_.T_c_w * reference_->T_c_w().inverse());
       seen_epoch_ = map_->epoch();
+      placed = {reference_->anchor(), T_last_reference_, seen_epoch_};
       trajectory_.record({current_.stamp, reference_->anchor(), T_last_reference_, map_id_});
       out->T_w_c = current_.T_c_w.inverse();
     }
@@ -112,7 +114,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       objects_.missed(current_.stamp);
   }
   markMoverCells(ok);
-  if (detector_) detector_->endFrame(current_, ok);
+  if (detector_) detector_->endFrame(current_, ok, placed);
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
@@ -126,7 +128,13 @@ void Tracker::notePoseWorld() {
 
 void Tracker::catchUpWithWorld() {
   if (!reference_ || map_->epoch() == pose_epoch_) return;
-  current_.T_c_w = renormalized(current_.T_c_w * reference_at_pose_.inverse() * reference_->anchor()->T_c_w());
+  // T_c_w' = T_c_w D for every pose of the old world. The last frame moves
+  // with the current one: the velocity taken from the two must not hold the
+  // world's move, or the next frame is searched where a loop closure's
+  // correction (often 0.1 m and more) puts it.
+  const SE3 D = renormalized(reference_at_pose_.inverse() * reference_->anchor()->T_c_w());
+  current_.T_c_w = renormalized(current_.T_c_w * D);
+  if (has_last_) last_.T_c_w = renormalized(last_.T_c_w * D);
   notePoseWorld();
 }
 
@@ -146,7 +154,6 @@ void Tracker::followWorldMoves() {
       p = std::move(by);
     }
   seen_epoch_ = map_->epoch();
-  if (detector_) detector_->forgetHistory();
 }
 
 void Tracker::reportFates(bool ok, TrackOutput* out) const {
@@ -174,6 +181,9 @@ bool Tracker::trackFrame(bool clusters_pending) {
     ok = relocalise();
   } else {
     if (options_.semantic.enabled && options_.semantic.propagate_masks) markSemanticMovers();
+    // The world may have moved since followWorldMoves() (the map lock was
+    // free in between).
+    if (detector_) detector_->followWorld(map_->epoch());
     ok = initialPose();
     const bool judged = ok && clusters_pending;
     // Stage 1 keeps its outliers so the detector sees every match.
