@@ -199,6 +199,7 @@ bool Tracker::trackFrame(bool clusters_pending) {
     } else {
       ok = keepPredictedPoseOnStaticEvidence();
     }
+    if (!ok) ok = keepPoseOnLastFrame();
     if (ok && judged) updateProbation();  // not on a frame the detector did not judge
   }
   if (ok) {
@@ -571,6 +572,36 @@ bool Tracker::keepPoseOnStaticEvidence() {
                             << " matched established points, " << inliers_ << " inliers: "
                             << (starved_ ? "pose kept" : "lost"));
   return starved_;
+}
+
+bool Tracker::keepPoseOnLastFrame() {
+  // A map started on the view's static support holds one keyframe's points
+  // until its next keyframe (keyframe_policy.cpp: none while it is young),
+  // and the view a mover uncovers is not among them: for those first frames
+  // the frame matches the last frame (whose static features lend temporary
+  // points from depth) far better than the map. The pose may then stand on
+  // those frame-to-frame matches alone; it is reported unreliable and maps
+  // nothing. Older maps have keyframes enough; a frame they cannot place is
+  // lost as before.
+  if (current_.id > young_map_until_frame_ || !has_last_ || !hasPose(state_)) return false;
+  const int min_inliers = options_.tracking.min_inliers_local_map;
+  current_.clearMatches();
+  match_ratio_.assign(current_.size(), 0.0f);
+  current_.T_c_w = has_velocity_ ? predictedPose(last_.T_c_w) : last_.T_c_w;
+  const int matches = searchByProjection(&current_, last_, 7.0f, &match_ratio_) - setAsideCarried();
+  if (matches < min_inliers) return false;
+  timedOptimizePose();
+  inliers_ = 0;
+  for (int i = 0; i < current_.size(); ++i)
+    if (current_.points[i] && !current_.outlier[i]) ++inliers_;
+  SP_DEBUG(logger, "frame " << current_.id << ": young map, " << inliers_ << " of " << matches
+                            << " matches to the last frame agree: " << (inliers_ >= min_inliers ? "pose kept" : "lost"));
+  if (inliers_ < min_inliers) {
+    inliers_ = 0;
+    return false;
+  }
+  starved_ = true;
+  return true;
 }
 
 int Tracker::discardOutliers() {

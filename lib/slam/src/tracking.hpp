@@ -101,6 +101,7 @@ class Tracker {
   void updateLocalMap();
   void refreshLastFrame();
   int setAsideCarried();
+  bool keepPoseOnLastFrame();  // a young map's frame on its matches to the last frame
   int discardOutliers();
   int timedOptimizePose(const SE3* prior = nullptr);
   // The motion model's pose for current_, from `last` (the last frame's pose).
