@@ -18,6 +18,9 @@ namespace stillpoint::slam {
 namespace {
 log::Logger logger("tracking");
 bool isFlagged(DynamicCause d) { return d != kNotDynamic; }
+// How recent the last steady frame's velocity must be to stand for the
+// camera's motion when a loss begins.
+constexpr std::int64_t kSteadyVelocityFrames = 5;
 }  // namespace
 
 Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map,
@@ -208,7 +211,15 @@ bool Tracker::trackFrame(bool clusters_pending) {
     blind_since_.reset();
   } else {
     state_ = TrackingState::kLost;
-    if (!lost_since_) loss_velocity_ = has_velocity_ ? velocity_ : SE3::Identity();
+    // The motion the lost frames are held to (newMapDue): the last steady
+    // frame's, when it is recent. A frame movers starved keeps its pose on
+    // a few inliers (keepPoseOnStaticEvidence), and the velocity from it can
+    // point anywhere: then no frame of the loss moves as it says, and the
+    // new map waits for tracking.new_map_after_lost_s.
+    if (!lost_since_)
+      loss_velocity_ = current_.id - steady_velocity_frame_ <= kSteadyVelocityFrames ? steady_velocity_
+                       : has_velocity_                                           ? velocity_
+                                                                                 : SE3::Identity();
     has_velocity_ = false;
     if (!lost_since_) lost_since_ = blind_since_.value_or(current_.stamp);
   }
@@ -299,6 +310,10 @@ void Tracker::updateVelocity() {
     velocity_ = renormalized(current_.T_c_w * last_.T_c_w.inverse());
     velocity_dt_ = secondsBetween(current_.stamp, last_.stamp);
     has_velocity_ = true;
+    if (!starved_) {
+      steady_velocity_ = velocity_;
+      steady_velocity_frame_ = current_.id;
+    }
   } else if (state_ == TrackingState::kNewMap && !static_support_.agree.empty() && current_.id == last_.id + 1) {
     // A map started on the view's static support: that support's motion
     // is the camera's, and the next frame is searched where it predicts.

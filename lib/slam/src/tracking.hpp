@@ -189,6 +189,10 @@ class Tracker {
   std::int64_t reloc_window_next_id_ = -1;
   SE3 velocity_ = SE3::Identity();
   bool has_velocity_ = false;
+  // The velocity of the last frame whose pose stood on the map (not kept on
+  // fallback evidence), and that frame's id.
+  SE3 steady_velocity_ = SE3::Identity();
+  std::int64_t steady_velocity_frame_ = -100;
   // The velocity when the loss began (identity without one), and the lost
   // frame's static support (staticSupport).
   SE3 loss_velocity_ = SE3::Identity();
