@@ -34,42 +34,5 @@ sequence=$out_dir/sequence
 echo "+ $synth overlay $excerpt $sequence --camera fr3 --config $config --face-camera"
 "$synth" overlay "$excerpt" "$sequence" --camera fr3 --config "$config" --face-camera >"$out_dir/synth.txt"
 
-traj=$out_dir/traj.txt
-echo "+ $replay $sequence --camera fr3 --sequential --modules geometry --output $traj"
-rc=0
-"$replay" "$sequence" --camera fr3 --sequential --modules geometry --output "$traj" >"$out_dir/summary.txt" || rc=$?
-cat "$out_dir/summary.txt"
-if [[ $rc -ne 0 ]]; then
-  echo "FAIL: stillpoint-replay exited with status $rc"
-  exit 1
-fi
-last=$(tail -n 1 "$out_dir/summary.txt")
-frames=$(sed -n 's/^frames=\([0-9][0-9]*\).*/\1/p' <<<"$last")
-tracked=$(sed -n 's/.*\<tracked=\([0-9][0-9]*\).*/\1/p' <<<"$last")
-if [[ -z $frames || -z $tracked || $frames -eq 0 ]]; then
-  echo "FAIL: cannot read frames=/tracked= from the replay's last line: '$last'"
-  exit 1
-fi
-
-echo "+ $eval $sequence/groundtruth.txt $traj"
-rc=0
-metrics=$("$eval" "$sequence/groundtruth.txt" "$traj") || rc=$?
-if [[ $rc -ne 0 ]]; then
-  echo "FAIL: stillpoint-eval exited with status $rc"
-  exit 1
-fi
-echo "$metrics"
-ate=$(sed -n 's/^ate_rmse_m=\([^ ]*\) .*/\1/p' <<<"$metrics")
-
-status=0
-echo "measured: $tracked of $frames frames with a pose (limit $min_posed %), ATE RMSE $ate m over them (limit $max_ate m)"
-if [[ $((tracked * 100)) -lt $((min_posed * frames)) ]]; then
-  echo "FAIL: $tracked of $frames frames with a pose, under $min_posed %"
-  status=1
-fi
-if ! awk -v a="$ate" -v m="$max_ate" 'BEGIN { exit !(a + 0 == a && a <= m) }'; then
-  echo "FAIL: ATE RMSE '$ate' m exceeds $max_ate m"
-  status=1
-fi
-[[ $status -eq 0 ]] && echo "PASS"
-exit $status
+MIN_POSED_PERCENT=$min_posed bash "$(dirname "$0")/replay_accuracy_test.sh" "$replay" "$eval" "$sequence" fr3 \
+  "$out_dir/replay" "$max_ate" --modules geometry
