@@ -224,8 +224,9 @@ std::vector<Map::PlaceMatch> Map::similarKeyFrames(const features::BowVector& bo
 }
 
 std::uint32_t Map::beginMap() {
-  if (maps_started_ > 0) ++active_map_id_;
-  ++maps_started_;
+  // Ids are never reused: after a merge into an older map, or a
+  // relocalisation into one, the active map is not the newest.
+  active_map_id_ = maps_started_++;
   return active_map_id_;
 }
 

@@ -218,6 +218,12 @@ class Map {
     active_map_id_ = into;
     ++epoch_;
   }
+  // Tracking relocalised in an older map (exclusive lock): new keyframes go
+  // to it; the map that was active stays, as after a loss.
+  void activate(std::uint32_t id) {
+    active_map_id_ = id;
+    ++epoch_;
+  }
   // Changes whenever the world frame of some keyframes moves as a whole (a
   // merge, a loop closure, a global BA's result): a bundle adjustment that
   // read poses before must not write them back, and tracking re-expresses

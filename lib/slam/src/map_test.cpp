@@ -215,6 +215,23 @@ TEST(Map, AKeyframeThatLosesItsSharedPointsLeavesItsOldNeighbourEntirely) {
   EXPECT_TRUE(std::find(a->ordered_neighbours.begin(), a->ordered_neighbours.end(), b) == a->ordered_neighbours.end());
 }
 
+// A map started after the active one merged into (or tracking moved back to)
+// an older map takes a new id, never one that older keyframes still carry.
+TEST(Map, MapIdsAreNeverReused) {
+  Map map;
+  std::unique_lock lock(map.mutex());
+  EXPECT_EQ(map.beginMap(), 0u);
+  EXPECT_EQ(map.beginMap(), 1u);
+  EXPECT_EQ(map.beginMap(), 2u);
+  map.mergedInto(0);  // map 2 joined map 0; map 1 is still there
+  EXPECT_EQ(map.activeMapId(), 0u);
+  EXPECT_EQ(map.beginMap(), 3u);
+  map.activate(1);
+  EXPECT_EQ(map.activeMapId(), 1u);
+  EXPECT_EQ(map.beginMap(), 4u);
+  EXPECT_EQ(map.mapsStarted(), 5u);
+}
+
 TEST(PlaceRecognition, SimilarKeyFramesRanksByScoreAndForgetsCulledOnes) {
   Map map;
   std::unique_lock lock(map.mutex());

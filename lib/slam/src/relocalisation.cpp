@@ -13,6 +13,7 @@
 namespace stillpoint::slam {
 namespace {
 log::Logger logger("tracking");
+constexpr std::size_t kOtherMapCandidates = 3;  // keyframes of other maps tried per lost frame
 }  // namespace
 
 bool Tracker::poseFromMatches(Frame* frame) const {
@@ -60,9 +61,10 @@ bool Tracker::relocalise() {
   // frames, at a bounded cost per frame, instead of staying lost until it
   // reaches recently mapped ground.
   const auto n = static_cast<std::size_t>(options_.tracking.relocalisation_candidates);
-  if (vocabulary_) return relocalise(placeCandidates(n));
+  if (vocabulary_) return relocalise(placeCandidates(n)) || relocalise(otherMapCandidates(kOtherMapCandidates));
   std::vector<KeyFrame*> candidates, older;  // newest first
-  // Only the map being tracked: an older map (left after a loss) has its own frame.
+  // Only the map being tracked: without a vocabulary the other maps are
+  // reached by merging (map_merge.cpp).
   for (auto it = map_->keyframes().rbegin(); it != map_->keyframes().rend(); ++it) {
     if ((*it)->bad || (*it)->map_id != map_->activeMapId()) continue;
     (candidates.size() < n ? candidates : older).push_back(it->get());
@@ -97,6 +99,28 @@ std::vector<KeyFrame*> Tracker::placeCandidates(std::size_t n) const {
   return candidates;
 }
 
+std::vector<KeyFrame*> Tracker::otherMapCandidates(std::size_t n) const {
+  if (map_->mapsStarted() < 2) return {};
+  const auto similar = map_->similarKeyFrames(
+      staticWords(current_), [this](const KeyFrame* kf) { return kf->map_id != map_->activeMapId(); }, 0.0, n);
+  std::vector<KeyFrame*> candidates;
+  for (const Map::PlaceMatch& m : similar) {
+    if (m.score < 0.5 * similar.front().score) break;
+    candidates.push_back(m.keyframe);
+  }
+  return candidates;
+}
+
+void Tracker::switchToMap(std::uint32_t id) {
+  const std::uint32_t from = map_id_;
+  map_->activate(id);
+  map_id_ = id;
+  merge_candidate_.reset();
+  // Its frames hang in the other map's world.
+  if (detector_) detector_->forgetHistory();
+  SP_WARN(logger, "frame " << current_.id << ": relocalised in map " << id << " (map " << from << " is kept)");
+}
+
 bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
   for (KeyFrame* kf : candidates) {
     current_.clearMatches();
@@ -108,6 +132,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     reference_ = kf;
     if (trackLocalMap(options_.tracking.min_inliers_after_reloc)) {
       last_reloc_frame_id_ = current_.id;
+      if (kf->map_id != map_->activeMapId()) switch_to_map_ = kf->map_id;
       SP_INFO(logger, "frame " << current_.id << ": relocalised against keyframe " << kf->id << " with "
                                << inliers_ << " inliers");
       return true;

@@ -58,6 +58,15 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   } else {
     std::shared_lock lock(map_->mutex());
     ok = trackFrame(clusters_pending);
+    if (ok && switch_to_map_) {
+      lock.unlock();
+      {
+        std::unique_lock write(map_->mutex());
+        switchToMap(*switch_to_map_);
+      }
+      lock.lock();
+    }
+    switch_to_map_.reset();
     if (ok) notePoseWorld();
     if (!ok && newMapDue()) {
       lock.unlock();
@@ -178,7 +187,7 @@ void Tracker::reportFates(bool ok, TrackOutput* out) const {
 
 bool Tracker::trackFrame(bool clusters_pending) {
   const bool was_lost = state_ == TrackingState::kLost;
-  bool ok = false;
+  bool ok = false, relocalised = false;
   if (was_lost) {
     ScopedStageTimer timer(&times_.initial_pose);
     ok = relocalise();
@@ -204,9 +213,12 @@ bool Tracker::trackFrame(bool clusters_pending) {
     }
     if (!ok) ok = keepPoseOnLastFrame();
     if (ok && judged) updateProbation();  // not on a frame the detector did not judge
+    // The first frame with depth after a blind spell that the motion model
+    // could not bridge: the camera may be anywhere the maps know.
+    if (!ok && blind_since_) relocalised = ok = relocalise();
   }
   if (ok) {
-    state_ = was_lost ? TrackingState::kRelocalised : TrackingState::kOk;
+    state_ = was_lost || relocalised ? TrackingState::kRelocalised : TrackingState::kOk;
     lost_since_.reset();
     blind_since_.reset();
   } else {
@@ -259,7 +271,7 @@ bool Tracker::newMapDue() {
 
 bool Tracker::startNewMap() {
   SP_WARN(logger, "frame " << current_.id << ": lost for " << secondsBetween(current_.stamp, *lost_since_)
-                           << " s and not relocalised: starting map " << map_->activeMapId() + 1
+                           << " s and not relocalised: starting map " << map_->mapsStarted()
                            << " (map " << map_->activeMapId() << " is kept)");
   current_.clearMatches();
   std::fill(current_.dynamic.begin(), current_.dynamic.end(), kNotDynamic);
@@ -273,7 +285,14 @@ bool Tracker::startNewMap() {
   has_velocity_ = false;
   last_reloc_frame_id_ = -100;
   reloc_window_next_id_ = -1;
-  if (detector_) detector_->takeSuspects();  // points of the old map
+  if (detector_) {
+    detector_->takeSuspects();  // points of the old map
+    // Its frames hang in the old map's world: evidence against them is
+    // nonsense in the new one. Frames without depth (a covered camera) end
+    // no frame of the detector, so a loss that began blind has not cleared
+    // them.
+    detector_->forgetHistory();
+  }
   if (!initialise(static_support_.agree.empty() ? nullptr : &static_support_.agree)) return false;
   state_ = TrackingState::kNewMap;
   young_map_until_frame_ = static_support_.agree.empty() ? -1 : current_.id + options_.geometry.anchor_frames;

@@ -123,6 +123,15 @@ class Tracker {
   // Keyframes of the tracked map to relocalise against, by place
   // recognition (at most n of them, and the newest few).
   std::vector<KeyFrame*> placeCandidates(std::size_t n) const;
+  // Keyframes of the other maps whose views share the most words with this
+  // one (at most n): a camera back where an older map knows the place goes
+  // on in that map.
+  std::vector<KeyFrame*> otherMapCandidates(std::size_t n) const;
+  // The map relocalise() placed the frame in, when not the active one:
+  // processFrame() makes it the active map (switchToMap) under the
+  // exclusive lock.
+  std::optional<std::uint32_t> switch_to_map_;
+  void switchToMap(std::uint32_t id);
   // A pose for `frame` from its map-point matches: PnP RANSAC (EPnP).
   bool poseFromMatches(Frame* frame) const;
   // Maps started after a loss rejoin older ones (map_merge.cpp): call with
