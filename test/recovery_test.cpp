@@ -43,6 +43,13 @@ class Recovery : public ::testing::Test {
     return system.ok() ? std::move(*system) : nullptr;
   }
 
+  // A covered camera: black colour, no depth.
+  static void cover(slam::RgbdInput* input) {
+    input->gray = cv::Mat(input->gray.size(), CV_8UC1, cv::Scalar(0));
+    input->bgr = cv::Mat(input->bgr.size(), CV_8UC3, cv::Scalar::all(0));
+    input->depth_m = cv::Mat(input->depth_m.size(), CV_32FC1, cv::Scalar(0));
+  }
+
   std::unique_ptr<dataset::TumDataset> data_;
   CameraModel camera_;
 };
@@ -60,9 +67,7 @@ TEST_F(Recovery, CameraCoveredForTwoSecondsWhileMoving) {
     slam::RgbdInput input{frame->stamp, frame->gray, frame->depth_m, frame->bgr};
     const bool covered = i >= kCoverFrom && i < kCoverTo;
     if (covered) {
-      input.gray = cv::Mat(frame->gray.size(), CV_8UC1, cv::Scalar(0));
-      input.bgr = cv::Mat(frame->bgr.size(), CV_8UC3, cv::Scalar::all(0));
-      input.depth_m = cv::Mat(frame->depth_m.size(), CV_32FC1, cv::Scalar(0));
+      cover(&input);
     }
     auto out = system->track(input);
     ASSERT_TRUE(out.ok()) << out.error();
@@ -136,9 +141,7 @@ TEST_F(Recovery, AfterASecondCoverTheCameraGoesOnInTheOlderMapThatKnowsThePlace)
     const Timestamp stamp = Timestamp::fromNanoseconds(start.nanoseconds() + static_cast<std::int64_t>(k) * 33'333'333);
     slam::RgbdInput input{stamp, frame->gray, frame->depth_m, frame->bgr};
     if (i >= kCoverFrom && i < kCoverTo) {
-      input.gray = cv::Mat(frame->gray.size(), CV_8UC1, cv::Scalar(0));
-      input.bgr = cv::Mat(frame->bgr.size(), CV_8UC3, cv::Scalar::all(0));
-      input.depth_m = cv::Mat(frame->depth_m.size(), CV_32FC1, cv::Scalar(0));
+      cover(&input);
     }
     auto out = system->track(input);
     ASSERT_TRUE(out.ok()) << out.error();

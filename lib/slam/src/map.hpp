@@ -212,14 +212,10 @@ class Map {
   // Called by tracking (exclusive lock) just before it makes a map's first
   // keyframe; the first map is 0.
   std::uint32_t beginMap();
-  // The active map was moved into map `into`'s frame and joins it (exclusive
-  // lock): new keyframes go to `into`, and the world epoch changes.
-  void mergedInto(std::uint32_t into) {
-    active_map_id_ = into;
-    ++epoch_;
-  }
-  // Tracking relocalised in an older map (exclusive lock): new keyframes go
-  // to it; the map that was active stays, as after a loss.
+  // Tracking goes on in map `id` (exclusive lock): the active map was moved
+  // into its frame and joined it (a merge), or tracking relocalised in it and
+  // the map that was active stays, as after a loss. New keyframes go to `id`,
+  // and the world epoch changes.
   void activate(std::uint32_t id) {
     active_map_id_ = id;
     ++epoch_;

@@ -121,7 +121,7 @@ void Tracker::mergeInto(std::uint32_t older, const SE3& T_older_newer, KeyFrame*
   }
   current_.T_c_w = renormalized(current_.T_c_w * T_newer_older);
   if (has_last_) last_.T_c_w = renormalized(last_.T_c_w * T_newer_older);
-  map_->mergedInto(older);
+  map_->activate(older);
   notePoseWorld();
   map_id_ = older;
   trajectory_.relabel(newer, older);

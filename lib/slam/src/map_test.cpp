@@ -223,7 +223,7 @@ TEST(Map, MapIdsAreNeverReused) {
   EXPECT_EQ(map.beginMap(), 0u);
   EXPECT_EQ(map.beginMap(), 1u);
   EXPECT_EQ(map.beginMap(), 2u);
-  map.mergedInto(0);  // map 2 joined map 0; map 1 is still there
+  map.activate(0);  // map 2 joined map 0; map 1 is still there
   EXPECT_EQ(map.activeMapId(), 0u);
   EXPECT_EQ(map.beginMap(), 3u);
   map.activate(1);

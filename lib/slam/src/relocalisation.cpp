@@ -61,7 +61,11 @@ bool Tracker::relocalise() {
   // frames, at a bounded cost per frame, instead of staying lost until it
   // reaches recently mapped ground.
   const auto n = static_cast<std::size_t>(options_.tracking.relocalisation_candidates);
-  if (vocabulary_) return relocalise(placeCandidates(n)) || relocalise(otherMapCandidates(kOtherMapCandidates));
+  if (vocabulary_) {
+    const features::BowVector words = staticWords(current_);
+    return relocalise(placeCandidates(words, n, false)) ||
+           (map_->mapsStarted() > 1 && relocalise(placeCandidates(words, kOtherMapCandidates, true)));
+  }
   std::vector<KeyFrame*> candidates, older;  // newest first
   // Only the map being tracked: without a vocabulary the other maps are
   // reached by merging (map_merge.cpp).
@@ -80,33 +84,23 @@ bool Tracker::relocalise() {
   return relocalise(candidates);
 }
 
-std::vector<KeyFrame*> Tracker::placeCandidates(std::size_t n) const {
-  // The few newest keyframes (after a short loss the camera is still near
-  // them), then the keyframes of the map whose views share the most words
-  // with this one, wherever they are: a camera back at a place mapped long
-  // ago finds it at once.
+std::vector<KeyFrame*> Tracker::placeCandidates(const features::BowVector& words, std::size_t n,
+                                                bool other_maps) const {
+  // In the tracked map: the few newest keyframes (after a short loss the
+  // camera is still near them), then the keyframes whose views share the most
+  // words with this one, wherever they are: a camera back at a place mapped
+  // long ago finds it at once. In the other maps: those alike views only.
   constexpr std::size_t kNewest = 3;
+  const std::uint32_t active = map_->activeMapId();
   std::vector<KeyFrame*> candidates;
-  for (auto it = map_->keyframes().rbegin(); it != map_->keyframes().rend() && candidates.size() < kNewest; ++it)
-    if (!(*it)->bad && (*it)->map_id == map_->activeMapId()) candidates.push_back(it->get());
-  const features::BowVector words = staticWords(current_);
+  for (auto it = map_->keyframes().rbegin();
+       !other_maps && it != map_->keyframes().rend() && candidates.size() < kNewest; ++it)
+    if (!(*it)->bad && (*it)->map_id == active) candidates.push_back(it->get());
   const auto similar = map_->similarKeyFrames(
-      words, [this](const KeyFrame* kf) { return kf->map_id == map_->activeMapId(); }, 0.0, n);
+      words, [active, other_maps](const KeyFrame* kf) { return (kf->map_id != active) == other_maps; }, 0.0, n);
   for (const Map::PlaceMatch& m : similar) {
     if (m.score < 0.5 * similar.front().score) break;
     if (std::find(candidates.begin(), candidates.end(), m.keyframe) == candidates.end()) candidates.push_back(m.keyframe);
-  }
-  return candidates;
-}
-
-std::vector<KeyFrame*> Tracker::otherMapCandidates(std::size_t n) const {
-  if (map_->mapsStarted() < 2) return {};
-  const auto similar = map_->similarKeyFrames(
-      staticWords(current_), [this](const KeyFrame* kf) { return kf->map_id != map_->activeMapId(); }, 0.0, n);
-  std::vector<KeyFrame*> candidates;
-  for (const Map::PlaceMatch& m : similar) {
-    if (m.score < 0.5 * similar.front().score) break;
-    candidates.push_back(m.keyframe);
   }
   return candidates;
 }

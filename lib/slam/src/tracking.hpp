@@ -120,13 +120,11 @@ class Tracker {
   // Relocalisation (relocalisation.cpp).
   bool relocalise();
   bool relocalise(const std::vector<KeyFrame*>& candidates);
-  // Keyframes of the tracked map to relocalise against, by place
-  // recognition (at most n of them, and the newest few).
-  std::vector<KeyFrame*> placeCandidates(std::size_t n) const;
-  // Keyframes of the other maps whose views share the most words with this
-  // one (at most n): a camera back where an older map knows the place goes
-  // on in that map.
-  std::vector<KeyFrame*> otherMapCandidates(std::size_t n) const;
+  // Keyframes to relocalise against by place recognition (`words`: the
+  // frame's static words), at most n alike views: of the tracked map (and its
+  // newest few), or of the other maps, where a camera back in a place an
+  // older map knows goes on.
+  std::vector<KeyFrame*> placeCandidates(const features::BowVector& words, std::size_t n, bool other_maps) const;
   // The map relocalise() placed the frame in, when not the active one:
   // processFrame() makes it the active map (switchToMap) under the
   // exclusive lock.
