@@ -399,7 +399,7 @@ int main(int argc, char** argv) {
 
   std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0, no_depth = 0, relocalised = 0;
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
-  std::vector<double> geometry_ms, clustering_ms, objects_ms;
+  std::vector<double> geometry_ms, clustering_ms, objects_ms, semantic_ms;
   std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0, consensus = 0;
   std::size_t semantic_followed = 0;  // features matched to the last segmented keyframe's masks
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
@@ -492,6 +492,7 @@ int main(int argc, char** argv) {
     pose_opt_ms.push_back(out->stages.pose_optimisation);
     keyframe_ms.push_back(out->stages.keyframe);
     objects_ms.push_back(out->stages.objects);
+    semantic_ms.push_back(out->stages.semantic);
     semantic_followed += out->semantic_features;
     const slam::GeometryOutput& g = out->geometry;
     if (g.ran || g.deadline_missed) geometry_ms.push_back(out->stages.geometry);
@@ -623,6 +624,11 @@ int main(int argc, char** argv) {
                 gm.median, gm.p95, gm.max);
     std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "K-Means (own thread)",
                 cl.mean, cl.median, cl.p95, cl.max);
+  }
+  if (options.semantic.enabled) {
+    const Stats sm = stats(semantic_ms);
+    std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "masks to the frame", sm.mean,
+                sm.median, sm.p95, sm.max);
   }
   std::printf("              %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "tracking (incl. ORB)",
               tr.mean, tr.median, tr.p95, tr.max);

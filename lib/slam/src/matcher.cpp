@@ -333,6 +333,83 @@ std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, con
   return out;
 }
 
+std::vector<std::pair<int, int>> matchFromSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
+                                                           const std::vector<int>& from) {
+  // A few listed keypoints scan the whole frame at once: building the level
+  // lists (LevelReach) would cost more than the scans. The reach is the same
+  // (two pyramid levels either way), in index order, so ties fall as there.
+  const auto near = [](const cv::KeyPoint& a, const cv::KeyPoint& b) { return std::abs(a.octave - b.octave) <= 2; };
+  const auto distancesTo = [](const std::uint8_t* query, const Frame& f, std::vector<int>* out) {
+    out->resize(f.size());
+    if (f.descriptors.isContinuous()) {
+      features::hammingDistances(query, f.descriptor(0), f.size(), out->data());
+    } else {
+      for (int k = 0; k < f.size(); ++k) (*out)[k] = features::hammingDistance(query, f.descriptor(k));
+    }
+  };
+  // Keypoint i of `other` claims its nearest frame keypoint (the first at
+  // that distance) when it passes the ratio test; -1 when it does not.
+  std::vector<int> distance;
+  const auto claimOf = [&](int i, int* best_out) {
+    distancesTo(other.descriptor(i), current, &distance);
+    int best = 256, second = 256, best_j = -1;
+    for (int j = 0; j < current.size(); ++j) {
+      if (!near(other.keys[i], current.keys[j])) continue;
+      const int d = distance[j];
+      if (d < best) {
+        second = best;
+        best = d;
+        best_j = j;
+      } else if (d < second) {
+        second = d;
+      }
+    }
+    *best_out = best;
+    return best_j < 0 || best > kMatchThresholdLow || best > ratio * second ? -1 : best_j;
+  };
+  std::vector<int> best_for_frame(current.size(), 256), owner(current.size(), -1);
+  std::vector<int> claimed;
+  if (current.size() == 0 || other.size() == 0) return {};
+  for (int i : from) {
+    if (!(other.depth[i] > 0) || other.keys[i].octave < 0) continue;
+    int best = 256;
+    const int j = claimOf(i, &best);
+    if (j < 0 || best >= best_for_frame[j]) continue;
+    if (owner[j] < 0) claimed.push_back(j);
+    best_for_frame[j] = best;
+    owner[j] = i;
+  }
+  std::sort(claimed.begin(), claimed.end());
+  std::vector<int> matched;
+  std::vector<float> rotations;
+  std::vector<int> back, tied;
+  for (int j : claimed) {
+    // Mutual: no keypoint of `other` with depth within j's reach lies
+    // strictly nearer, and none before the owner ties it and claims j too
+    // (the whole matching gives j to the first).
+    distancesTo(current.descriptor(j), other, &back);
+    bool mutual = true;
+    tied.clear();
+    for (int i = 0; i < other.size() && mutual; ++i) {
+      if (!(other.depth[i] > 0) || other.keys[i].octave < 0 || !near(other.keys[i], current.keys[j])) continue;
+      mutual = back[i] >= best_for_frame[j];
+      if (back[i] == best_for_frame[j] && i < owner[j]) tied.push_back(i);
+    }
+    for (std::size_t k = 0; k < tied.size() && mutual; ++k) {
+      int best = 256;
+      mutual = claimOf(tied[k], &best) != j;
+    }
+    if (!mutual) continue;
+    matched.push_back(j);
+    rotations.push_back(other.keys[owner[j]].angle - current.keys[j].angle);
+  }
+  filterByOrientation(rotations, &matched);
+  std::vector<std::pair<int, int>> out;
+  out.reserve(matched.size());
+  for (int j : matched) out.emplace_back(j, owner[j]);
+  return out;
+}
+
 int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio) {
   const auto matches = matchByDescriptor(*current, keyframe, ratio);
   for (const auto& [j, i] : matches) {

@@ -48,6 +48,14 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
 // whole frame's matching. The orientation filter sees only these matches.
 std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
                                                        const std::vector<int>& features);
+// The same from the other side: the mutual matches of matchByDescriptor(
+// current, other, ratio, false, true) whose keypoint of `other` is among
+// `from` (its indices, ascending), found by scanning `current` once per
+// listed keypoint and `other` once per keypoint of `current` that one of them
+// claims (and `current` again for a keypoint of `other` that ties it). The
+// orientation filter sees only these matches.
+std::vector<std::pair<int, int>> matchFromSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
+                                                           const std::vector<int>& from);
 
 
 // Keeps only matches whose rotation change agrees with the dominant ones.

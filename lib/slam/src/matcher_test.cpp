@@ -139,11 +139,12 @@ TEST(MatchByDescriptor, RatioTestMeetsTheRunnerUpOnEitherSide) {
   }
 }
 
-// Matching only some of the frame's keypoints finds exactly the matches the
-// whole frame's mutual matching finds for them: the same reach, ratio test,
-// mutual check and ties. Descriptors are random, half of the frame's copied
-// from the other's with a few bits flipped, and some copied twice (ties).
-TEST(MatchSomeByDescriptor, FindsTheWholeMatchingsMatchesOfItsFeatures) {
+// Two frames for matching some keypoints against the whole matching.
+// Descriptors are random, half of `current`'s copied from `other`'s with a few
+// bits flipped, and some copied twice (ties); some of `current`'s keypoints
+// lie nearer to a second keypoint of `other` than to the one copied to them
+// (the mutual check decides).
+std::pair<Frame, Frame> randomFramePair() {
   std::mt19937 rng(7);
   std::uniform_int_distribution<int> byte(0, 255), level(0, 7), bit(0, 255);
   const auto randomFrame = [&](int n) {
@@ -169,8 +170,6 @@ TEST(MatchSomeByDescriptor, FindsTheWholeMatchingsMatchesOfItsFeatures) {
     current.keys[j].octave = std::clamp(other.keys[i].octave + j % 5 - 2, 0, 7);
   }
   for (int j = 1; j < 40; j += 4) current.descriptors.row(j - 1).copyTo(current.descriptors.row(j));  // ties
-  // Frame keypoints nearer to a second keypoint of the other's than to the
-  // one copied to them (the mutual check decides).
   for (int j = 100; j < 200; j += 4) {
     const int i2 = (j * 11 + 5) % other.size();
     current.descriptors.row(j).copyTo(other.descriptors.row(i2));
@@ -178,6 +177,14 @@ TEST(MatchSomeByDescriptor, FindsTheWholeMatchingsMatchesOfItsFeatures) {
     other.depth[i2] = 2.0f;
     other.keys[i2].octave = current.keys[j].octave;
   }
+  return {std::move(current), std::move(other)};
+}
+
+// Matching only some of the frame's keypoints finds exactly the matches the
+// whole frame's mutual matching finds for them: the same reach, ratio test,
+// mutual check and ties.
+TEST(MatchSomeByDescriptor, FindsTheWholeMatchingsMatchesOfItsFeatures) {
+  const auto [current, other] = randomFramePair();
   std::vector<int> some;
   for (int j = 0; j < current.size(); ++j)
     if (j % 3 != 1) some.push_back(j);
@@ -187,6 +194,32 @@ TEST(MatchSomeByDescriptor, FindsTheWholeMatchingsMatchesOfItsFeatures) {
     if (m.first % 3 != 1) expected.push_back(m);
   ASSERT_GT(expected.size(), 40u);
   EXPECT_EQ(matchSomeByDescriptor(current, other, 0.7f, some), expected);
+}
+
+// The same from the other frame's side: the whole matching's matches whose
+// keypoint of the other frame is listed. Unlisted keypoints still take the
+// frame keypoints nearest to them: the second keypoints planted nearer are
+// left unlisted, and their frame keypoints must not be matched; and a listed
+// keypoint that ties an earlier unlisted one for a frame keypoint loses it.
+TEST(MatchFromSomeByDescriptor, FindsTheWholeMatchingsMatchesFromItsFeatures) {
+  auto [current, other] = randomFramePair();
+  std::vector<char> planted(other.size(), 0);
+  for (int j = 100; j < 200; j += 4) planted[(j * 11 + 5) % other.size()] = 1;
+  for (int i = 32; i < 120; i += 3) {  // listed (i % 3 == 2), tied by unlisted i - 1
+    if (planted[i] || planted[i - 1]) continue;
+    other.descriptors.row(i).copyTo(other.descriptors.row(i - 1));
+    other.keys[i - 1].octave = other.keys[i].octave;
+    other.depth[i - 1] = other.depth[i];
+  }
+  std::vector<int> from;
+  for (int i = 0; i < other.size(); ++i)
+    if (i % 3 != 1 && !planted[i]) from.push_back(i);
+  const auto whole = matchByDescriptor(current, other, 0.7f, false, true);
+  std::vector<std::pair<int, int>> expected;
+  for (const auto& m : whole)
+    if (m.second % 3 != 1 && !planted[m.second]) expected.push_back(m);
+  ASSERT_GT(expected.size(), 40u);
+  EXPECT_EQ(matchFromSomeByDescriptor(current, other, 0.7f, from), expected);
 }
 
 }  // namespace

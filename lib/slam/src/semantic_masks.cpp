@@ -7,6 +7,7 @@
 #include "local_mapping.hpp"
 #include "matcher.hpp"
 #include "stillpoint/core/log.hpp"
+#include "stillpoint/geometry/rules.hpp"
 #include "tracking.hpp"
 
 namespace stillpoint::slam {
@@ -187,12 +188,19 @@ void Tracker::markSemanticMovers() {
   };
   // Most keyframes mask nothing: skip the brute-force pass then.
   if (!has_flags(source->frame)) return;
+  const auto flagged = [](const Frame& other) {
+    std::vector<int> out;
+    for (int i = 0; i < other.size(); ++i)
+      if (other.dynamic[i] == kSemanticDynamic) out.push_back(i);
+    return out;
+  };
   const Frame& f = source->frame;
-  // Mutual nearest neighbours over all the keyframe's features, ratio 0.7 and
-  // rotation consistency: window-free matching on repetitive texture
-  // mismatches, and a static feature marked here is lost to the pose.
-  for (const auto& [j, i] : matchByDescriptor(current_, f, 0.7f, false, true)) {
-    if (f.dynamic[i] != kSemanticDynamic) continue;
+  // Mutual nearest neighbours, ratio 0.7 and rotation consistency:
+  // window-free matching on repetitive texture mismatches, and a static
+  // feature marked here is lost to the pose. Only the masked features are
+  // looked up (a mask holds a fraction of the keyframe), but the keyframe's
+  // other features still take a frame feature they match better.
+  for (const auto& [j, i] : matchFromSomeByDescriptor(current_, f, 0.7f, flagged(f))) {
     current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
     copyMovableClass(f, i, &current_, j);
   }
@@ -201,8 +209,8 @@ void Tracker::markSemanticMovers() {
     // an object changes less than since its keyframe. (Features the geometry
     // module flagged carry its flag instead and are not followed.)
     int chained = 0;
-    for (const auto& [j, i] : matchByDescriptor(current_, last_, 0.7f, false, true))
-      if (last_.dynamic[i] == kSemanticDynamic && !current_.dynamic[j]) {
+    for (const auto& [j, i] : matchFromSomeByDescriptor(current_, last_, 0.7f, flagged(last_)))
+      if (!current_.dynamic[j]) {
         current_.dynamic[j] = kSemanticDynamic, ++chained;
         copyMovableClass(last_, i, &current_, j);
       }
@@ -211,13 +219,19 @@ void Tracker::markSemanticMovers() {
   }
   const float grow = options_.semantic.propagate_grow_px;
   for (int pass = 0; grow > 0 && semantic_marked_ >= 5 && pass < options_.semantic.propagate_grow_passes; ++pass) {
-    // Region growing from the matches, then (more passes) from what it added.
-    std::vector<int> grown;
-    for (int j = 0; j < current_.size(); ++j) {
-      const float z = current_.depth[j];
-      if (current_.dynamic[j] || z <= 0) continue;
-      if (maskedNeighbours(current_, current_.un[j], z, grow) >= 2) grown.push_back(j);
+    // Region growing from the matches, then (more passes) from what it added:
+    // a feature joins with two marked neighbours on its surface
+    // (maskedNeighbours), counted from the marked side, which is the smaller.
+    std::vector<int> neighbours(current_.size(), 0);
+    for (int s = 0; s < current_.size(); ++s) {
+      if (current_.dynamic[s] != kSemanticDynamic || !(current_.depth[s] > 0)) continue;
+      for (int j : current_.grid.query(current_.keys, current_.un, current_.un[s].x, current_.un[s].y, grow, 0, -1))
+        neighbours[j] += !current_.dynamic[j] && current_.depth[j] > 0 &&
+                         geometry::sameSurface(current_.depth[s], current_.depth[j]);
     }
+    std::vector<int> grown;
+    for (int j = 0; j < current_.size(); ++j)
+      if (neighbours[j] >= 2) grown.push_back(j);
     for (int j : grown) current_.dynamic[j] = kSemanticDynamic;
     semantic_marked_ += static_cast<int>(grown.size());
     if (grown.empty()) break;

@@ -192,7 +192,10 @@ bool Tracker::trackFrame(bool clusters_pending) {
     ScopedStageTimer timer(&times_.initial_pose);
     ok = relocalise();
   } else {
-    if (options_.semantic.enabled && options_.semantic.propagate_masks) markSemanticMovers();
+    if (options_.semantic.enabled && options_.semantic.propagate_masks) {
+      ScopedStageTimer timer(&times_.semantic);
+      markSemanticMovers();
+    }
     // The world may have moved since followWorldMoves() (the map lock was
     // free in between).
     if (detector_) detector_->followWorld(map_->epoch());

@@ -56,6 +56,7 @@ struct StageTimes {
   double keyframe = 0;        // keyframe decision and creation
   double geometry = 0;        // waiting for the clusters and judging them (tracking thread)
   double objects = 0;         // the frame's dynamic objects (TrackOutput::objects)
+  double semantic = 0;        // carrying the newest masks to the frame (tracking thread)
 };
 
 // A feature matched in the first tracking stage and judged by the geometry
