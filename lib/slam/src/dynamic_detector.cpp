@@ -552,6 +552,15 @@ void DynamicDetector::endFrame(const Frame& frame, bool tracked, const Placement
   chain_.clear();
 }
 
+void DynamicDetector::forgetHistory() {
+  // The helper may still be reading the anchor it is asked to forget.
+  if (anchor_matches_.valid()) anchor_matches_.wait();
+  anchor_matches_ = {};
+  anchors_.clear();
+  anchor_places_.clear();
+  seen_.clear();
+}
+
 void DynamicDetector::followWorld(std::uint64_t epoch) {
   auto follow = [epoch](SE3* T_c_w, Placement* where) {
     if (where->epoch == epoch) return true;

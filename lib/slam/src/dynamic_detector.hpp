@@ -81,12 +81,10 @@ class DynamicDetector {
   // a loop closure is not yet consistent, and judged by map points alone
   // static surfaces look moving.
   void followWorld(std::uint64_t epoch);
-  // The world frame moved under the history (maps merged): forget it.
-  void forgetHistory() {
-    anchors_.clear();
-    anchor_places_.clear();
-    seen_.clear();
-  }
+  // The world frame moved under the history (maps merged, a new map, a
+  // relocalisation in another map): forget it. Waits for the helper's match
+  // against the oldest anchor, which it drops (threaded mode).
+  void forgetHistory();
   // Map points found in dynamic clusters since the last call (for the next
   // keyframe: local mapping culls those that stay dynamic).
   std::vector<std::shared_ptr<MapPoint>> takeSuspects();
