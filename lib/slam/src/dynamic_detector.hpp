@@ -85,6 +85,10 @@ class DynamicDetector {
   // relocalisation in another map): forget it. Waits for the helper's match
   // against the oldest anchor, which it drops (threaded mode).
   void forgetHistory();
+  // Whether the helper's match of the current frame to the oldest anchor is
+  // under way or waiting to be used (threaded mode, from startFrame() to
+  // judge() or endFrame()).
+  bool anchorMatchPending() const { return anchor_matches_.valid(); }
   // Map points found in dynamic clusters since the last call (for the next
   // keyframe: local mapping culls those that stay dynamic).
   std::vector<std::shared_ptr<MapPoint>> takeSuspects();

@@ -1,6 +1,7 @@
 // The motion model's projection search reports how distinctive each match is
 // (best over second-best Hamming distance in the search window), and can
 // reject ambiguous matches.
+#include "dynamic_detector.hpp"
 #include "matcher.hpp"
 #include "test_helpers.hpp"
 
@@ -220,6 +221,22 @@ TEST(MatchFromSomeByDescriptor, FindsTheWholeMatchingsMatchesFromItsFeatures) {
     if (m.second % 3 != 1 && !planted[m.second]) expected.push_back(m);
   ASSERT_GT(expected.size(), 40u);
   EXPECT_EQ(matchFromSomeByDescriptor(current, other, 0.7f, from), expected);
+}
+
+// The geometry module's helper thread matches the frame to the oldest anchor
+// while stage 1 runs. A new map, a relocalisation in another map or a merge
+// forgets the anchors in the middle of a frame: the match must not outlive
+// them (it read freed memory, and a threaded replay crashed).
+TEST(DynamicDetector, ForgettingTheHistoryEndsTheHelpersAnchorMatch) {
+  auto [current, other] = randomFramePair();
+  DynamicDetector detector(camera(), testing::oneLevel(), SlamOptions{}, nullptr, true);
+  detector.startFrame(other, false, false);
+  detector.endFrame(other, true, {});  // the anchor
+  detector.startFrame(current, true, true);
+  EXPECT_TRUE(detector.anchorMatchPending());
+  detector.forgetHistory();
+  EXPECT_FALSE(detector.anchorMatchPending());
+  detector.endFrame(current, false, {});
 }
 
 }  // namespace
