@@ -55,12 +55,12 @@ int minOf(const int* begin, const int* end) {
 struct NearestTwo {
   int best = 256, second = 256, position = -1;
 };
-// Also lowers nearest[r] to d[r] in the same pass.
+// Also lowers nearest[r] to d[r] in the same pass (when `nearest` is given).
 NearestTwo nearestTwo(const std::vector<int>& d, int* nearest) {
   NearestTwo n;
   if (d.empty()) return n;
   for (std::size_t r = 0; r < d.size(); ++r) {
-    nearest[r] = std::min(nearest[r], d[r]);
+    if (nearest) nearest[r] = std::min(nearest[r], d[r]);
     n.best = std::min(n.best, d[r]);
   }
   n.position = static_cast<int>(std::find(d.begin(), d.end(), n.best) - d.begin());
@@ -239,6 +239,17 @@ int searchLocalPoints(Frame* current, const std::vector<std::shared_ptr<MapPoint
   return matches;
 }
 
+// The matches (frame keypoint j, owner[j]) of `matched` whose rotation lies
+// in the dominant bins (filterByOrientation).
+std::vector<std::pair<int, int>> orientedPairs(const std::vector<float>& rotations, std::vector<int> matched,
+                                               const std::vector<int>& owner) {
+  filterByOrientation(rotations, &matched);
+  std::vector<std::pair<int, int>> out;
+  out.reserve(matched.size());
+  for (int j : matched) out.emplace_back(j, owner[j]);
+  return out;
+}
+
 std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const KeyFrame& keyframe, float ratio) {
   return matchByDescriptor(current, keyframe.frame, ratio, true);
 }
@@ -281,11 +292,7 @@ std::vector<std::pair<int, int>> matchByDescriptor(const Frame& current, const F
     matched.push_back(j);
     rotations.push_back(kf.keys[owner[j]].angle - current.keys[j].angle);
   }
-  filterByOrientation(rotations, &matched);
-  std::vector<std::pair<int, int>> out;
-  out.reserve(matched.size());
-  for (int j : matched) out.emplace_back(j, owner[j]);
-  return out;
+  return orientedPairs(rotations, std::move(matched), owner);
 }
 
 std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
@@ -326,11 +333,7 @@ std::vector<std::pair<int, int>> matchSomeByDescriptor(const Frame& current, con
     matched.push_back(j);
     rotations.push_back(other.keys[owner[j]].angle - current.keys[j].angle);
   }
-  filterByOrientation(rotations, &matched);
-  std::vector<std::pair<int, int>> out;
-  out.reserve(matched.size());
-  for (int j : matched) out.emplace_back(j, owner[j]);
-  return out;
+  return orientedPairs(rotations, std::move(matched), owner);
 }
 
 std::vector<std::pair<int, int>> matchFromSomeByDescriptor(const Frame& current, const Frame& other, float ratio,
@@ -352,20 +355,11 @@ std::vector<std::pair<int, int>> matchFromSomeByDescriptor(const Frame& current,
   std::vector<int> distance;
   const auto claimOf = [&](int i, int* best_out) {
     distancesTo(other.descriptor(i), current, &distance);
-    int best = 256, second = 256, best_j = -1;
-    for (int j = 0; j < current.size(); ++j) {
-      if (!near(other.keys[i], current.keys[j])) continue;
-      const int d = distance[j];
-      if (d < best) {
-        second = best;
-        best = d;
-        best_j = j;
-      } else if (d < second) {
-        second = d;
-      }
-    }
-    *best_out = best;
-    return best_j < 0 || best > kMatchThresholdLow || best > ratio * second ? -1 : best_j;
+    for (int j = 0; j < current.size(); ++j)
+      if (!near(other.keys[i], current.keys[j])) distance[j] = 256;  // out of reach: more than any distance
+    const NearestTwo n = nearestTwo(distance, nullptr);
+    *best_out = n.best;
+    return n.best > kMatchThresholdLow || n.best > ratio * n.second ? -1 : n.position;
   };
   std::vector<int> best_for_frame(current.size(), 256), owner(current.size(), -1);
   std::vector<int> claimed;
@@ -403,11 +397,7 @@ std::vector<std::pair<int, int>> matchFromSomeByDescriptor(const Frame& current,
     matched.push_back(j);
     rotations.push_back(other.keys[owner[j]].angle - current.keys[j].angle);
   }
-  filterByOrientation(rotations, &matched);
-  std::vector<std::pair<int, int>> out;
-  out.reserve(matched.size());
-  for (int j : matched) out.emplace_back(j, owner[j]);
-  return out;
+  return orientedPairs(rotations, std::move(matched), owner);
 }
 
 int searchByDescriptor(Frame* current, const KeyFrame& keyframe, float ratio) {
