@@ -21,6 +21,9 @@ bool isFlagged(DynamicCause d) { return d != kNotDynamic; }
 // How recent the last steady frame's velocity must be to stand for the
 // camera's motion when a loss begins.
 constexpr std::int64_t kSteadyVelocityFrames = 5;
+// In localisation mode, the map points a frame must match before the last
+// frame's temporary depth points are left out of its pose fit.
+constexpr int kMapMatchesWithoutTemporary = 50;
 }  // namespace
 
 Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map,
@@ -674,15 +677,28 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   // pose. With fewer, every held point joins the fit but those made on a
   // known mover, which join fewest-frames-to-go first only while still too
   // few.
+  //
+  // In localisation mode the loaded map is the static world, and the last
+  // frame's temporary depth points (nearest first, refreshLastFrame) are the
+  // least proven evidence: a person filling the near view lends most of
+  // them. With enough map points matched they are judged by the pose the
+  // map gives instead of pulling it.
   std::vector<int> held;
-  int trusted = 0;
+  int trusted = 0, trusted_temporary = 0;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
     if (!p || p->bad) continue;
     if (!p->isTemporary() && (p->geometry.probation > 0 || heldForMask(*p)))
       held.push_back(i);
     else
-      ++trusted;
+      ++(p->isTemporary() ? trusted_temporary : trusted);
+  }
+  if (options_.localisation && trusted >= kMapMatchesWithoutTemporary && trusted_temporary > 0) {
+    for (int i = 0; i < current_.size(); ++i)
+      if (current_.points[i] && !current_.points[i]->bad && current_.points[i]->isTemporary()) held.push_back(i);
+    std::sort(held.begin(), held.end());
+  } else {
+    trusted += trusted_temporary;
   }
   const int min_trusted = options_.geometry.probation_min_trusted;
   if (!held.empty() && trusted < min_trusted) {
