@@ -255,6 +255,10 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
       SP_WARN(logger, "model '" << segmenter->card().name
                                 << "' needs the geometry module's agreement (confirm_with_geometry) but the geometry "
                                    "module is off: its masks will remove nothing");
+    if (options.localisation)
+      SP_WARN(logger, "the semantic module segments keyframes and localisation makes none: model '"
+                          << segmenter->card().name << "' will segment nothing (the geometry module and the map "
+                                                        "keep movers out of the pose)");
     s.semantic_model = segmenter->card().name;
     s.semantic = std::make_unique<SemanticWorker>(std::move(segmenter), options.semantic,
                                                   [&mapper = s.mapper](SemanticResult r) { mapper.postSemantic(std::move(r)); });
