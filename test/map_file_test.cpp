@@ -95,6 +95,13 @@ class MapFile : public ::testing::Test {
     }
     return poses;
   }
+  // The largest distance between a frame's position and the mapping run's.
+  static double largestDifference(const std::map<std::size_t, SE3>& poses) {
+    double worst = 0;
+    for (const auto& [i, T] : poses)
+      if (mapped_->count(i)) worst = std::max(worst, (T.translation() - mapped_->at(i).translation()).norm());
+    return worst;
+  }
   static inline dataset::TumDataset* data_ = nullptr;
   static inline fs::path* scratch_ = nullptr;
   static inline fs::path* map_path_ = nullptr;
@@ -104,7 +111,6 @@ class MapFile : public ::testing::Test {
 };
 
 TEST_F(MapFile, LocalisationFindsEveryFrameAndTheMapDoesNotGrow) {
-  const std::map<std::size_t, SE3>& mapped = *mapped_;
   const fs::path path = *map_path_;
   auto system = makeSystem(true);
   ASSERT_TRUE(system);
@@ -121,9 +127,7 @@ TEST_F(MapFile, LocalisationFindsEveryFrameAndTheMapDoesNotGrow) {
   const std::size_t frames = std::min(kFrames, data_->size());
   EXPECT_GE(with_pose * 100, frames * 95) << with_pose << " of " << frames;
   // In the mapping run's frame: the same place, within a few centimetres.
-  double worst = 0;
-  for (const auto& [i, T] : localised)
-    if (mapped.count(i)) worst = std::max(worst, (T.translation() - mapped.at(i).translation()).norm());
+  const double worst = largestDifference(localised);
   EXPECT_LT(worst, 0.03);
   std::printf("localisation: %zu of %zu frames with a pose, largest difference to the mapping run %.4f m\n",
               with_pose, frames, worst);
@@ -157,9 +161,7 @@ TEST_F(MapFile, LocalisationStaysOnTheMapWhileABoardSlidesAcrossTheView) {
   system->finish();
   const std::size_t frames = std::min(kFrames, data_->size());
   EXPECT_GE(with_pose * 100, frames * 95) << with_pose << " of " << frames;
-  double worst = 0;
-  for (const auto& [i, T] : localised)
-    if (mapped_->count(i)) worst = std::max(worst, (T.translation() - mapped_->at(i).translation()).norm());
+  const double worst = largestDifference(localised);
   EXPECT_LT(worst, 0.03);
   std::printf("localisation, a board across the view: %zu of %zu frames with a pose, largest difference to the "
               "mapping run %.4f m\n",

@@ -683,23 +683,22 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   // least proven evidence: a person filling the near view lends most of
   // them. With enough map points matched they are judged by the pose the
   // map gives instead of pulling it.
-  std::vector<int> held;
-  int trusted = 0, trusted_temporary = 0;
+  std::vector<int> held, temporary;
+  int trusted = 0;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
     if (!p || p->bad) continue;
-    if (!p->isTemporary() && (p->geometry.probation > 0 || heldForMask(*p)))
+    if (p->isTemporary())
+      temporary.push_back(i);
+    else if (p->geometry.probation > 0 || heldForMask(*p))
       held.push_back(i);
     else
-      ++(p->isTemporary() ? trusted_temporary : trusted);
+      ++trusted;
   }
-  if (options_.localisation && trusted >= kMapMatchesWithoutTemporary && trusted_temporary > 0) {
-    for (int i = 0; i < current_.size(); ++i)
-      if (current_.points[i] && !current_.points[i]->bad && current_.points[i]->isTemporary()) held.push_back(i);
-    std::sort(held.begin(), held.end());
-  } else {
-    trusted += trusted_temporary;
-  }
+  if (options_.localisation && trusted >= kMapMatchesWithoutTemporary)
+    held.insert(held.end(), temporary.begin(), temporary.end());
+  else
+    trusted += static_cast<int>(temporary.size());
   const int min_trusted = options_.geometry.probation_min_trusted;
   if (!held.empty() && trusted < min_trusted) {
     std::erase_if(held, [&](int i) {
