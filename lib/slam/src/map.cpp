@@ -141,11 +141,15 @@ std::vector<KeyFrame*> KeyFrame::bestNeighbours(int n) const {
   return out;
 }
 
+bool Map::fromLoadedMap(const KeyFrame& kf) const { return kf.id < loaded_keyframes_end_; }
+
 void Map::adoptLoaded(Map&& loaded) {
   keyframes_ = std::move(loaded.keyframes_);
   points_ = std::move(loaded.points_);
   next_point_id_ = loaded.next_point_id_;
+  loaded_points_end_ = next_point_id_;
   next_keyframe_id_ = loaded.next_keyframe_id_;
+  loaded_keyframes_end_ = loaded_points_end_ > 0 ? next_keyframe_id_ : 0;
   next_frame_id_ = loaded.next_frame_id_;
   active_map_id_ = loaded.active_map_id_;
   maps_started_ = loaded.maps_started_;

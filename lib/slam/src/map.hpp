@@ -209,6 +209,11 @@ class Map {
   // the old ones' keyframes and points; they share none with it.
   std::uint32_t activeMapId() const { return active_map_id_; }
   std::uint32_t mapsStarted() const { return maps_started_; }
+  // Points of a map read from a file (adoptLoaded): they have stayed put
+  // over a whole earlier run. Any thread; set before the first frame.
+  bool fromLoadedMap(const MapPoint& p) const { return p.id >= 0 && p.id < loaded_points_end_; }
+  bool fromLoadedMap(const KeyFrame& kf) const;
+  bool hasLoadedMap() const { return loaded_points_end_ > 0; }
   // Called by tracking (exclusive lock) just before it makes a map's first
   // keyframe; the first map is 0.
   std::uint32_t beginMap();
@@ -283,6 +288,8 @@ class Map {
   std::vector<std::unique_ptr<KeyFrame>> keyframes_;
   std::vector<std::weak_ptr<MapPoint>> points_;  // for statistics only
   std::int64_t next_point_id_ = 0;
+  std::int64_t loaded_points_end_ = 0;  // ids below these came from a map file
+  std::int64_t loaded_keyframes_end_ = 0;
   std::int64_t next_keyframe_id_ = 0;
   std::int64_t next_frame_id_ = 0;
   std::uint32_t active_map_id_ = 0;

@@ -223,10 +223,12 @@ bool Tracker::trackFrame(bool clusters_pending) {
     // could not bridge: the camera may be anywhere the maps know.
     if (!ok && blind_since_) relocalised = ok = relocalise();
   }
+  on_loaded_map_ = false;
   if (ok) {
     state_ = was_lost || relocalised ? TrackingState::kRelocalised : TrackingState::kOk;
     lost_since_.reset();
     blind_since_.reset();
+    noteLoadedMapSupport();
   } else {
     state_ = TrackingState::kLost;
     // The motion the lost frames are held to (newMapDue): the last steady
@@ -239,7 +241,11 @@ bool Tracker::trackFrame(bool clusters_pending) {
                        : has_velocity_                                           ? velocity_
                                                                                  : SE3::Identity();
     has_velocity_ = false;
-    if (!lost_since_) lost_since_ = blind_since_.value_or(current_.stamp);
+    if (!lost_since_) {
+      lost_since_ = blind_since_.value_or(current_.stamp);
+      lost_in_known_place_ = last_on_loaded_map_ && secondsBetween(*lost_since_, *last_on_loaded_map_) <
+                                                        options_.tracking.new_map_after_lost_s;
+    }
   }
   return ok;
 }
@@ -267,12 +273,53 @@ bool Tracker::newMapDue() {
   // did before the loss: relocalisation has failed on it (ground the map
   // has not seen), and waiting would only lose more frames. A mover that
   // still fills the view moves otherwise, and its matches do not count.
+  // Not where a loaded map held the pose just before: the ground is known,
+  // what lost the frame is a mover hiding it, and the view's support is
+  // then mostly that mover (a new map would stand on it).
+  if (lost_in_known_place_) return false;
   const int needed = options_.tracking.new_map_min_static_matches;
   if (needed <= 0) return false;
   static_support_ = staticSupport(loss_velocity_);
   const int support = static_cast<int>(static_support_.agree.size());
   SP_DEBUG(logger, "frame " << current_.id << ": lost, " << support << " matches to the last frame move as the camera did");
   return support >= needed;
+}
+
+void Tracker::noteLoadedMapSupport() {
+  if (!map_->hasLoadedMap()) return;
+  int loaded = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    loaded += p && !current_.outlier[i] && map_->fromLoadedMap(*p);
+  }
+  if (loaded < kMapMatchesWithoutTemporary) return;
+  // New ground: features with depth whose surface point lies outside the
+  // view of every loaded keyframe near the camera. One inside that matched
+  // no loaded point is something in front of known ground (a mover hiding
+  // it, or a change), or known ground unmatched.
+  std::vector<const KeyFrame*> views;
+  for (const KeyFrame* kf : local_keyframes_)
+    if (!kf->bad && map_->fromLoadedMap(*kf)) views.push_back(kf);
+  const auto seen = [&](const Vec3& x_w) {
+    for (const KeyFrame* kf : views) {
+      const Vec3 x = kf->T_c_w() * x_w;
+      if (x.z() <= 0) continue;
+      const Vec2 uv = camera_.project(x);
+      if (uv.x() >= 0 && uv.y() >= 0 && uv.x() < camera_.width && uv.y() < camera_.height) return true;
+    }
+    return false;
+  };
+  int new_ground = 0;
+  for (int i = 0; i < current_.size(); ++i) {
+    if (!(current_.depth[i] > 0) || current_.dynamic[i]) continue;
+    const auto& p = current_.points[i];
+    if (p && !current_.outlier[i] && map_->fromLoadedMap(*p)) continue;
+    new_ground += !seen(current_.unprojectToWorld(i));
+  }
+  // As much new ground as would warrant a keyframe (keyframes.close_untracked_min):
+  // the view leaves the place the file holds.
+  on_loaded_map_ = new_ground < options_.keyframes.close_untracked_min;
+  if (on_loaded_map_) last_on_loaded_map_ = current_.stamp;
 }
 
 bool Tracker::startNewMap() {
@@ -678,12 +725,14 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   // known mover, which join fewest-frames-to-go first only while still too
   // few.
   //
-  // In localisation mode the loaded map is the static world, and the last
-  // frame's temporary depth points (nearest first, refreshLastFrame) are the
-  // least proven evidence: a person filling the near view lends most of
-  // them. With enough map points matched they are judged by the pose the
-  // map gives instead of pulling it.
-  std::vector<int> held, temporary;
+  // A loaded map's points stayed put over a whole earlier run: where a frame
+  // matches enough of them (localisation, or mapping in a place the file
+  // holds), they are the static world, and the last frame's temporary depth
+  // points (nearest first, refreshLastFrame) and the points this run made
+  // are the least proven evidence: a person filling the near view lends most
+  // of the former and went into the latter. They are judged by the pose the
+  // loaded points give instead of pulling it.
+  std::vector<int> held, temporary, own;
   int trusted = 0;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
@@ -692,13 +741,18 @@ int Tracker::timedOptimizePose(const SE3* prior) {
       temporary.push_back(i);
     else if (p->geometry.probation > 0 || heldForMask(*p))
       held.push_back(i);
+    else if (map_->hasLoadedMap() && !map_->fromLoadedMap(*p))
+      own.push_back(i);
     else
       ++trusted;
   }
-  if (options_.localisation && trusted >= kMapMatchesWithoutTemporary)
+  // The place is the last frame's: this frame has no final pose yet.
+  if (trusted >= kMapMatchesWithoutTemporary && (options_.localisation || on_loaded_map_)) {
     held.insert(held.end(), temporary.begin(), temporary.end());
-  else
-    trusted += static_cast<int>(temporary.size());
+    held.insert(held.end(), own.begin(), own.end());
+  } else {
+    trusted += static_cast<int>(temporary.size() + own.size());
+  }
   const int min_trusted = options_.geometry.probation_min_trusted;
   if (!held.empty() && trusted < min_trusted) {
     std::erase_if(held, [&](int i) {

@@ -65,8 +65,11 @@ class Tracker {
   // flagged, or from `only` these when given.
   bool initialise(const std::vector<int>* only = nullptr);
   // Lost for tracking.new_map_after_lost_s, or the view moves as the camera
-  // did (staticSupport), and the frame could start a map.
+  // did (staticSupport) outside a place a loaded map holds, and the frame
+  // could start a map.
   bool newMapDue();
+  // Whether this frame is in a place a loaded map holds (on_loaded_map_).
+  void noteLoadedMapSupport();
   // The features of current_ that moved from last_ as the camera did: from
   // the `predicted` motion (last_ to current_, allowing for its error), the
   // matches it explains refitted (relocalisation.cpp).
@@ -204,6 +207,15 @@ class Tracker {
   // frame's static support (staticSupport).
   SE3 loss_velocity_ = SE3::Identity();
   StaticSupport static_support_;
+  // A place a loaded map holds (noteLoadedMapSupport): this frame's pose
+  // stands on at least kMapMatchesWithoutTemporary of the file's points and
+  // its view shows less new ground than a keyframe would map; the last frame
+  // of which that was true; and whether the loss began within
+  // tracking.new_map_after_lost_s of that frame (a new map then waits for
+  // relocalisation: newMapDue).
+  bool on_loaded_map_ = false;
+  std::optional<Timestamp> last_on_loaded_map_;
+  bool lost_in_known_place_ = false;
   // The last frame of a map started on static support that makes no
   // keyframe (needNewKeyFrame).
   std::int64_t young_map_until_frame_ = -1;
