@@ -76,13 +76,14 @@ class MapFile : public ::testing::Test {
     EXPECT_TRUE(system.ok()) << system.error();
     return system.ok() ? std::move(*system) : nullptr;
   }
-  // Tracks every frame (each passed through `edit` first, when given); the
-  // poses by frame index.
+  // Tracks the first `frames` frames (each passed through `edit` first, when
+  // given); the poses by frame index.
   static std::map<std::size_t, SE3> run(slam::SlamSystem* system, std::size_t* with_pose,
-                                        const std::function<void(std::size_t, dataset::RgbdFrame*)>& edit = {}) {
+                                        const std::function<void(std::size_t, dataset::RgbdFrame*)>& edit = {},
+                                        std::size_t frames = kFrames) {
     std::map<std::size_t, SE3> poses;
     *with_pose = 0;
-    for (std::size_t i = 0; i < std::min(kFrames, data_->size()); ++i) {
+    for (std::size_t i = 0; i < std::min(frames, data_->size()); ++i) {
       auto frame = data_->load(i);
       EXPECT_TRUE(frame.ok()) << frame.error();
       if (!frame) continue;
@@ -136,28 +137,32 @@ TEST_F(MapFile, LocalisationFindsEveryFrameAndTheMapDoesNotGrow) {
 // A textured board 0.8 m from the camera, over a quarter of the view from
 // the first frame, sliding to and fro across it (a poster carried past): a
 // rigid near surface moving on its own, nearer than anything in the room, so
-// it lends the last frame's depth points first. Tracking against the saved
-// map stays on the room the map holds.
-TEST_F(MapFile, LocalisationStaysOnTheMapWhileABoardSlidesAcrossTheView) {
+// it lends the last frame's depth points first.
+void slideBoard(std::size_t i, dataset::RgbdFrame* frame) {
   constexpr int kWidth = 320, kHeight = 240;
-  cv::Mat texture(kHeight / 10, kWidth / 10, CV_8UC1);
-  cv::RNG rng(7);
-  rng.fill(texture, cv::RNG::UNIFORM, cv::Scalar(20), cv::Scalar(236));
-  cv::resize(texture, texture, cv::Size(kWidth, kHeight), 0, 0, cv::INTER_NEAREST);
-  cv::GaussianBlur(texture, texture, cv::Size(5, 5), 1.2);
-  const auto board = [&](std::size_t i, dataset::RgbdFrame* frame) {
-    // 3 px a frame, turning at the image's edges.
-    const int travel = frame->gray.cols - kWidth, step = static_cast<int>(i) * 3 % (2 * travel);
-    const cv::Rect where(step < travel ? step : 2 * travel - step, 90, kWidth, kHeight);
-    texture.copyTo(frame->gray(where));
-    frame->depth_m(where).setTo(0.8f);
-    if (!frame->bgr.empty()) cv::cvtColor(texture, frame->bgr(where), cv::COLOR_GRAY2BGR);
-  };
+  static const cv::Mat texture = [] {
+    cv::Mat t(kHeight / 10, kWidth / 10, CV_8UC1);
+    cv::RNG rng(7);
+    rng.fill(t, cv::RNG::UNIFORM, cv::Scalar(20), cv::Scalar(236));
+    cv::resize(t, t, cv::Size(kWidth, kHeight), 0, 0, cv::INTER_NEAREST);
+    cv::GaussianBlur(t, t, cv::Size(5, 5), 1.2);
+    return t;
+  }();
+  // 3 px a frame, turning at the image's edges.
+  const int travel = frame->gray.cols - kWidth, step = static_cast<int>(i) * 3 % (2 * travel);
+  const cv::Rect where(step < travel ? step : 2 * travel - step, 90, kWidth, kHeight);
+  texture.copyTo(frame->gray(where));
+  frame->depth_m(where).setTo(0.8f);
+  if (!frame->bgr.empty()) cv::cvtColor(texture, frame->bgr(where), cv::COLOR_GRAY2BGR);
+}
+
+// Tracking against the saved map stays on the room the map holds.
+TEST_F(MapFile, LocalisationStaysOnTheMapWhileABoardSlidesAcrossTheView) {
   auto system = makeSystem(true);
   ASSERT_TRUE(system);
   ASSERT_TRUE(system->loadMap(map_path_->string()).ok());
   std::size_t with_pose = 0;
-  const auto localised = run(system.get(), &with_pose, board);
+  const auto localised = run(system.get(), &with_pose, slideBoard);
   system->finish();
   const std::size_t frames = std::min(kFrames, data_->size());
   EXPECT_GE(with_pose * 100, frames * 95) << with_pose << " of " << frames;
@@ -166,6 +171,56 @@ TEST_F(MapFile, LocalisationStaysOnTheMapWhileABoardSlidesAcrossTheView) {
   std::printf("localisation, a board across the view: %zu of %zu frames with a pose, largest difference to the "
               "mapping run %.4f m\n",
               with_pose, frames, worst);
+}
+
+// Mapping on the saved map, the same board: the room is a place the map
+// holds, so the pose stays on it and the board is not mapped (no keyframe
+// is needed there).
+TEST_F(MapFile, MappingOnTheMapKeepsTheBoardOutOfIt) {
+  auto system = makeSystem(false);
+  ASSERT_TRUE(system);
+  ASSERT_TRUE(system->loadMap(map_path_->string()).ok());
+  const slam::MapStats before = system->mapStats();
+  std::size_t with_pose = 0;
+  const auto mapped = run(system.get(), &with_pose, slideBoard);
+  system->finish();
+  const slam::MapStats after = system->mapStats();
+  const std::size_t frames = std::min(kFrames, data_->size());
+  EXPECT_GE(with_pose * 100, frames * 95) << with_pose << " of " << frames;
+  const double worst = largestDifference(mapped);
+  EXPECT_LT(worst, 0.03);
+  EXPECT_EQ(after.maps, before.maps);
+  EXPECT_LE(after.keyframes, before.keyframes + 5);
+  std::printf("mapping on the map, a board across the view: %zu of %zu frames with a pose, largest difference to "
+              "the mapping run %.4f m, %zu keyframes added\n",
+              with_pose, frames, worst, after.keyframes - before.keyframes);
+}
+
+// A map of the first half of the way only: mapping on it goes on mapping
+// the ground the file does not hold.
+TEST_F(MapFile, MappingOnAPartialMapMapsTheNewGround) {
+  auto first = makeSystem(false);
+  ASSERT_TRUE(first);
+  std::size_t with_pose = 0;
+  run(first.get(), &with_pose, {}, kFrames / 2);
+  first->finish();
+  const fs::path half = *scratch_ / "half.map";
+  ASSERT_TRUE(first->saveMap(half.string()).ok());
+  auto system = makeSystem(false);
+  ASSERT_TRUE(system);
+  ASSERT_TRUE(system->loadMap(half.string()).ok());
+  const slam::MapStats before = system->mapStats();
+  const auto mapped = run(system.get(), &with_pose);
+  system->finish();
+  const slam::MapStats after = system->mapStats();
+  const std::size_t frames = std::min(kFrames, data_->size());
+  EXPECT_GE(with_pose * 100, frames * 95) << with_pose << " of " << frames;
+  const double worst = largestDifference(mapped);
+  EXPECT_LT(worst, 0.03);
+  EXPECT_GE(after.keyframes, before.keyframes + 5);  // none where the whole way is in the file (above)
+  std::printf("mapping on a map of %zu frames: %zu of %zu frames with a pose, largest difference to the mapping "
+              "run %.4f m, %zu keyframes added\n",
+              kFrames / 2, with_pose, frames, worst, after.keyframes - before.keyframes);
 }
 
 TEST_F(MapFile, SavedAgainAfterLoadingIsTheSameFile) {
