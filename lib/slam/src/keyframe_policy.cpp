@@ -19,9 +19,9 @@ bool Tracker::needNewKeyFrame(bool mapping_idle) const {
   if (current_.id <= young_map_until_frame_) return false;
   // A place a loaded map holds is mapped already: keyframes there would map
   // only what hides it (a mover near the camera) or what changed, and the
-  // map would grow on every run through the same rooms. New ground, where
-  // the file's points no longer carry the pose, is mapped as ever.
-  if (on_loaded_map_) return false;
+  // map would grow on every run through the same rooms. New ground, outside
+  // the loaded keyframes' views, is mapped as ever.
+  if (known_place_) return false;
   const std::size_t keyframes = map_->goodKeyFrameCount(map_->activeMapId());
   if (current_.id < last_reloc_frame_id_ + 30 && keyframes > 30) return false;
   // Every map point of the reference keyframe counts: a point seen by one

@@ -223,7 +223,7 @@ bool Tracker::trackFrame(bool clusters_pending) {
     // could not bridge: the camera may be anywhere the maps know.
     if (!ok && blind_since_) relocalised = ok = relocalise();
   }
-  on_loaded_map_ = false;
+  on_loaded_map_ = known_place_ = false;
   if (ok) {
     state_ = was_lost || relocalised ? TrackingState::kRelocalised : TrackingState::kOk;
     lost_since_.reset();
@@ -292,11 +292,12 @@ void Tracker::noteLoadedMapSupport() {
     const auto& p = current_.points[i];
     loaded += p && !current_.outlier[i] && map_->fromLoadedMap(*p);
   }
-  if (loaded < kMapMatchesWithoutTemporary) return;
   // New ground: features with depth whose surface point lies outside the
   // view of every loaded keyframe near the camera. One inside that matched
   // no loaded point is something in front of known ground (a mover hiding
-  // it, or a change), or known ground unmatched.
+  // it, or a change), or known ground unmatched. A frame a mover starves
+  // of loaded points is still in the known place: mapping it would map the
+  // mover.
   std::vector<const KeyFrame*> views;
   for (const KeyFrame* kf : local_keyframes_)
     if (!kf->bad && map_->fromLoadedMap(*kf)) views.push_back(kf);
@@ -316,9 +317,10 @@ void Tracker::noteLoadedMapSupport() {
     if (p && !current_.outlier[i] && map_->fromLoadedMap(*p)) continue;
     new_ground += !seen(current_.unprojectToWorld(i));
   }
-  // As much new ground as would warrant a keyframe (keyframes.close_untracked_min):
-  // the view leaves the place the file holds.
-  on_loaded_map_ = new_ground < options_.keyframes.close_untracked_min;
+  // As much new ground as would warrant a keyframe
+  // (keyframes.close_untracked_min): the view leaves the place the file holds.
+  known_place_ = !views.empty() && new_ground < options_.keyframes.close_untracked_min;
+  on_loaded_map_ = known_place_ && loaded >= kMapMatchesWithoutTemporary;
   if (on_loaded_map_) last_on_loaded_map_ = current_.stamp;
 }
 

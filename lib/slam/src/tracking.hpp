@@ -68,7 +68,8 @@ class Tracker {
   // did (staticSupport) outside a place a loaded map holds, and the frame
   // could start a map.
   bool newMapDue();
-  // Whether this frame is in a place a loaded map holds (on_loaded_map_).
+  // Whether this frame is in a place a loaded map holds (known_place_,
+  // on_loaded_map_).
   void noteLoadedMapSupport();
   // The features of current_ that moved from last_ as the camera did: from
   // the `predicted` motion (last_ to current_, allowing for its error), the
@@ -207,12 +208,14 @@ class Tracker {
   // frame's static support (staticSupport).
   SE3 loss_velocity_ = SE3::Identity();
   StaticSupport static_support_;
-  // A place a loaded map holds (noteLoadedMapSupport): this frame's pose
-  // stands on at least kMapMatchesWithoutTemporary of the file's points and
-  // its view shows less new ground than a keyframe would map; the last frame
-  // of which that was true; and whether the loss began within
+  // A place a loaded map holds (noteLoadedMapSupport): this frame's view
+  // shows less new ground than a keyframe would map (no keyframe is made);
+  // its pose also stands on at least kMapMatchesWithoutTemporary of the
+  // file's points (the next fit leans on them alone); the last frame of
+  // which both were true; and whether the loss began within
   // tracking.new_map_after_lost_s of that frame (a new map then waits for
   // relocalisation: newMapDue).
+  bool known_place_ = false;
   bool on_loaded_map_ = false;
   std::optional<Timestamp> last_on_loaded_map_;
   bool lost_in_known_place_ = false;
