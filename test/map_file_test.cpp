@@ -7,12 +7,14 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
 #include <iterator>
 #include <map>
+#include <string>
 
 #include <opencv2/imgproc.hpp>
 
@@ -103,6 +105,38 @@ class MapFile : public ::testing::Test {
       if (mapped_->count(i)) worst = std::max(worst, (T.translation() - mapped_->at(i).translation()).norm());
     return worst;
   }
+  // Mapping (not localisation) over the frames on the map file `path`:
+  // every frame must have a pose, within a few centimetres of the mapping
+  // run that made the suite's map.
+  struct MappingOnFile {
+    slam::MapStats before, after;
+    std::size_t with_pose = 0, frames = 0;
+    double worst = 0;
+    std::string summary() const {
+      char line[160];
+      std::snprintf(line, sizeof(line),
+                    "%zu of %zu frames with a pose, largest difference to the mapping run %.4f m, %zu keyframes added",
+                    with_pose, frames, worst, after.keyframes - before.keyframes);
+      return line;
+    }
+  };
+  static MappingOnFile mapOnFile(const fs::path& path,
+                                 const std::function<void(std::size_t, dataset::RgbdFrame*)>& edit = {}) {
+    MappingOnFile r;
+    auto system = makeSystem(false);
+    EXPECT_TRUE(system);
+    if (!system) return r;
+    EXPECT_TRUE(system->loadMap(path.string()).ok());
+    r.before = system->mapStats();
+    const auto mapped = run(system.get(), &r.with_pose, edit);
+    system->finish();
+    r.after = system->mapStats();
+    r.frames = std::min(kFrames, data_->size());
+    EXPECT_GE(r.with_pose * 100, r.frames * 95) << r.with_pose << " of " << r.frames;
+    r.worst = largestDifference(mapped);
+    EXPECT_LT(r.worst, 0.03);
+    return r;
+  }
   static inline dataset::TumDataset* data_ = nullptr;
   static inline fs::path* scratch_ = nullptr;
   static inline fs::path* map_path_ = nullptr;
@@ -177,23 +211,10 @@ TEST_F(MapFile, LocalisationStaysOnTheMapWhileABoardSlidesAcrossTheView) {
 // holds, so the pose stays on it and the board is not mapped (no keyframe
 // is needed there).
 TEST_F(MapFile, MappingOnTheMapKeepsTheBoardOutOfIt) {
-  auto system = makeSystem(false);
-  ASSERT_TRUE(system);
-  ASSERT_TRUE(system->loadMap(map_path_->string()).ok());
-  const slam::MapStats before = system->mapStats();
-  std::size_t with_pose = 0;
-  const auto mapped = run(system.get(), &with_pose, slideBoard);
-  system->finish();
-  const slam::MapStats after = system->mapStats();
-  const std::size_t frames = std::min(kFrames, data_->size());
-  EXPECT_GE(with_pose * 100, frames * 95) << with_pose << " of " << frames;
-  const double worst = largestDifference(mapped);
-  EXPECT_LT(worst, 0.03);
-  EXPECT_EQ(after.maps, before.maps);
-  EXPECT_LE(after.keyframes, before.keyframes + 5);
-  std::printf("mapping on the map, a board across the view: %zu of %zu frames with a pose, largest difference to "
-              "the mapping run %.4f m, %zu keyframes added\n",
-              with_pose, frames, worst, after.keyframes - before.keyframes);
+  const MappingOnFile r = mapOnFile(*map_path_, slideBoard);
+  EXPECT_EQ(r.after.maps, r.before.maps);
+  EXPECT_LE(r.after.keyframes, r.before.keyframes + 5);
+  std::printf("mapping on the map, a board across the view: %s\n", r.summary().c_str());
 }
 
 // A map of the first half of the way only: mapping on it goes on mapping
@@ -206,21 +227,9 @@ TEST_F(MapFile, MappingOnAPartialMapMapsTheNewGround) {
   first->finish();
   const fs::path half = *scratch_ / "half.map";
   ASSERT_TRUE(first->saveMap(half.string()).ok());
-  auto system = makeSystem(false);
-  ASSERT_TRUE(system);
-  ASSERT_TRUE(system->loadMap(half.string()).ok());
-  const slam::MapStats before = system->mapStats();
-  const auto mapped = run(system.get(), &with_pose);
-  system->finish();
-  const slam::MapStats after = system->mapStats();
-  const std::size_t frames = std::min(kFrames, data_->size());
-  EXPECT_GE(with_pose * 100, frames * 95) << with_pose << " of " << frames;
-  const double worst = largestDifference(mapped);
-  EXPECT_LT(worst, 0.03);
-  EXPECT_GE(after.keyframes, before.keyframes + 5);  // none where the whole way is in the file (above)
-  std::printf("mapping on a map of %zu frames: %zu of %zu frames with a pose, largest difference to the mapping "
-              "run %.4f m, %zu keyframes added\n",
-              kFrames / 2, with_pose, frames, worst, after.keyframes - before.keyframes);
+  const MappingOnFile r = mapOnFile(half);
+  EXPECT_GE(r.after.keyframes, r.before.keyframes + 5);  // none where the whole way is in the file (above)
+  std::printf("mapping on a map of %zu frames: %s\n", kFrames / 2, r.summary().c_str());
 }
 
 TEST_F(MapFile, SavedAgainAfterLoadingIsTheSameFile) {
