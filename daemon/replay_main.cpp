@@ -646,6 +646,9 @@ int main(int argc, char** argv) {
     std::printf("              %d keyframes segmented, %d dropped (queue full), %d without colour, %d failed\n",
                 map.semantic_keyframes_segmented, map.semantic_keyframes_dropped, map.semantic_keyframes_no_colour,
                 map.semantic_failures);
+    if (map.semantic_frames_segmented > 0)
+      std::printf("              %d frames segmented where no keyframe is made (a mapped place)\n",
+                  map.semantic_frames_segmented);
     std::printf("              %d instances applied (%d by hysteresis), %d unconfirmed by geometry, %d over the removal cap\n",
                 map.semantic_instances_applied, map.semantic_instances_continued, map.semantic_instances_unconfirmed,
                 map.semantic_instances_capped);

@@ -20,6 +20,7 @@
 
 #include "stillpoint/core/camera.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
+#include "stillpoint/semantic/segmenter.hpp"
 #include "stillpoint/slam/system.hpp"
 
 namespace stillpoint {
@@ -190,6 +191,51 @@ void slideBoard(std::size_t i, dataset::RgbdFrame* frame) {
   if (!frame->bgr.empty()) cv::cvtColor(texture, frame->bgr(where), cv::COLOR_GRAY2BGR);
 }
 
+// A segmenter that finds slideBoard's board, and only it, as a person: the
+// board is the one large region of grey pixels (B = G = R) in the colour
+// images of the excerpt.
+class BoardSegmenter : public semantic::Segmenter {
+ public:
+  BoardSegmenter() {
+    card_.name = "board";
+    card_.classes = {"person"};
+    card_.movable = {"person"};
+  }
+  Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
+    if (bgr.empty() || bgr.type() != CV_8UC3) return Error{"not a BGR image"};
+    ++*calls;
+    std::vector<cv::Mat> c;
+    cv::split(bgr, c);
+    cv::Mat grey = (c[0] == c[1]) & (c[1] == c[2]);
+    cv::morphologyEx(grey, grey, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(31, 31)));
+    semantic::Segmentation seg;
+    seg.labels = cv::Mat(bgr.size(), CV_8U, cv::Scalar(semantic::kNoLabel));
+    seg.movable_mask = cv::Mat::zeros(bgr.size(), CV_8U);
+    const cv::Rect box = cv::boundingRect(grey);
+    if (box.area() == 0) return seg;
+    seg.labels(box).setTo(0, grey(box));
+    seg.movable_mask(box).setTo(255, grey(box));
+    semantic::Instance person;
+    person.class_id = 0;
+    person.class_name = "person";
+    person.score = 0.9f;
+    person.box = box;
+    person.mask = grey(box).clone();
+    person.area = cv::countNonZero(person.mask);
+    person.movable = true;
+    seg.movable_pixels = person.area;
+    seg.instances.push_back(std::move(person));
+    return seg;
+  }
+  const semantic::ModelCard& card() const override { return card_; }
+  const std::vector<int>& movableClassIds() const override { return ids_; }
+  std::shared_ptr<int> calls = std::make_shared<int>(0);  // outlives the segmenter (owned by the system)
+
+ private:
+  semantic::ModelCard card_;
+  std::vector<int> ids_{0};
+};
+
 // Tracking against the saved map stays on the room the map holds.
 TEST_F(MapFile, LocalisationStaysOnTheMapWhileABoardSlidesAcrossTheView) {
   auto system = makeSystem(true);
@@ -230,6 +276,72 @@ TEST_F(MapFile, MappingOnAPartialMapMapsTheNewGround) {
   const MappingOnFile r = mapOnFile(half);
   EXPECT_GE(r.after.keyframes, r.before.keyframes + 5);  // none where the whole way is in the file (above)
   std::printf("mapping on a map of %zu frames: %s\n", kFrames / 2, r.summary().c_str());
+}
+
+// The board of slideBoard held at the left of the view: a person walking
+// along with the camera, in front of the room the map holds.
+void carriedBoard(std::size_t, dataset::RgbdFrame* frame) { slideBoard(0, frame); }
+
+// Where the map holds the place, no keyframe is made and none brings the
+// semantic module's masks (localisation, and mapping on the whole way): the
+// frames themselves are segmented whenever the segmenter is free (here every
+// 4 frames, the modelled delay), and their masks follow the person into the
+// frames after them.
+TEST_F(MapFile, FramesAreSegmentedWhereTheMapHoldsThePlace) {
+  for (const bool localisation : {true, false}) {
+    SCOPED_TRACE(localisation ? "localisation" : "mapping on the map");
+    slam::SlamOptions options;
+    options.sequential = true;
+    options.localisation = localisation;
+    options.report_fates = true;
+    options.semantic.enabled = true;
+    options.semantic.sequential_latency_frames = 4;
+    auto segmenter = std::make_unique<BoardSegmenter>();
+    const std::shared_ptr<int> calls = segmenter->calls;
+    auto created = slam::SlamSystem::create(*cameraPreset("fr3"), options, std::move(segmenter));
+    ASSERT_TRUE(created.ok()) << created.error();
+    slam::SlamSystem& system = **created;
+    ASSERT_TRUE(system.loadMap(map_path_->string()).ok());
+    const slam::MapStats before = system.mapStats();
+    std::map<std::size_t, SE3> poses;
+    int after_first = 0, marked_frames = 0, on_board = 0, off_board = 0;
+    for (std::size_t i = 0; i < std::min(kFrames, data_->size()); ++i) {
+      auto frame = data_->load(i);
+      ASSERT_TRUE(frame.ok()) << frame.error();
+      carriedBoard(i, &*frame);
+      const cv::Mat board = frame->depth_m == 0.8f;
+      auto out = system.track({frame->stamp, frame->gray, frame->depth_m, frame->bgr});
+      ASSERT_TRUE(out.ok()) << out.error();
+      if (!slam::hasPose(out->state)) continue;
+      poses[i] = out->T_w_c;
+      int marked = 0;
+      for (const slam::FeatureView& f : out->fates) {
+        if (f.fate != slam::FeatureFate::kSemanticDynamic) continue;
+        ++marked;
+        (board.at<std::uint8_t>(cvRound(f.v), cvRound(f.u)) ? on_board : off_board)++;
+      }
+      if (system.mapStats().semantic_frames_segmented == 0) continue;
+      ++after_first;
+      marked_frames += marked > 0;
+    }
+    system.finish();
+    const slam::MapStats after = system.mapStats();
+    EXPECT_GE(after.semantic_frames_segmented, static_cast<int>(kFrames) / 8);
+    EXPECT_EQ(after.semantic_keyframes_segmented, 0);
+    EXPECT_EQ(*calls, after.semantic_frames_segmented);
+    EXPECT_EQ(after.keyframes, before.keyframes);
+    ASSERT_GT(after_first, static_cast<int>(kFrames) / 2);
+    EXPECT_GE(marked_frames * 10, after_first * 9) << marked_frames << " of " << after_first;
+    EXPECT_GT(on_board, 50 * marked_frames) << "features followed per frame on the board";
+    EXPECT_LT(off_board * 10, on_board) << off_board << " marked off the board, " << on_board << " on it";
+    EXPECT_GE(poses.size() * 100, kFrames * 95);
+    EXPECT_LT(largestDifference(poses), 0.03);
+    std::printf("%s: %d frames segmented, %d of %d frames after the first with the board marked, %.1f features "
+                "on it and %.1f off it per such frame, largest difference to the mapping run %.4f m\n",
+                localisation ? "localisation" : "mapping on the map", after.semantic_frames_segmented, marked_frames,
+                after_first, double(on_board) / std::max(marked_frames, 1), double(off_board) / std::max(marked_frames, 1),
+                largestDifference(poses));
+  }
 }
 
 TEST_F(MapFile, SavedAgainAfterLoadingIsTheSameFile) {

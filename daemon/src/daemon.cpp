@@ -593,6 +593,7 @@ int Daemon::run() {
   if (d.config.modules.semantic) {
     const slam::MapStats m = d.system->mapStats();
     SP_INFO(logger, "semantic: " << m.semantic_keyframes_segmented << " keyframes segmented, "
+                                 << m.semantic_frames_segmented << " frames where no keyframe is made, "
                                  << m.semantic_keyframes_dropped << " dropped (queue full), "
                                  << m.semantic_keyframes_no_colour << " without colour; keyframe -> mask median "
                                  << m.semantic_latency_ms_median << " ms, p95 " << m.semantic_latency_ms_p95 << " ms");

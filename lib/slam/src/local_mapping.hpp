@@ -77,6 +77,7 @@ class LocalMapper {
   void applySemanticResults();
   // Masks need the geometry module's agreement (confirm_with_geometry).
   void setSemanticConfirmation(bool required) { semantic_confirm_ = required; }
+  bool semanticConfirmation() const { return semantic_confirm_; }
   const SemanticStats& semanticStats() const { return semantic_stats_; }
   // The labels of the newest segmentation applied, with its keyframe's stamp
   // (null until one is); kept only under SlamOptions::report_fates.

@@ -22,6 +22,26 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
 
 }  // namespace
 
+bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction) {
+  if (r.labels.empty() || r.regions.empty()) return false;
+  std::vector<int> inside;
+  for (int i = 0; i < frame->size(); ++i) {
+    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
+    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
+    const int label = r.labels.at<std::uint8_t>(y, x);
+    if (label > 0 && label <= static_cast<int>(r.regions.size())) inside.push_back(i);
+  }
+  if (inside.empty() || inside.size() > max_fraction * frame->size()) return false;
+  frame->movable_class.resize(frame->size(), 0);
+  for (int i : inside) {
+    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
+    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
+    frame->dynamic[i] = kSemanticDynamic;
+    frame->movable_class[i] = map.classId(r.regions[r.labels.at<std::uint8_t>(y, x) - 1].class_name);
+  }
+  return true;
+}
+
 std::pair<std::shared_ptr<const cv::Mat>, Timestamp> LocalMapper::latestSemanticLabels() const {
   std::lock_guard lock(labels_mutex_);
   return {latest_labels_, latest_labels_stamp_};
@@ -171,30 +191,99 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
 }
 
 
+std::int64_t Tracker::keepForMasks() {
+  awaiting_masks_ = last_;
+  Frame& f = *awaiting_masks_;
+  f.gray.release();
+  // Which features carried the pose (the last frame keeps its map-point
+  // inliers only), for the removal cap; the points themselves are local
+  // mapping's to change, and the copy needs only features and flags.
+  awaiting_matched_.assign(f.size(), 0);
+  for (int i = 0; i < f.size(); ++i) awaiting_matched_[i] = f.points[i] != nullptr;
+  f.points.assign(f.size(), nullptr);
+  return f.id;
+}
+
+bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_required) {
+  if (!awaiting_masks_ || awaiting_masks_->id != r.frame_id) return false;
+  Frame f = std::move(*awaiting_masks_);
+  awaiting_masks_.reset();
+  if (!r.ok) {
+    SP_WARN(logger, "frame " << r.frame_id << ": segmentation failed: " << r.error);
+    return false;
+  }
+  // As a keyframe's segmentation is applied (LocalMapper::applySemantic):
+  // a region most of whose judged features the geometry module found moving
+  // is confirmed; the others may together take at most
+  // semantic.max_removed_fraction of the frame's map-point matches, none when
+  // the model needs confirmation. Its own result replaces the marks the frame
+  // carried from earlier masks: one that found no one ends them.
+  const SemanticOptions& o = options_.semantic;
+  const int n_regions = static_cast<int>(r.regions.size());
+  std::vector<int> region_of(f.size(), 0), with_point(n_regions, 0), flagged(n_regions, 0), judged(n_regions, 0);
+  int matched = 0;
+  for (int i = 0; i < f.size(); ++i) {
+    const bool live = awaiting_matched_[i];
+    matched += live;
+    if (r.labels.empty()) continue;
+    const int x = std::clamp(cvRound(f.keys[i].pt.x), 0, r.labels.cols - 1);
+    const int y = std::clamp(cvRound(f.keys[i].pt.y), 0, r.labels.rows - 1);
+    const int label = r.labels.at<std::uint8_t>(y, x);
+    if (label == 0 || label > n_regions) continue;
+    region_of[i] = label;
+    with_point[label - 1] += live;
+    flagged[label - 1] += f.dynamic[i] == kGeometryDynamic;
+    judged[label - 1] += f.cluster[i] >= 0;
+  }
+  std::vector<char> applied(n_regions + 1, 0);
+  int removed = 0;
+  for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
+    const bool confirmed = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
+    if (!confirmed) {
+      if (confirmation_required || removed + with_point[k] > o.max_removed_fraction * matched) continue;
+      removed += with_point[k];
+    }
+    applied[k + 1] = 1;
+  }
+  f.movable_class.resize(f.size(), 0);
+  for (int i = 0; i < f.size(); ++i) {
+    if (f.dynamic[i] == kSemanticDynamic) f.dynamic[i] = kNotDynamic;
+    f.movable_class[i] = 0;
+    if (!applied[region_of[i]]) continue;
+    f.dynamic[i] = kSemanticDynamic;
+    f.movable_class[i] = map_->classId(r.regions[region_of[i] - 1].class_name);
+  }
+  masked_frame_ = std::move(f);
+  return true;
+}
+
 void Tracker::markSemanticMovers() {
-  // The newest segmented keyframe near the camera: features inside its
-  // movable masks are looked up in this frame by descriptor alone (the
-  // object may have moved anywhere since) and kept out of the pose, so a
-  // masked object does not pull the pose between keyframes.
+  // The newest segmented keyframe near the camera, or the newest frame
+  // segmented where no keyframe is made (keepForMasks) when it is newer:
+  // features inside its movable masks are looked up in this frame by
+  // descriptor alone (the object may have moved anywhere since) and kept out
+  // of the pose, so a masked object does not pull the pose between keyframes.
   const KeyFrame* source = nullptr;
   const auto consider = [&](const KeyFrame* kf) {
     if (kf && !kf->bad && kf->segmented && (!source || kf->id > source->id)) source = kf;
   };
   consider(reference_);
   for (const KeyFrame* kf : local_keyframes_) consider(kf);
-  if (!source) return;
+  const Frame* from = source ? &source->frame : nullptr;
+  if (masked_frame_ && (!from || masked_frame_->id > from->id)) from = &*masked_frame_;
+  if (!from) return;
   const auto has_flags = [](const Frame& other) {
     return std::find(other.dynamic.begin(), other.dynamic.end(), kSemanticDynamic) != other.dynamic.end();
   };
   // Most keyframes mask nothing: skip the brute-force pass then.
-  if (!has_flags(source->frame)) return;
+  if (!has_flags(*from)) return;
   const auto flagged = [](const Frame& other) {
     std::vector<int> out;
     for (int i = 0; i < other.size(); ++i)
       if (other.dynamic[i] == kSemanticDynamic) out.push_back(i);
     return out;
   };
-  const Frame& f = source->frame;
+  const Frame& f = *from;
   // Mutual nearest neighbours, ratio 0.7 and rotation consistency:
   // window-free matching on repetitive texture mismatches, and a static
   // feature marked here is lost to the pose. Only the masked features are
@@ -236,7 +325,7 @@ void Tracker::markSemanticMovers() {
     semantic_marked_ += static_cast<int>(grown.size());
     if (grown.empty()) break;
   }
-  SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of keyframe " << source->id);
+  SP_DEBUG(logger, "frame " << current_.id << ": " << semantic_marked_ << " features matched to masks of frame " << f.id);
 }
 
 }  // namespace stillpoint::slam

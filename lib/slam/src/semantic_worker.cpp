@@ -137,6 +137,7 @@ SemanticResult SemanticWorker::process(const SemanticJob& job) {
   const auto t0 = std::chrono::steady_clock::now();
   SemanticResult out;
   out.keyframe_id = job.keyframe_id;
+  out.frame_id = job.frame_id;
   out.created = job.created;
   auto seg = segmenter_->segment(job.bgr);
   if (!seg) {
@@ -186,6 +187,11 @@ int SemanticWorker::dropped() const {
   return dropped_;
 }
 
+bool SemanticWorker::idle() const {
+  std::lock_guard lock(mutex_);
+  return queue_.empty() && !segmenting_;
+}
+
 void SemanticWorker::run(std::stop_token stop) {
   while (true) {
     SemanticJob job;
@@ -195,8 +201,12 @@ void SemanticWorker::run(std::stop_token stop) {
       if (queue_.empty()) return;  // closed and drained
       job = std::move(queue_.front());
       queue_.pop_front();
+      segmenting_ = true;
     }
-    sink_(process(job));
+    SemanticResult result = process(job);
+    sink_(std::move(result));
+    std::lock_guard lock(mutex_);
+    segmenting_ = false;
   }
 }
 

@@ -33,6 +33,10 @@ struct SemanticJob {
   cv::Mat bgr;      // CV_8UC3, owned by the job
   cv::Mat depth_m;  // CV_32FC1 or empty (depth agreement skipped)
   SteadyTime created;
+  // A frame segmented where no keyframe is made (localisation, a place a
+  // loaded map holds): its id, with keyframe_id -1. Its result goes to
+  // tracking, not to the map.
+  std::int64_t frame_id = -1;
 };
 
 // One kept movable instance, dilated, as a region of the label image.
@@ -45,6 +49,7 @@ struct SemanticRegion {
 
 struct SemanticResult {
   std::int64_t keyframe_id = -1;
+  std::int64_t frame_id = -1;  // SemanticJob::frame_id
   bool ok = false;
   std::string error;
   // CV_8U, image size: 0 = no movable object, k = regions[k - 1]. Where
@@ -93,6 +98,8 @@ class SemanticWorker {
   // Segments what is queued (or drops it, counted as dropped), then joins.
   void finish(bool discard_queued = false);
   int dropped() const;
+  // Nothing queued and nothing being segmented.
+  bool idle() const;
 
  private:
   void run(std::stop_token stop);
@@ -105,6 +112,7 @@ class SemanticWorker {
   std::condition_variable_any cv_;
   std::deque<SemanticJob> queue_;
   bool closed_ = false;
+  bool segmenting_ = false;
   int dropped_ = 0;
   std::jthread worker_;
 };

@@ -26,29 +26,6 @@
 namespace stillpoint::slam {
 namespace {
 
-// Flags the features of `frame` inside the movable regions of `r` as the
-// semantic module does, with their class. Not when that would leave out more
-// than `max_fraction` of the features (the module's own cap for masks
-// nothing confirms). Returns whether it flagged any.
-bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction) {
-  if (r.labels.empty() || r.regions.empty()) return false;
-  std::vector<int> inside;
-  for (int i = 0; i < frame->size(); ++i) {
-    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
-    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
-    const int label = r.labels.at<std::uint8_t>(y, x);
-    if (label > 0 && label <= static_cast<int>(r.regions.size())) inside.push_back(i);
-  }
-  if (inside.empty() || inside.size() > max_fraction * frame->size()) return false;
-  frame->movable_class.resize(frame->size(), 0);
-  for (int i : inside) {
-    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
-    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
-    frame->dynamic[i] = kSemanticDynamic;
-    frame->movable_class[i] = map.classId(r.regions[r.labels.at<std::uint8_t>(y, x) - 1].class_name);
-  }
-  return true;
-}
 log::Logger logger("slam");
 
 // Share of the depth image's pixels with a usable depth (as buildFrame takes
@@ -162,8 +139,30 @@ struct SlamSystem::Impl {
   // Sequential mode with semantic.sequential_latency_frames (evaluation).
   ModelledSegmentationLatency latency{options.semantic.sequential_latency_frames, options.semantic.queue_capacity};
   void applySegmentation(const SemanticJob& job) {
-    mapper.postSemantic(semantic->process(job));
+    SemanticResult r = semantic->process(job);
+    if (r.frame_id >= 0) {
+      frames_segmented += tracker.applyFrameMasks(r, mapper.semanticConfirmation());
+      return;
+    }
+    mapper.postSemantic(std::move(r));
     mapper.applySemanticResults();
+  }
+  // Segmentations of frames where no keyframe was made (SemanticJob::
+  // frame_id), from the segmentation thread to tracking.
+  std::mutex frame_masks_mutex;
+  std::optional<SemanticResult> frame_masks;
+  std::atomic<int> frames_segmented{0};
+  void postFrameMasks(SemanticResult r) {
+    std::lock_guard lock(frame_masks_mutex);
+    frame_masks = std::move(r);
+  }
+  void applyFrameMasks() {
+    std::optional<SemanticResult> r;
+    {
+      std::lock_guard lock(frame_masks_mutex);
+      r.swap(frame_masks);
+    }
+    if (r) frames_segmented += tracker.applyFrameMasks(*r, mapper.semanticConfirmation());
   }
 };
 
@@ -255,13 +254,13 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
       SP_WARN(logger, "model '" << segmenter->card().name
                                 << "' needs the geometry module's agreement (confirm_with_geometry) but the geometry "
                                    "module is off: its masks will remove nothing");
-    if (options.localisation)
-      SP_WARN(logger, "the semantic module segments keyframes and localisation makes none: model '"
-                          << segmenter->card().name << "' will segment nothing (the geometry module and the map "
-                                                        "keep movers out of the pose)");
     s.semantic_model = segmenter->card().name;
-    s.semantic = std::make_unique<SemanticWorker>(std::move(segmenter), options.semantic,
-                                                  [&mapper = s.mapper](SemanticResult r) { mapper.postSemantic(std::move(r)); });
+    s.semantic = std::make_unique<SemanticWorker>(std::move(segmenter), options.semantic, [impl = &s](SemanticResult r) {
+      if (r.frame_id >= 0)
+        impl->postFrameMasks(std::move(r));
+      else
+        impl->mapper.postSemantic(std::move(r));
+    });
     if (!options.sequential) s.semantic->start(hooks.semantic_start);
   }
   if (!options.sequential) s.mapper.start();
@@ -357,6 +356,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   const auto t1 = std::chrono::steady_clock::now();
 
   if (s.latency.busy()) s.latency.advance(frame.id, [&s](const SemanticJob& job) { s.applySegmentation(job); });
+  if (s.semantic) s.applyFrameMasks();
   TrackOutput out;
   const bool idle = s.options.sequential || s.mapper.idle();
   s.tracked_any = true;
@@ -388,6 +388,24 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
     auto view = std::make_shared<const DenseView>(makeDenseView(input.depth_m, input.bgr, moving));
     std::unique_lock lock(s.map.mutex());
     kf->dense = std::move(view);
+  }
+  if (!kf && s.semantic && !input.bgr.empty() && hasPose(out.state) && s.tracker.mapsNothingHere()) {
+    // No keyframe is made where the place is mapped (localisation, a place a
+    // loaded map holds), so none brings masks: the frame itself is segmented
+    // whenever the segmenter is free, and its masks follow its movers into
+    // the frames after it as a keyframe's do.
+    const bool inline_now = s.options.sequential && !modelled_delay;
+    const bool free = inline_now || (modelled_delay ? !s.latency.busy() : s.semantic->idle());
+    if (free) {
+      const std::int64_t id = s.tracker.keepForMasks();
+      SemanticJob job{-1, input.bgr.clone(), input.depth_m.empty() ? cv::Mat() : input.depth_m.clone(), t2, id};
+      if (inline_now)
+        s.frames_segmented += s.tracker.applyFrameMasks(s.semantic->process(job), s.mapper.semanticConfirmation());
+      else if (modelled_delay)
+        s.latency.submit(std::move(job), id);
+      else
+        s.semantic->submit(std::move(job));
+    }
   }
   if (kf && first_masks) {
     first_masks->keyframe_id = kf->id;  // its result, applied as any keyframe's
@@ -584,6 +602,7 @@ MapStats SlamSystem::mapStats() const {
   if (impl_->semantic) {
     const SemanticStats& st = impl_->mapper.semanticStats();
     stats.semantic_keyframes_segmented = st.segmented;
+    stats.semantic_frames_segmented = impl_->frames_segmented.load();
     stats.semantic_keyframes_no_colour = impl_->semantic_no_colour.load();
     stats.semantic_keyframes_dropped = impl_->semantic->dropped() + impl_->latency.dropped();
     stats.semantic_failures = st.failures;

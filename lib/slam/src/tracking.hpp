@@ -23,6 +23,8 @@
 
 namespace stillpoint::slam {
 
+struct SemanticResult;
+
 class Tracker {
  public:
   // `clustering` (may be null: geometry module off) delivers the depth
@@ -57,6 +59,20 @@ class Tracker {
   // (tracking.mover_cells_*): CV_8UC1 at 1/8 of the image size, non-zero near
   // its dynamic features; empty when they were too few or tracking failed.
   const cv::Mat& moverCells() const { return mover_cells_; }
+  // Where the last frame made no keyframe because its place is mapped
+  // (localisation, or a place a loaded map holds): no keyframe's masks will
+  // reach its movers, so the semantic module segments frames there instead.
+  bool mapsNothingHere() const { return options_.localisation || known_place_; }
+  // Keeps the last tracked frame until its segmentation comes back; returns
+  // its id (SemanticJob::frame_id).
+  std::int64_t keepForMasks();
+  // Applies the segmentation of the frame keepForMasks() kept (another
+  // frame's is ignored) as a keyframe's is applied (`confirmation_required`:
+  // only regions the geometry module confirms): its masked features are
+  // looked up in the frames after it as a segmented keyframe's are
+  // (markSemanticMovers), when it is newer than that keyframe. Returns
+  // whether it was applied.
+  bool applyFrameMasks(const SemanticResult& r, bool confirmation_required);
 
  private:
   // State machine (tracking.cpp).
@@ -232,6 +248,10 @@ class Tracker {
   StageTimes times_;
   GeometryOutput geometry_;
   int semantic_marked_ = 0;
+  // A frame segmented because no keyframe was made there (keepForMasks),
+  // until its result is back; then the newest such frame, with its masks.
+  std::optional<Frame> awaiting_masks_, masked_frame_;
+  std::vector<char> awaiting_matched_;  // per feature of awaiting_masks_: a map-point inlier
   bool starved_ = false;  // the pose stands on keepPoseOnStaticEvidence()
   // Stage-1 matches to the last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
@@ -240,5 +260,11 @@ class Tracker {
   std::vector<float> match_ratio_;
   cv::Mat mover_cells_;  // moverCells()
 };
+
+// Flags the features of `frame` inside the movable regions of `r` as the
+// semantic module does, with their class. Not when that would leave out more
+// than `max_fraction` of the features (the module's own cap for masks
+// nothing confirms). Returns whether it flagged any.
+bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction);
 
 }  // namespace stillpoint::slam

@@ -202,6 +202,9 @@ struct MapStats {
   std::int64_t geometry_deadline_misses = 0;
   // Semantic module (all 0 when it is off).
   int semantic_keyframes_segmented = 0;  // results applied to keyframes
+  // Results applied to frames segmented where no keyframe is made
+  // (localisation, a place a loaded map holds).
+  int semantic_frames_segmented = 0;
   int semantic_keyframes_no_colour = 0;  // keyframes from frames without colour (not segmented)
   int semantic_keyframes_dropped = 0;    // left unsegmented: queue full (drop-oldest)
   int semantic_failures = 0;             // segment() errors
