@@ -22,26 +22,6 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
 
 }  // namespace
 
-bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction) {
-  if (r.labels.empty() || r.regions.empty()) return false;
-  std::vector<int> inside;
-  for (int i = 0; i < frame->size(); ++i) {
-    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
-    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
-    const int label = r.labels.at<std::uint8_t>(y, x);
-    if (label > 0 && label <= static_cast<int>(r.regions.size())) inside.push_back(i);
-  }
-  if (inside.empty() || inside.size() > max_fraction * frame->size()) return false;
-  frame->movable_class.resize(frame->size(), 0);
-  for (int i : inside) {
-    const int x = std::clamp(cvRound(frame->keys[i].pt.x), 0, r.labels.cols - 1);
-    const int y = std::clamp(cvRound(frame->keys[i].pt.y), 0, r.labels.rows - 1);
-    frame->dynamic[i] = kSemanticDynamic;
-    frame->movable_class[i] = map.classId(r.regions[r.labels.at<std::uint8_t>(y, x) - 1].class_name);
-  }
-  return true;
-}
-
 std::pair<std::shared_ptr<const cv::Mat>, Timestamp> LocalMapper::latestSemanticLabels() const {
   std::lock_guard lock(labels_mutex_);
   return {latest_labels_, latest_labels_stamp_};
@@ -73,10 +53,8 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   for (int i = 0; i < f.size(); ++i) {
     const bool live = f.points[i] && !f.points[i]->bad;
     points_before += live;
-    const cv::Point2f& px = f.keys[i].pt;
-    const int x = std::clamp(cvRound(px.x), 0, r.labels.cols - 1), y = std::clamp(cvRound(px.y), 0, r.labels.rows - 1);
-    const int label = r.labels.at<std::uint8_t>(y, x);
-    if (label == 0 || label > n_regions) continue;
+    const int label = regionAt(r, f.keys[i].pt);
+    if (label == 0) continue;
     const int k = label - 1;
     region_of[i] = label;
     members[k].push_back(i);
@@ -225,11 +203,8 @@ bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_require
   for (int i = 0; i < f.size(); ++i) {
     const bool live = awaiting_matched_[i];
     matched += live;
-    if (r.labels.empty()) continue;
-    const int x = std::clamp(cvRound(f.keys[i].pt.x), 0, r.labels.cols - 1);
-    const int y = std::clamp(cvRound(f.keys[i].pt.y), 0, r.labels.rows - 1);
-    const int label = r.labels.at<std::uint8_t>(y, x);
-    if (label == 0 || label > n_regions) continue;
+    const int label = regionAt(r, f.keys[i].pt);
+    if (label == 0) continue;
     region_of[i] = label;
     with_point[label - 1] += live;
     flagged[label - 1] += f.dynamic[i] == kGeometryDynamic;

@@ -187,6 +187,13 @@ int SemanticWorker::dropped() const {
   return dropped_;
 }
 
+int regionAt(const SemanticResult& r, const cv::Point2f& px) {
+  if (r.labels.empty()) return 0;
+  const int x = std::clamp(cvRound(px.x), 0, r.labels.cols - 1), y = std::clamp(cvRound(px.y), 0, r.labels.rows - 1);
+  const int label = r.labels.at<std::uint8_t>(y, x);
+  return label <= static_cast<int>(r.regions.size()) ? label : 0;
+}
+
 bool SemanticWorker::idle() const {
   std::lock_guard lock(mutex_);
   return queue_.empty() && !segmenting_;

@@ -117,6 +117,10 @@ class SemanticWorker {
   std::jthread worker_;
 };
 
+// The region (1-based index into r.regions) whose label covers pixel `px`
+// (clamped to the image), 0 for none.
+int regionAt(const SemanticResult& r, const cv::Point2f& px);
+
 // Builds the region label image from a segmentation: kept movable instances,
 // each dilated by `dilation_px`, painted in ascending score order.
 void buildRegions(const semantic::Segmentation& seg, int dilation_px, SemanticResult* out);

@@ -26,6 +26,22 @@
 namespace stillpoint::slam {
 namespace {
 
+// Flags the features of `frame` inside the movable regions of `r` as the
+// semantic module does, with their class. Not when that would leave out more
+// than `max_fraction` of the features (the module's own cap for masks
+// nothing confirms). Returns whether it flagged any.
+bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction) {
+  std::vector<std::pair<int, int>> inside;  // feature, region
+  for (int i = 0; i < frame->size(); ++i)
+    if (const int label = regionAt(r, frame->keys[i].pt)) inside.emplace_back(i, label);
+  if (inside.empty() || inside.size() > max_fraction * frame->size()) return false;
+  frame->movable_class.resize(frame->size(), 0);
+  for (const auto& [i, label] : inside) {
+    frame->dynamic[i] = kSemanticDynamic;
+    frame->movable_class[i] = map.classId(r.regions[label - 1].class_name);
+  }
+  return true;
+}
 log::Logger logger("slam");
 
 // Share of the depth image's pixels with a usable depth (as buildFrame takes

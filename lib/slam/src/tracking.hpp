@@ -261,10 +261,4 @@ class Tracker {
   cv::Mat mover_cells_;  // moverCells()
 };
 
-// Flags the features of `frame` inside the movable regions of `r` as the
-// semantic module does, with their class. Not when that would leave out more
-// than `max_fraction` of the features (the module's own cap for masks
-// nothing confirms). Returns whether it flagged any.
-bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction);
-
 }  // namespace stillpoint::slam
