@@ -20,6 +20,58 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
   to->movable_class[j] = from.movable_class[i];
 }
 
+// Which regions of one segmentation a view keeps out: the rule a segmented
+// keyframe and a segmented frame share. A region most of whose judged
+// features the geometry module found moving is confirmed and always kept out;
+// the others, best score first, may together take at most
+// semantic.max_removed_fraction of the view's features with a map point, and
+// none when the model needs confirmation.
+struct RegionChoice {
+  std::vector<int> region_of;   // per feature: its region (1-based), 0 for none
+  std::vector<int> with_point;  // per region: its features with a map point
+  std::vector<char> applied;    // per label (0 = no region): kept out
+  int with_point_total = 0;
+  int unconfirmed = 0;  // regions left alone for want of confirmation
+  int capped = 0;       // regions left alone over the removal cap
+};
+
+RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::vector<char>& has_point,
+                           const SemanticOptions& o, bool confirmation_required) {
+  const int n_regions = static_cast<int>(r.regions.size());
+  RegionChoice c;
+  c.region_of.assign(f.size(), 0);
+  c.with_point.assign(n_regions, 0);
+  c.applied.assign(n_regions + 1, 0);
+  std::vector<int> flagged(n_regions, 0), judged(n_regions, 0);
+  for (int i = 0; i < f.size(); ++i) {
+    c.with_point_total += has_point[i];
+    const int label = regionAt(r, f.keys[i].pt);
+    if (label == 0) continue;
+    c.region_of[i] = label;
+    c.with_point[label - 1] += has_point[i];
+    flagged[label - 1] += f.dynamic[i] == kGeometryDynamic;
+    judged[label - 1] += f.cluster[i] >= 0;
+  }
+  const double budget = o.max_removed_fraction * c.with_point_total;
+  int removed = 0;
+  for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
+    const bool confirmed = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
+    if (!confirmed && confirmation_required) {
+      ++c.unconfirmed;
+      continue;
+    }
+    if (!confirmed) {
+      if (removed + c.with_point[k] > budget) {
+        ++c.capped;
+        continue;
+      }
+      removed += c.with_point[k];
+    }
+    c.applied[k + 1] = 1;
+  }
+  return c;
+}
+
 }  // namespace
 
 std::pair<std::shared_ptr<const cv::Mat>, Timestamp> LocalMapper::latestSemanticLabels() const {
@@ -44,52 +96,22 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   Frame& f = kf->frame;
   const int n_regions = static_cast<int>(r.regions.size());
 
-  // Per region: its features, how many carry a live map point, and what the
-  // geometry module said about them in this keyframe (before we touch `dynamic`).
-  std::vector<std::vector<int>> members(n_regions);
-  std::vector<int> with_point(n_regions, 0), flagged(n_regions, 0), judged(n_regions, 0);
-  std::vector<int> region_of(f.size(), 0);
-  int points_before = 0;
-  for (int i = 0; i < f.size(); ++i) {
-    const bool live = f.points[i] && !f.points[i]->bad;
-    points_before += live;
-    const int label = regionAt(r, f.keys[i].pt);
-    if (label == 0) continue;
-    const int k = label - 1;
-    region_of[i] = label;
-    members[k].push_back(i);
-    with_point[k] += live;
-    flagged[k] += f.dynamic[i] != 0;
-    judged[k] += f.cluster[i] >= 0;
-  }
+  // The geometry module's flags are read before `dynamic` is touched below.
+  std::vector<char> live(f.size(), 0);
+  for (int i = 0; i < f.size(); ++i) live[i] = f.points[i] && !f.points[i]->bad;
   const SemanticOptions& o = options_.semantic;
-  std::vector<char> confirmed(n_regions, 0);
-  std::vector<int> order(n_regions);
+  const RegionChoice choice = chooseRegions(r, f, live, o, semantic_confirm_);
+  const std::vector<int>& region_of = choice.region_of;
+  const std::vector<char>& applied = choice.applied;
+  st.instances_unconfirmed += choice.unconfirmed;
+  st.instances_capped += choice.capped;
   for (int k = 0; k < n_regions; ++k) {
-    order[k] = n_regions - 1 - k;  // regions come in ascending score
-    confirmed[k] = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
-  }
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return confirmed[a] > confirmed[b]; });
-
-  // Semantic evidence alone may remove at most this many of the keyframe's points.
-  const double budget = o.max_removed_fraction * points_before;
-  int unconfirmed_removed = 0;
-  std::vector<char> applied(n_regions + 1, 0);
-  for (int k : order) {
-    if (semantic_confirm_ && !confirmed[k]) {
-      ++st.instances_unconfirmed;
+    if (!applied[k + 1]) {
+      SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' ("
+                                   << choice.with_point[k] << " of " << choice.with_point_total
+                                   << " points) left alone");
       continue;
     }
-    if (!confirmed[k]) {
-      if (unconfirmed_removed + with_point[k] > budget) {
-        ++st.instances_capped;
-        SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' would remove "
-                                     << with_point[k] << " of " << points_before << " points: left alone");
-        continue;
-      }
-      unconfirmed_removed += with_point[k];
-    }
-    applied[k + 1] = 1;
     ++st.instances_applied;
     if (r.regions[k].continued) ++st.instances_continued;
   }
@@ -190,36 +212,12 @@ bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_require
     SP_WARN(logger, "frame " << r.frame_id << ": segmentation failed: " << r.error);
     return false;
   }
-  // As a keyframe's segmentation is applied (LocalMapper::applySemantic):
-  // a region most of whose judged features the geometry module found moving
-  // is confirmed; the others may together take at most
-  // semantic.max_removed_fraction of the frame's map-point matches, none when
-  // the model needs confirmation. Its own result replaces the marks the frame
-  // carried from earlier masks: one that found no one ends them.
-  const SemanticOptions& o = options_.semantic;
-  const int n_regions = static_cast<int>(r.regions.size());
-  std::vector<int> region_of(f.size(), 0), with_point(n_regions, 0), flagged(n_regions, 0), judged(n_regions, 0);
-  int matched = 0;
-  for (int i = 0; i < f.size(); ++i) {
-    const bool live = awaiting_matched_[i];
-    matched += live;
-    const int label = regionAt(r, f.keys[i].pt);
-    if (label == 0) continue;
-    region_of[i] = label;
-    with_point[label - 1] += live;
-    flagged[label - 1] += f.dynamic[i] == kGeometryDynamic;
-    judged[label - 1] += f.cluster[i] >= 0;
-  }
-  std::vector<char> applied(n_regions + 1, 0);
-  int removed = 0;
-  for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
-    const bool confirmed = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
-    if (!confirmed) {
-      if (confirmation_required || removed + with_point[k] > o.max_removed_fraction * matched) continue;
-      removed += with_point[k];
-    }
-    applied[k + 1] = 1;
-  }
+  // The regions are chosen as a keyframe's (chooseRegions), the removal cap
+  // counted on the frame's map-point matches. Its own result replaces the
+  // marks the frame carried from earlier masks: one that found no one ends them.
+  const RegionChoice choice = chooseRegions(r, f, awaiting_matched_, options_.semantic, confirmation_required);
+  const std::vector<int>& region_of = choice.region_of;
+  const std::vector<char>& applied = choice.applied;
   f.movable_class.resize(f.size(), 0);
   for (int i = 0; i < f.size(); ++i) {
     if (f.dynamic[i] == kSemanticDynamic) f.dynamic[i] = kNotDynamic;
