@@ -218,13 +218,14 @@ bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_require
   const RegionChoice choice = chooseRegions(r, f, awaiting_matched_, options_.semantic, confirmation_required);
   const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
+  std::vector<std::uint8_t> class_of(applied.size(), 0);
+  for (std::size_t k = 1; k < applied.size(); ++k)
+    if (applied[k]) class_of[k] = map_->classId(r.regions[k - 1].class_name);
   f.movable_class.resize(f.size(), 0);
   for (int i = 0; i < f.size(); ++i) {
     if (f.dynamic[i] == kSemanticDynamic) f.dynamic[i] = kNotDynamic;
-    f.movable_class[i] = 0;
-    if (!applied[region_of[i]]) continue;
-    f.dynamic[i] = kSemanticDynamic;
-    f.movable_class[i] = map_->classId(r.regions[region_of[i] - 1].class_name);
+    f.movable_class[i] = class_of[region_of[i]];
+    if (applied[region_of[i]]) f.dynamic[i] = kSemanticDynamic;
   }
   masked_frame_ = std::move(f);
   return true;

@@ -157,7 +157,7 @@ struct SlamSystem::Impl {
   void applySegmentation(const SemanticJob& job) {
     SemanticResult r = semantic->process(job);
     if (r.frame_id >= 0) {
-      frames_segmented += tracker.applyFrameMasks(r, mapper.semanticConfirmation());
+      applyFrameResult(r);
       return;
     }
     mapper.postSemantic(std::move(r));
@@ -168,6 +168,9 @@ struct SlamSystem::Impl {
   std::mutex frame_masks_mutex;
   std::optional<SemanticResult> frame_masks;
   std::atomic<int> frames_segmented{0};
+  void applyFrameResult(const SemanticResult& r) {
+    frames_segmented += tracker.applyFrameMasks(r, mapper.semanticConfirmation());
+  }
   void postFrameMasks(SemanticResult r) {
     std::lock_guard lock(frame_masks_mutex);
     frame_masks = std::move(r);
@@ -178,7 +181,7 @@ struct SlamSystem::Impl {
       std::lock_guard lock(frame_masks_mutex);
       r.swap(frame_masks);
     }
-    if (r) frames_segmented += tracker.applyFrameMasks(*r, mapper.semanticConfirmation());
+    if (r) applyFrameResult(*r);
   }
 };
 
@@ -416,7 +419,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
       const std::int64_t id = s.tracker.keepForMasks();
       SemanticJob job{-1, input.bgr.clone(), input.depth_m.empty() ? cv::Mat() : input.depth_m.clone(), t2, id};
       if (inline_now)
-        s.frames_segmented += s.tracker.applyFrameMasks(s.semantic->process(job), s.mapper.semanticConfirmation());
+        s.applyFrameResult(s.semantic->process(job));
       else if (modelled_delay)
         s.latency.submit(std::move(job), id);
       else
