@@ -4,7 +4,8 @@
 # (stillpoint-synth overlay), there from the first frame. Deterministic
 # replay with the geometry module alone, or with both modules when
 # MASK_DELAY_FRAMES is given (each keyframe's mask applied that many frames
-# late, as a live run's segmentation comes; semantic.sequential_latency_frames);
+# late, as a live run's segmentation comes; semantic.sequential_latency_frames),
+# or with the semantic module alone when it is given as semantic:FRAMES;
 # fails above MAX_ATE_M or on any lost frame. PATH picks the walk:
 #   near         0.8 m away, still for 1.5 s, then walking slowly across,
 #                covering up to 58 % of the image and most of the features;
@@ -13,7 +14,7 @@
 #                stood must not hold the pose when it goes).
 #
 # usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
-#                              [MASK_DELAY_FRAMES]
+#                              [MASK_DELAY_FRAMES | semantic:MASK_DELAY_FRAMES]
 # exit:  0 pass, 1 fail, 77 skipped (excerpt or model absent)
 set -euo pipefail
 
@@ -77,12 +78,21 @@ echo "+ $synth overlay $excerpt $sequence --camera fr3 --config $out_dir/movers.
 
 modules=(--modules geometry)
 if [[ -n $mask_delay ]]; then
+  with=geometry,semantic
+  if [[ $mask_delay == semantic:* ]]; then
+    with=semantic
+    mask_delay=${mask_delay#semantic:}
+  fi
+  if ! [[ $mask_delay =~ ^[0-9]+$ ]]; then
+    echo "MASK_DELAY_FRAMES must be a number of frames, optionally after 'semantic:'" >&2
+    exit 1
+  fi
   cat >"$out_dir/slam.yaml" <<YAML
 semantic:
   model_dirs: [$models_dir]
   sequential_latency_frames: $mask_delay
 YAML
-  modules=(--modules geometry,semantic --config "$out_dir/slam.yaml")
+  modules=(--modules "$with" --config "$out_dir/slam.yaml")
 fi
 bash "$(dirname "$0")/replay_accuracy_test.sh" "$replay" "$eval" "$sequence" fr3 "$out_dir/replay" "$max_ate" \
   "${modules[@]}"
