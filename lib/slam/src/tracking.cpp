@@ -558,8 +558,6 @@ bool Tracker::trackLocalMap(int min_inliers) {
   std::unordered_map<MapPoint*, int> matched;
   for (int i = 0; i < current_.size(); ++i)
     if (current_.points[i]) matched[current_.points[i].get()] = i;
-  for (const auto& p : local_points_)
-    if (!matched.count(p.get())) candidates.push_back(p);
   // A keypoint goes to the first point that finds it, so the points waiting
   // for their keyframe's mask are searched last. Each keyframe maps its own
   // copy of a surface (points are not fused), and with a long mask delay
@@ -567,7 +565,10 @@ bool Tracker::trackLocalMap(int min_inliers) {
   // most keypoints (700-850 a frame against 5-60 established ones at a
   // 24-frame delay), the fit had too few established matches to hold them
   // out (probation_min_trusted), and a person they were made on pulled it.
-  std::stable_partition(candidates.begin(), candidates.end(), [this](const auto& p) { return !heldForMask(*p); });
+  std::vector<std::shared_ptr<MapPoint>> waiting;
+  for (const auto& p : local_points_)
+    if (!matched.count(p.get())) (heldForMask(*p) ? waiting : candidates).push_back(p);
+  candidates.insert(candidates.end(), waiting.begin(), waiting.end());
   {
     ScopedStageTimer search_timer(&times_.local_map);
     std::vector<char> in_view;
