@@ -25,9 +25,11 @@
 
 #include "bench/published.hpp"
 #include "stillpoint_commit.h"
+#include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/metrics.hpp"
 #include "stillpoint/eval/plot.hpp"
 #include "stillpoint/eval/trajectory.hpp"
+#include "stillpoint/features/orb_extractor.hpp"
 
 extern char** environ;
 
@@ -48,7 +50,8 @@ constexpr const char* kUsage =
     "stillpoint-replay process of its own, threaded as stillpointd runs (--sequential: one\n"
     "thread, deterministic; --paced: frames at their recorded rate, as a camera delivers them to\n"
     "stillpointd, so the modules' threads have the time a live run gives them). Writes into --out:\n"
-    "  report.md     machine, commit, command, the accuracy table (ATE RMSE, RPE: median and\n"
+    "  report.md     machine and its speed (ORB extraction time at start and end), commit,\n"
+    "                command, the accuracy table (ATE RMSE, RPE: median and\n"
     "                min-max over runs, and the share of frames with a pose), the runtime table\n"
     "                (semantic part per keyframe, geometry part and tracking per frame, frames\n"
     "                over 33 ms, keyframes per second, segmentations dropped), plots, and\n"
@@ -446,6 +449,35 @@ std::string loadAverage() {
   return a.empty() ? "unknown" : a + " " + b + " " + c;
 }
 
+// The host's speed as the runs met it: the median time of ORB extraction
+// (1000 features, 8 levels, as orb_benchmark's first case) on the first frame
+// of the first sequence, over 15 extractions after 3 to warm up. Tracking and
+// segmentation times scale with it, and with the semantic module so do a
+// live run's mask delays and its accuracy: reports from different hosts, or
+// from one host on a slower day, compare through it.
+std::string orbExtractionMs(const std::string& dir) {
+  try {
+    auto data = dataset::TumDataset::open(dir);
+    if (!data) return "not measured: " + data.error();
+    if (data->size() == 0) return "not measured: no frame";
+    auto frame = data->load(0);
+    if (!frame) return "not measured: " + frame.error();
+    features::OrbExtractor orb(features::OrbOptions{});
+    std::vector<cv::KeyPoint> keys;
+    cv::Mat descriptors;
+    std::vector<double> ms;
+    for (int k = 0; k < 18; ++k) {
+      const auto t0 = std::chrono::steady_clock::now();
+      orb.extract(frame->gray, &keys, &descriptors);
+      if (k >= 3) ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    }
+    std::nth_element(ms.begin(), ms.begin() + ms.size() / 2, ms.end());
+    return fmt(ms[ms.size() / 2], 1) + " ms";
+  } catch (const std::exception& e) {
+    return std::string("not measured: ") + e.what();
+  }
+}
+
 std::string nowUtc() {
   const std::time_t t = std::time(nullptr);
   char buf[64];
@@ -553,7 +585,17 @@ std::string statusOf(const std::vector<const RunResult*>& runs) {
   return s;
 }
 
-bool writeReport(const Args& args, const std::string& command, const std::string& started, const std::string& load_start,
+// What the host was like when the runs began (and, for the report, ended).
+struct HostState {
+  std::string load;     // load average, 1, 5, 15 min
+  std::string orb_ms;   // orbExtractionMs
+};
+
+HostState hostState(const Args& args) {
+  return {loadAverage(), args.sequences.empty() ? "not measured: no sequence" : orbExtractionMs(args.sequences.front().dir)};
+}
+
+bool writeReport(const Args& args, const std::string& command, const std::string& started, const HostState& start,
                  const std::vector<Group>& groups, const std::vector<RunResult>& results, std::string* error) {
   const std::string out_dir = args.out;
   std::vector<std::string> plot_failures;
@@ -566,7 +608,10 @@ bool writeReport(const Args& args, const std::string& command, const std::string
   md << "| | |\n|---|---|\n";
   md << "| stillpoint | " << STILLPOINT_VERSION << ", commit " << STILLPOINT_COMMIT << " (" << STILLPOINT_ARCH << ") |\n";
   md << "| machine | " << cpuModel() << ", " << std::thread::hardware_concurrency() << " cores |\n";
-  md << "| load average (1, 5, 15 min) | at start " << load_start << "; at end " << loadAverage() << " |\n";
+  const HostState end = hostState(args);
+  md << "| load average (1, 5, 15 min) | at start " << start.load << "; at end " << end.load << " |\n";
+  md << "| host speed: ORB extraction, 1000 features, first frame | at start " << start.orb_ms << "; at end "
+     << end.orb_ms << " |\n";
   md << "| started | " << started << " |\n";
   md << "| mode | "
      << (args.sequential ? "sequential (one thread, deterministic)"
@@ -713,7 +758,8 @@ int benchMain(int argc, char** argv) {
     std::fprintf(stderr, "stillpoint-bench: cannot create %s: %s\n", args.out.c_str(), ec.message().c_str());
     return 1;
   }
-  const std::string started = nowUtc(), load_start = loadAverage();
+  const std::string started = nowUtc();
+  const HostState start = hostState(args);
   const std::string command = commandLine(argc, argv);
 
   std::vector<std::string> cards = args.model_cards;
@@ -748,7 +794,7 @@ int benchMain(int argc, char** argv) {
       groups.push_back({r.sequence, label, {}});
     groups.back().runs.push_back(&r);
   }
-  if (!writeReport(args, command, started, load_start, groups, results, &error)) {
+  if (!writeReport(args, command, started, start, groups, results, &error)) {
     std::fprintf(stderr, "stillpoint-bench: %s\n", error.c_str());
     return 1;
   }

@@ -25,6 +25,8 @@ grep -qx '<!-- bench-summary: begin -->' "$report" && grep -qx '<!-- bench-summa
 for section in '## Accuracy' '## Runtime' '## Published figures' '## Plots'; do
   grep -qx "$section.*" "$report" || fail "report without '$section'"
 done
+grep -Eq '^\| host speed: ORB extraction[^|]*\| at start [0-9]+\.[0-9] ms; at end [0-9]+\.[0-9] ms \|$' "$report" \
+  || fail "report without the host speed measured at start and end"
 rows=$(awk '/<!-- bench-summary: begin -->/{f=1;next} /<!-- bench-summary: end -->/{f=0} f && /^\| `/' "$report" | wc -l)
 [[ $rows -eq 12 ]] || fail "accuracy table has $rows rows, expected 12 (3 sequences x 4 module sets)"
 header=$(head -n 1 "$csv")
