@@ -471,8 +471,7 @@ std::string orbExtractionMs(const std::string& dir) {
       orb.extract(frame->gray, &keys, &descriptors);
       if (k >= 3) ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
     }
-    std::nth_element(ms.begin(), ms.begin() + ms.size() / 2, ms.end());
-    return fmt(ms[ms.size() / 2], 1) + " ms";
+    return fmt(quantile(ms, 0.5), 1) + " ms";
   } catch (const std::exception& e) {
     return std::string("not measured: ") + e.what();
   }
