@@ -34,7 +34,7 @@ using namespace stillpoint;
 
 constexpr const char* kUsage =
     "usage: stillpoint-replay DATASET_DIR --camera fr1|fr2|fr3|CAMERA.yaml --output TRAJ.txt\n"
-    "                         [--config SLAM.yaml] [--sequential] [--paced]\n"
+    "                         [--config SLAM.yaml] [--sequential [--keyframe-spacing N]] [--paced]\n"
     "                         [--modules none|geometry,semantic] [--features-out FEATURES.txt]\n"
     "                         [--keyframes-out KEYFRAMES.txt] [--keyframe-trajectory KF_TRAJ.txt]\n"
     "                         [--known-movers] [--max-frames N] [--log-level debug|info|warn|error]\n"
@@ -47,7 +47,10 @@ constexpr const char* kUsage =
     "Runs stillpoint over a TUM RGB-D layout folder (rgb.txt, depth.txt, rgb/, depth/) as fast\n"
     "as it can (--paced: at the recorded rate), writes the camera trajectory in TUM format and\n"
     "prints a summary. When the folder has groundtruth.txt, ATE/RPE are printed too.\n"
-    "--sequential runs local mapping inline on one thread (deterministic).\n"
+    "--sequential runs local mapping inline on one thread (deterministic). Local mapping is then\n"
+    "always free, so a keyframe can come every frame; --keyframe-spacing N makes them at least N\n"
+    "frames apart (but for those weak tracking forces), as a live run's busy mapper does (2-3 on a\n"
+    "2-core CPU with the semantic module).\n"
     "--options-reference prints the SLAM options' YAML keys as a Markdown table.\n"
     "--modules picks the dynamic-object modules: 'none', or a comma list of geometry and semantic\n"
     "(default: as the config enables them; listed modules are on, the others off).\n"
@@ -90,6 +93,7 @@ struct Args {
   bool sequential = false, paced = false, known_movers = false;
   bool geometry = false, semantic = false;  // from --modules
   long max_frames = -1;
+  long keyframe_spacing = 0;  // 0: not given
 };
 
 bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
@@ -159,6 +163,15 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       }
     } else if (a == "--sequential") {
       args->sequential = true;
+    } else if (a == "--keyframe-spacing") {
+      std::string v;
+      if (!value(&v)) return false;
+      char* end = nullptr;
+      args->keyframe_spacing = std::strtol(v.c_str(), &end, 10);
+      if (*end || args->keyframe_spacing <= 0 || args->keyframe_spacing > 1000) {
+        *error = "--keyframe-spacing needs an integer in 1..1000";
+        return false;
+      }
     } else if (a == "--paced") {
       args->paced = true;
     } else if (a == "--known-movers") {
@@ -175,6 +188,7 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
   }
   if (args->dataset.empty()) *error = "missing DATASET_DIR";
   else if (args->localisation && args->load_map.empty()) *error = "--localisation needs --load-map";
+  else if (args->keyframe_spacing > 0 && !args->sequential) *error = "--keyframe-spacing needs --sequential";
   else if (args->camera.empty()) *error = "missing --camera";
   else if (args->output.empty()) *error = "missing --output";
   else if (!args->modules.empty() && args->modules != "none") {
@@ -256,6 +270,7 @@ int main(int argc, char** argv) {
     options = *loaded;
   }
   if (args.sequential) options.sequential = true;
+  if (args.keyframe_spacing > 0) options.keyframes.min_interval_frames = static_cast<int>(args.keyframe_spacing);
   if (!args.model_card.empty()) options.semantic.model_card = args.model_card;
   if (args.localisation) options.localisation = true;
   if (!args.export_dense.empty()) options.mapping.dense_views = true;

@@ -142,6 +142,17 @@ TEST_F(ReplayCli, MissingRequiredOptionsExitTwo) {
 
 // --- bad input: exit 1 naming what is wrong ----------------------------------
 
+TEST_F(ReplayCli, KeyframeSpacingNeedsSequentialAndAPositiveCount) {
+  RunResult r = replay({seq_.directory, "--camera", camera_, "--output", output_, "--keyframe-spacing", "2"});
+  EXPECT_EQ(r.exit_code, 2) << describe(r);
+  EXPECT_TRUE(contains(r.err, "--keyframe-spacing needs --sequential")) << describe(r);
+  for (const char* bad : {"0", "-1", "two", "1001"}) {
+    r = replaySequence({"--keyframe-spacing", bad});
+    EXPECT_EQ(r.exit_code, 2) << bad << ": " << describe(r);
+    EXPECT_TRUE(contains(r.err, "--keyframe-spacing needs an integer in 1..1000")) << describe(r);
+  }
+}
+
 TEST_F(ReplayCli, MissingDatasetDirectoryIsNamed) {
   const std::string missing = (scratch_ / "no_such_sequence").string();
   const RunResult r = replay({missing, "--camera", "fr3", "--output", output_});

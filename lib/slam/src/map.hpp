@@ -270,6 +270,8 @@ class Map {
   // it, the point's probation does). Any thread; no map lock needed.
   void maskRequested(std::int64_t keyframe_id) { raiseTo(&mask_requested_, keyframe_id); }
   void maskResolved(std::int64_t keyframe_id) { raiseTo(&mask_resolved_, keyframe_id); }
+  // Some keyframe was sent for segmentation: the semantic module runs.
+  bool segmenting() const { return mask_requested_.load(std::memory_order_relaxed) >= 0; }
   bool awaitingMask(std::int64_t keyframe_id) const {
     return keyframe_id > mask_resolved_.load(std::memory_order_relaxed) &&
            keyframe_id <= mask_requested_.load(std::memory_order_relaxed);

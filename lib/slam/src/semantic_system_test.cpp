@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -718,26 +719,76 @@ TEST(SemanticModule, DilationGrowsTheMaskByItsRadius) {
 }
 
 
+// The real excerpt (../shared/data), and its frames [first, last).
+fs::path realExcerpt() { return fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200"; }
+
+Frames realFrames(std::size_t first, std::size_t last) {
+  Frames out;
+  auto camera = loadCamera("fr3");
+  EXPECT_TRUE(camera.ok()) << camera.error();
+  if (!camera.ok()) return out;
+  out.camera = *camera;
+  dataset::DatasetOptions dopts;
+  dopts.depth_factor = camera->depth_factor;
+  const auto tum = dataset::TumDataset::open(realExcerpt().string(), dopts);
+  EXPECT_TRUE(tum.ok()) << tum.error();
+  for (std::size_t i = first; tum.ok() && i < last && i < tum->size(); ++i) {
+    const auto f = tum->load(i);
+    EXPECT_TRUE(f.ok()) << f.error();
+    if (f.ok()) out.inputs.push_back({f->stamp, f->gray, f->depth_m, f->bgr});
+  }
+  return out;
+}
+
+// keyframes.min_interval_frames (stillpoint-replay --keyframe-spacing): a
+// sequential run, whose local mapping is always free, makes its keyframes as
+// far apart as a live run's busy mapper does (40 real frames, the camera
+// moving on: a keyframe every frame or two otherwise).
+TEST(SemanticModule, KeyframeSpacingHoldsSequentialKeyframesApart) {
+  if (!fs::is_directory(realExcerpt())) GTEST_SKIP() << realExcerpt() << " not found";
+  const Frames real = realFrames(40, 80);
+  ASSERT_EQ(real.inputs.size(), 40u);
+  const CameraModel* camera = &real.camera;
+  const std::vector<RgbdInput>& inputs = real.inputs;
+  auto keyframeIndices = [&](int spacing) {
+    SlamOptions options;
+    options.sequential = true;
+    options.geometry.enabled = false;
+    options.mapping.keep_culled_keyframes = true;
+    options.keyframes.min_interval_frames = spacing;
+    std::vector<int> frames;
+    auto system = SlamSystem::create(*camera, options);
+    EXPECT_TRUE(system.ok()) << system.error();
+    if (!system.ok()) return frames;
+    for (const RgbdInput& in : inputs) EXPECT_TRUE((*system)->track(in).ok());
+    (*system)->finish();
+    for (const KeyFrameView& kf : (*system)->keyframes())
+      for (std::size_t k = 0; k < inputs.size(); ++k)
+        if (inputs[k].stamp == kf.stamp) frames.push_back(static_cast<int>(k));
+    std::sort(frames.begin(), frames.end());
+    return frames;
+  };
+  const std::vector<int> every = keyframeIndices(0), spaced = keyframeIndices(3);
+  std::printf("keyframes in %zu frames: %zu, at least 3 frames apart %zu\n", inputs.size(), every.size(),
+              spaced.size());
+  ASSERT_GE(spaced.size(), 5u);
+  EXPECT_LT(spaced.size(), every.size());
+  EXPECT_TRUE(std::adjacent_find(every.begin(), every.end(), [](int a, int b) { return b - a < 3; }) != every.end())
+      << "without the spacing, some keyframes come closer than 3 frames";
+  for (std::size_t k = 1; k < spaced.size(); ++k) EXPECT_GE(spaced[k] - spaced[k - 1], 3) << "frame " << spaced[k];
+}
+
 // The real in-tree person model on real TUM frames: it takes the teddy bear
 // for a person (lib/semantic/README.md). Its card asks for the geometry
 // module's agreement, so with geometry off nothing is removed; with the
 // confirmation overridden, the keyframe's features inside the model's own
 // mask lose their map points.
 TEST(SemanticModule, PersonModelOnRealFrames) {
-  const fs::path seq = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
-  if (!fs::is_directory(seq)) GTEST_SKIP() << seq << " not found";
-  auto camera = loadCamera("fr3");
-  ASSERT_TRUE(camera.ok()) << camera.error();
-  dataset::DatasetOptions dopts;
-  dopts.depth_factor = camera->depth_factor;
-  const auto tum = dataset::TumDataset::open(seq.string(), dopts);
-  ASSERT_TRUE(tum.ok()) << tum.error();
-  std::vector<RgbdInput> inputs;
-  for (std::size_t i = 20; i < 30; ++i) {  // person-free frames
-    const auto f = tum->load(i);
-    ASSERT_TRUE(f.ok()) << f.error();
-    inputs.push_back({f->stamp, f->gray, f->depth_m, f->bgr});
-  }
+  if (!fs::is_directory(realExcerpt())) GTEST_SKIP() << realExcerpt() << " not found";
+  const Frames real = realFrames(20, 30);  // person-free frames
+  ASSERT_EQ(real.inputs.size(), 10u);
+  const CameraModel* camera = &real.camera;
+  const std::vector<RgbdInput>& inputs = real.inputs;
   auto track = [&](const SlamOptions& options) {
     auto system = SlamSystem::create(*camera, options);
     EXPECT_TRUE(system.ok()) << system.error();

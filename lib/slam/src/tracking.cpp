@@ -743,6 +743,14 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   // are the least proven evidence: a person filling the near view lends most
   // of the former and went into the latter. They are judged by the pose the
   // loaded points give instead of pulling it.
+  //
+  // Without the geometry module the temporary points are as unchecked as
+  // points awaiting their mask: made from the last frame's features, which no
+  // segmentation has seen, they lie on a person wherever the masks followed
+  // from the last segmented keyframe miss it (a person 2 m away, whose
+  // features that lookup matches a few of). While the established points
+  // alone are enough, the temporary ones are judged by the pose those give;
+  // with fewer, they count as before, ahead of the points awaiting their mask.
   std::vector<int> held, temporary, own;
   int trusted = 0;
   for (int i = 0; i < current_.size(); ++i) {
@@ -762,7 +770,11 @@ int Tracker::timedOptimizePose(const SE3* prior) {
     held.insert(held.end(), temporary.begin(), temporary.end());
     held.insert(held.end(), own.begin(), own.end());
   } else {
-    trusted += static_cast<int>(temporary.size() + own.size());
+    trusted += static_cast<int>(own.size());
+    if (!detector_ && map_->segmenting() && trusted >= options_.geometry.probation_min_trusted)
+      held.insert(held.end(), temporary.begin(), temporary.end());
+    else
+      trusted += static_cast<int>(temporary.size());
   }
   const int min_trusted = options_.geometry.probation_min_trusted;
   if (!held.empty() && trusted < min_trusted) {
