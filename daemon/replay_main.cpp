@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cerrno>
+#include <climits>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -107,6 +108,18 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
       *out = argv[++i];
       return true;
     };
+    // A whole number in 1..max as the option's value, else `message`.
+    auto count = [&](long* out, long max, const char* message) {
+      std::string v;
+      if (!value(&v)) return false;
+      char* end = nullptr;
+      *out = std::strtol(v.c_str(), &end, 10);
+      if (*end || *out <= 0 || *out > max) {
+        *error = message;
+        return false;
+      }
+      return true;
+    };
     if (a == "--camera") {
       if (!value(&args->camera)) return false;
     } else if (a == "--output") {
@@ -144,34 +157,13 @@ bool parseArgs(int argc, char** argv, Args* args, std::string* error) {
     } else if (a == "--render-video") {
       if (!value(&args->render_video)) return false;
     } else if (a == "--render-every") {
-      std::string v;
-      if (!value(&v)) return false;
-      char* end = nullptr;
-      args->render_every = std::strtol(v.c_str(), &end, 10);
-      if (*end || args->render_every <= 0) {
-        *error = "--render-every needs a positive integer";
-        return false;
-      }
+      if (!count(&args->render_every, LONG_MAX, "--render-every needs a positive integer")) return false;
     } else if (a == "--max-frames") {
-      std::string v;
-      if (!value(&v)) return false;
-      char* end = nullptr;
-      args->max_frames = std::strtol(v.c_str(), &end, 10);
-      if (*end || args->max_frames <= 0) {
-        *error = "--max-frames needs a positive integer";
-        return false;
-      }
+      if (!count(&args->max_frames, LONG_MAX, "--max-frames needs a positive integer")) return false;
     } else if (a == "--sequential") {
       args->sequential = true;
     } else if (a == "--keyframe-spacing") {
-      std::string v;
-      if (!value(&v)) return false;
-      char* end = nullptr;
-      args->keyframe_spacing = std::strtol(v.c_str(), &end, 10);
-      if (*end || args->keyframe_spacing <= 0 || args->keyframe_spacing > 1000) {
-        *error = "--keyframe-spacing needs an integer in 1..1000";
-        return false;
-      }
+      if (!count(&args->keyframe_spacing, 1000, "--keyframe-spacing needs an integer in 1..1000")) return false;
     } else if (a == "--paced") {
       args->paced = true;
     } else if (a == "--known-movers") {

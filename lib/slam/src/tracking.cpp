@@ -751,6 +751,7 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   // features that lookup matches a few of). While the established points
   // alone are enough, the temporary ones are judged by the pose those give;
   // with fewer, they count as before, ahead of the points awaiting their mask.
+  const int min_trusted = options_.geometry.probation_min_trusted;
   std::vector<int> held, temporary, own;
   int trusted = 0;
   for (int i = 0; i < current_.size(); ++i) {
@@ -771,12 +772,11 @@ int Tracker::timedOptimizePose(const SE3* prior) {
     held.insert(held.end(), own.begin(), own.end());
   } else {
     trusted += static_cast<int>(own.size());
-    if (!detector_ && map_->segmenting() && trusted >= options_.geometry.probation_min_trusted)
+    if (!detector_ && map_->segmenting() && trusted >= min_trusted)
       held.insert(held.end(), temporary.begin(), temporary.end());
     else
       trusted += static_cast<int>(temporary.size());
   }
-  const int min_trusted = options_.geometry.probation_min_trusted;
   if (!held.empty() && trusted < min_trusted) {
     std::erase_if(held, [&](int i) {
       if (current_.points[i]->geometry.on_mover) return false;
