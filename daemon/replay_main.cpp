@@ -656,9 +656,10 @@ int main(int argc, char** argv) {
     if (map.semantic_frames_segmented > 0)
       std::printf("              %d frames segmented where no keyframe is made (a mapped place)\n",
                   map.semantic_frames_segmented);
-    std::printf("              %d instances applied (%d by hysteresis), %d unconfirmed by geometry, %d over the removal cap\n",
-                map.semantic_instances_applied, map.semantic_instances_continued, map.semantic_instances_unconfirmed,
-                map.semantic_instances_capped);
+    std::printf("              %d instances applied (%d by hysteresis, %d the pose had followed), %d unconfirmed by "
+                "geometry, %d over the removal cap\n",
+                map.semantic_instances_applied, map.semantic_instances_continued, map.semantic_instances_followed,
+                map.semantic_instances_unconfirmed, map.semantic_instances_capped);
     std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks)\n",
                 map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled);
     std::printf("              %.1f features per frame followed from the last segmented keyframe's masks%s\n",

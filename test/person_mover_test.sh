@@ -12,6 +12,10 @@
 #   stop-and-go  1.3 m away at 0.4 m/s, 18 % / 37 % of the image: walks,
 #                slows to a stop and walks on (its points made while it
 #                stood must not hold the pose when it goes).
+#   behind-bear  1.7 m tall, 0.9 m away, walking at 0.15 m/s from the first
+#                frame behind the teddy bear, 18 % / 29 % of the image and
+#                most of the features; COCO misses it for 80 frames, then
+#                finds it where the pose has followed it.
 #
 # usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
 #                              [MASK_DELAY_FRAMES | semantic:MASK_DELAY_FRAMES]
@@ -19,18 +23,19 @@
 set -euo pipefail
 
 if [[ $# -ne 10 && $# -ne 11 ]]; then
-  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go" \
+  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go|behind-bear" \
     "[MASK_DELAY_FRAMES]" >&2
   exit 1
 fi
 replay=$1 eval=$2 synth=$3 segment=$4 source_dir=$5 data_dir=$6 models_dir=$7 out_dir=$8 max_ate=$9 walk=${10}
 mask_delay=${11:-}
 case $walk in
-  #             from x, depth, to x, m/s, period s, hold s
-  near)        path=(-0.35 0.8 0.35 0.12 8 1.5) ;;
-  stop-and-go) path=(-0.8 1.3 0.8 0.4 4 0.5) ;;
+  #             from x, depth, to x, m/s, period s, hold s, size m, height, phase s
+  near)        path=(-0.35 0.8 0.35 0.12 8 1.5 1.4 0.9 0) ;;
+  stop-and-go) path=(-0.8 1.3 0.8 0.4 4 0.5 1.4 0.9 0) ;;
+  behind-bear) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 3) ;;
   *)
-    echo "unknown PATH '$walk' (near or stop-and-go)" >&2
+    echo "unknown PATH '$walk' (near, stop-and-go or behind-bear)" >&2
     exit 1
     ;;
 esac
@@ -60,17 +65,17 @@ movers:
   - name: person
     shape: poster
     texture: $photo
-    size: [1.4, 1.4, 0]
+    size: [${path[6]}, ${path[6]}, 0]
     path:
       type: walk
-      start: [${path[0]}, ${path[1]}, 0.9]
-      end: [${path[2]}, ${path[1]}, 0.9]
+      start: [${path[0]}, ${path[1]}, ${path[7]}]
+      end: [${path[2]}, ${path[1]}, ${path[7]}]
       speed: ${path[3]}
       period_s: ${path[4]}
       hold_s: ${path[5]}
       go_s: 1
       stop_s: 1
-      phase_s: 0
+      phase_s: ${path[8]}
 YAML
 sequence=$out_dir/sequence
 echo "+ $synth overlay $excerpt $sequence --camera fr3 --config $out_dir/movers.yaml --cutout $cutout --face-camera"

@@ -40,6 +40,7 @@ struct SemanticStats {
   int segmented = 0, failures = 0;
   int features_removed = 0, points_removed = 0, points_culled = 0;
   int instances_applied = 0, instances_unconfirmed = 0, instances_capped = 0, instances_continued = 0;
+  int instances_followed = 0;  // applied over the cap: the pose had followed them
   RecentSamples latency_ms;  // keyframe creation -> result applied
   RecentSamples segment_ms;
 };

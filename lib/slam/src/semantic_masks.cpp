@@ -26,13 +26,22 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
 // the others, best score first, may together take at most
 // semantic.max_removed_fraction of the view's features with a map point, and
 // none when the model needs confirmation.
+//
+// The cap keeps a false positive from emptying the map. It does not hold for
+// a region the geometry module took for the world: when it flags a larger
+// share of the judged features outside every region than of the region's own,
+// and at least semantic.other_motion_share of them, the pose follows the
+// region's motion and the rest of the view is the other motion. A textured
+// person in front of a bare room then holds most of the keyframe's points,
+// and the mask is what tells which motion is the world's.
 struct RegionChoice {
   std::vector<int> region_of;   // per feature: its region (1-based), 0 for none
   std::vector<int> with_point;  // per region: its features with a map point
   std::vector<char> applied;    // per label (0 = no region): kept out
   int with_point_total = 0;
-  int unconfirmed = 0;  // regions left alone for want of confirmation
-  int capped = 0;       // regions left alone over the removal cap
+  int unconfirmed = 0;    // regions left alone for want of confirmation
+  int capped = 0;         // regions left alone over the removal cap
+  int followed = 0;       // applied over the cap: the pose followed them
 };
 
 RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::vector<char>& has_point,
@@ -43,15 +52,23 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
   c.with_point.assign(n_regions, 0);
   c.applied.assign(n_regions + 1, 0);
   std::vector<int> flagged(n_regions, 0), judged(n_regions, 0);
+  int flagged_outside = 0, judged_outside = 0;
   for (int i = 0; i < f.size(); ++i) {
     c.with_point_total += has_point[i];
+    const bool moving = f.dynamic[i] == kGeometryDynamic;
+    const bool in_cluster = f.cluster[i] >= 0;
     const int label = regionAt(r, f.keys[i].pt);
-    if (label == 0) continue;
+    if (label == 0) {
+      flagged_outside += moving;
+      judged_outside += in_cluster;
+      continue;
+    }
     c.region_of[i] = label;
     c.with_point[label - 1] += has_point[i];
-    flagged[label - 1] += f.dynamic[i] == kGeometryDynamic;
-    judged[label - 1] += f.cluster[i] >= 0;
+    flagged[label - 1] += moving;
+    judged[label - 1] += in_cluster;
   }
+  const double outside_share = judged_outside > 0 ? static_cast<double>(flagged_outside) / judged_outside : 0.0;
   const double budget = o.max_removed_fraction * c.with_point_total;
   int removed = 0;
   for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
@@ -61,10 +78,13 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
       continue;
     }
     if (!confirmed) {
-      if (removed + c.with_point[k] > budget) {
+      const double own_share = judged[k] > 0 ? static_cast<double>(flagged[k]) / judged[k] : 0.0;
+      const bool followed = o.other_motion_share > 0 && outside_share >= o.other_motion_share && outside_share > own_share;
+      if (removed + c.with_point[k] > budget && !followed) {
         ++c.capped;
         continue;
       }
+      if (removed + c.with_point[k] > budget) ++c.followed;
       removed += c.with_point[k];
     }
     c.applied[k + 1] = 1;
@@ -105,6 +125,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   const std::vector<char>& applied = choice.applied;
   st.instances_unconfirmed += choice.unconfirmed;
   st.instances_capped += choice.capped;
+  st.instances_followed += choice.followed;
   for (int k = 0; k < n_regions; ++k) {
     if (!applied[k + 1]) {
       SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' ("

@@ -631,6 +631,7 @@ MapStats SlamSystem::mapStats() const {
     stats.semantic_instances_applied = st.instances_applied;
     stats.semantic_instances_unconfirmed = st.instances_unconfirmed;
     stats.semantic_instances_capped = st.instances_capped;
+    stats.semantic_instances_followed = st.instances_followed;
     stats.semantic_instances_continued = st.instances_continued;
     std::tie(stats.semantic_latency_ms_median, stats.semantic_latency_ms_p95) = medianP95(st.latency_ms.values());
     std::tie(stats.segmentation_ms_median, stats.segmentation_ms_p95) = medianP95(st.segment_ms.values());

@@ -222,6 +222,10 @@ struct SemanticOptions {
   // Share of a keyframe's map points unconfirmed masks may remove: a false
   // positive must not empty the map.
   double max_removed_fraction = 0.5;
+  // ...unless the geometry module took the region for the world: it flags at
+  // least this share of the judged features outside every region, and a
+  // larger one than of the region's own (0: the cap always holds).
+  double other_motion_share = 0.25;
   // A map point seen in masks by more than this share of its segmented keyframes is culled.
   double point_masked_ratio = 0.5;
   // Frames between keyframes keep out the features matching the newest
