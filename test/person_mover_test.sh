@@ -15,7 +15,10 @@
 #   behind-bear  1.7 m tall, 0.9 m away, walking at 0.15 m/s from the first
 #                frame behind the teddy bear, 18 % / 29 % of the image and
 #                most of the features; COCO misses it for 80 frames, then
-#                finds it where the pose has followed it.
+#                finds it where the pose has followed it. 1050 ORB features
+#                (with masks), where that happens at frame 126.
+#   behind-bear-early  the same 2 s earlier on its walk: at rest for the
+#                first second, then walking; 25 % / 50 % of the image.
 #
 # usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
 #                              [MASK_DELAY_FRAMES | semantic:MASK_DELAY_FRAMES]
@@ -23,19 +26,20 @@
 set -euo pipefail
 
 if [[ $# -ne 10 && $# -ne 11 ]]; then
-  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go|behind-bear" \
+  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go|behind-bear[-early]" \
     "[MASK_DELAY_FRAMES]" >&2
   exit 1
 fi
 replay=$1 eval=$2 synth=$3 segment=$4 source_dir=$5 data_dir=$6 models_dir=$7 out_dir=$8 max_ate=$9 walk=${10}
 mask_delay=${11:-}
 case $walk in
-  #             from x, depth, to x, m/s, period s, hold s, size m, height, phase s
-  near)        path=(-0.35 0.8 0.35 0.12 8 1.5 1.4 0.9 0) ;;
-  stop-and-go) path=(-0.8 1.3 0.8 0.4 4 0.5 1.4 0.9 0) ;;
-  behind-bear) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 3) ;;
+  #             from x, depth, to x, m/s, period s, hold s, size m, height, phase s, ORB features (0: default)
+  near)        path=(-0.35 0.8 0.35 0.12 8 1.5 1.4 0.9 0 0) ;;
+  stop-and-go) path=(-0.8 1.3 0.8 0.4 4 0.5 1.4 0.9 0 0) ;;
+  behind-bear) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 3 1050) ;;
+  behind-bear-early) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 1 0) ;;
   *)
-    echo "unknown PATH '$walk' (near, stop-and-go or behind-bear)" >&2
+    echo "unknown PATH '$walk' (near, stop-and-go, behind-bear or behind-bear-early)" >&2
     exit 1
     ;;
 esac
@@ -97,6 +101,9 @@ semantic:
   model_dirs: [$models_dir]
   sequential_latency_frames: $mask_delay
 YAML
+  if [[ ${path[9]} != 0 ]]; then
+    printf 'orb:\n  num_features: %s\n' "${path[9]}" >>"$out_dir/slam.yaml"
+  fi
   modules=(--modules "$with" --config "$out_dir/slam.yaml")
 fi
 bash "$(dirname "$0")/replay_accuracy_test.sh" "$replay" "$eval" "$sequence" fr3 "$out_dir/replay" "$max_ate" \

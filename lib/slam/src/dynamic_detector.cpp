@@ -398,7 +398,9 @@ bool DynamicDetector::adoptConsensusPose(FrameJudgement& j) const {
   // world, nor do the other features of a cluster most of whose matches are
   // such (a mover's fresh features): where a known mover holds most of the
   // anchor matches (a poster filling the view), the consensus would be its
-  // motion.
+  // motion. Nor do the features the semantic module keeps out of the pose
+  // (a movable object's mask, a known mover): a person the geometry module
+  // no longer sees moving would otherwise vote for its own motion.
   Frame& frame = j.frame;
   const double far = options_.evidence_depth_max_m;
   ConsensusProblem problem;
@@ -409,6 +411,7 @@ bool DynamicDetector::adoptConsensusPose(FrameJudgement& j) const {
   for (int i = 0; i < frame.size(); ++i) {
     const FeatureEvidence& e = j.ev[i];
     if (!e.has_anchor || frame.cluster[i] < 0 || e.inherited || j.known_mover[frame.cluster[i]]) continue;
+    if (frame.dynamic[i] == kSemanticDynamic) continue;
     Observation o = observationOf(frame, i);
     const double z = frame.depth[i];
     // As in the evidence error: depth beyond evidence_depth_max_m is no
