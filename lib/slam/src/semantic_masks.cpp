@@ -78,13 +78,16 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
       continue;
     }
     if (!confirmed) {
-      const double own_share = judged[k] > 0 ? static_cast<double>(flagged[k]) / judged[k] : 0.0;
-      const bool followed = o.other_motion_share > 0 && outside_share >= o.other_motion_share && outside_share > own_share;
-      if (removed + c.with_point[k] > budget && !followed) {
-        ++c.capped;
-        continue;
+      if (removed + c.with_point[k] > budget) {
+        const double own_share = judged[k] > 0 ? static_cast<double>(flagged[k]) / judged[k] : 0.0;
+        const bool followed =
+            o.other_motion_share > 0 && outside_share >= o.other_motion_share && outside_share > own_share;
+        if (!followed) {
+          ++c.capped;
+          continue;
+        }
+        ++c.followed;
       }
-      if (removed + c.with_point[k] > budget) ++c.followed;
       removed += c.with_point[k];
     }
     c.applied[k + 1] = 1;
