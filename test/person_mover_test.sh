@@ -19,6 +19,11 @@
 #                (with masks), where that happens at frame 126.
 #   behind-bear-early  the same 2 s earlier on its walk: at rest for the
 #                first second, then walking; 25 % / 50 % of the image.
+#   stand-walk   1.7 m tall, 1.0 m away, standing still for 2 s, then
+#                walking at 0.3 m/s, 19 % / 44 % of the image; a rigid
+#                standee (not turned to face the camera, which would turn
+#                it while it stands): mapped with the room unless masks
+#                keep it out.
 #
 # usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
 #                              [MASK_DELAY_FRAMES | semantic:MASK_DELAY_FRAMES]
@@ -26,20 +31,22 @@
 set -euo pipefail
 
 if [[ $# -ne 10 && $# -ne 11 ]]; then
-  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go|behind-bear[-early]" \
+  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go|behind-bear[-early]|stand-walk" \
     "[MASK_DELAY_FRAMES]" >&2
   exit 1
 fi
 replay=$1 eval=$2 synth=$3 segment=$4 source_dir=$5 data_dir=$6 models_dir=$7 out_dir=$8 max_ate=$9 walk=${10}
 mask_delay=${11:-}
 case $walk in
-  #             from x, depth, to x, m/s, period s, hold s, size m, height, phase s, ORB features (0: default)
-  near)        path=(-0.35 0.8 0.35 0.12 8 1.5 1.4 0.9 0 0) ;;
-  stop-and-go) path=(-0.8 1.3 0.8 0.4 4 0.5 1.4 0.9 0 0) ;;
-  behind-bear) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 3 1050) ;;
-  behind-bear-early) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 1 0) ;;
+  #             from x, depth, to x, m/s, period s, hold s, size m, height, phase s, ORB features (0: default),
+  #             path type, facing the camera (1/0)
+  near)        path=(-0.35 0.8 0.35 0.12 8 1.5 1.4 0.9 0 0 walk 1) ;;
+  stop-and-go) path=(-0.8 1.3 0.8 0.4 4 0.5 1.4 0.9 0 0 walk 1) ;;
+  behind-bear) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 3 1050 walk 1) ;;
+  behind-bear-early) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 1 0 walk 1) ;;
+  stand-walk)  path=(-0.3 1.0 0.6 0.3 4 2 1.7 0.85 0 0 static_then_move 0) ;;
   *)
-    echo "unknown PATH '$walk' (near, stop-and-go, behind-bear or behind-bear-early)" >&2
+    echo "unknown PATH '$walk' (near, stop-and-go, behind-bear, behind-bear-early or stand-walk)" >&2
     exit 1
     ;;
 esac
@@ -71,7 +78,7 @@ movers:
     texture: $photo
     size: [${path[6]}, ${path[6]}, 0]
     path:
-      type: walk
+      type: ${path[10]}
       start: [${path[0]}, ${path[1]}, ${path[7]}]
       end: [${path[2]}, ${path[1]}, ${path[7]}]
       speed: ${path[3]}
@@ -82,8 +89,10 @@ movers:
       phase_s: ${path[8]}
 YAML
 sequence=$out_dir/sequence
-echo "+ $synth overlay $excerpt $sequence --camera fr3 --config $out_dir/movers.yaml --cutout $cutout --face-camera"
-"$synth" overlay "$excerpt" "$sequence" --camera fr3 --config "$out_dir/movers.yaml" --cutout "$cutout" --face-camera
+facing=()
+if [[ ${path[11]} == 1 ]]; then facing=(--face-camera); fi
+echo "+ $synth overlay $excerpt $sequence --camera fr3 --config $out_dir/movers.yaml --cutout $cutout ${facing[*]}"
+"$synth" overlay "$excerpt" "$sequence" --camera fr3 --config "$out_dir/movers.yaml" --cutout "$cutout" "${facing[@]}"
 
 modules=(--modules geometry)
 if [[ -n $mask_delay ]]; then
