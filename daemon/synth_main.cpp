@@ -25,7 +25,7 @@ using namespace stillpoint::synth;
 
 constexpr const char* kUsage =
     "usage: stillpoint-synth overlay INPUT_DIR OUTPUT_DIR --camera fr1|fr2|fr3|CAMERA.yaml\n"
-    "                        (--config MOVERS.yaml | --preset NAME) [common options]\n"
+    "                        (--config MOVERS.yaml | --preset NAME) [--render-poses TRAJ.txt] [common options]\n"
     "       stillpoint-synth room OUTPUT_DIR (--config ROOM.yaml | --preset NAME)\n"
     "                        [--motion static|xyz|rpy|halfsphere|loop] [--frames N] [--size WxH] [common options]\n"
     "       stillpoint-synth score SEQUENCE_DIR FEATURES.txt [--min-features N] [--min-speed M_S] [--per-frame]\n"
@@ -38,6 +38,10 @@ constexpr const char* kUsage =
     "overlay: renders the movers into every frame of a TUM sequence with groundtruth.txt at the\n"
     "  ground-truth camera pose (z-tested against the real depth) and writes a TUM-layout folder\n"
     "  with mask/ (16-bit, 0 = static, k = mover k), mask.txt and movers.yaml.\n"
+    "  --render-poses TRAJ.txt places the movers by TRAJ.txt (TUM format, one map, e.g. a replay of\n"
+    "  the input), rigidly aligned onto groundtruth.txt: motion capture is off the images by up to\n"
+    "  a degree, so a mover placed by it drifts against the real scene even where it stands still.\n"
+    "  groundtruth.txt stays what the output is scored against.\n"
     "room: renders a textured room with movers along a TUM-like camera motion.\n"
     "score: FEATURES.txt has one line per feature 'timestamp u v flagged(0/1)' (timestamps as in\n"
     "  rgb.txt, '#' comments); prints precision/recall of flagged features against the masks.\n"
@@ -58,7 +62,7 @@ constexpr const char* kUsage =
 struct Args {
   std::string command;
   std::vector<std::string> positional;
-  std::string camera, config, preset, motion, photo_dir = STILLPOINT_PHOTO_DIR, size, cutout;
+  std::string camera, config, preset, motion, photo_dir = STILLPOINT_PHOTO_DIR, size, cutout, render_poses;
   long seed = -1, threads = 2, max_frames = 0, frames = 0, png_compression = 0, min_features = 10;
   double min_speed = 0;
   bool blur = false, no_write = false, per_frame = false, face_camera = false, there_and_back = false;
@@ -132,6 +136,7 @@ bool parseArgs(int argc, char** argv, Args* a, std::string* error) {
     else if (s == "--motion") ok = value(&a->motion);
     else if (s == "--photo-dir") ok = value(&a->photo_dir);
     else if (s == "--cutout") ok = value(&a->cutout);
+    else if (s == "--render-poses") ok = value(&a->render_poses);
     else if (s == "--size") ok = value(&a->size);
     else if (s == "--seed") ok = number(0, 2147483647L, &a->seed);
     else if (s == "--threads") ok = number(1, 64, &a->threads);
@@ -274,7 +279,7 @@ void printReport(const GenerationReport& r, const std::string& out, bool wrote) 
                 100 * r.movers[k].max_coverage);
   }
   const double n = std::max(1, r.frames);
-  std::printf("frames %d (%d skipped: no ground-truth pose), %d with movers, coverage mean %.1f %% max %.1f %%\n",
+  std::printf("frames %d (%d skipped: no camera pose), %d with movers, coverage mean %.1f %% max %.1f %%\n",
               r.frames, r.skipped_no_pose, r.frames_with_movers, 100 * r.coverage_mean, 100 * r.coverage_max);
   std::printf("per frame (thread time): load %.2f ms, render %.2f ms, write %.2f ms\n", r.load_ms / n,
               r.render_ms / n, r.write_ms / n);
@@ -312,6 +317,10 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "stillpoint-synth: %s needs %zu folder/file arguments\n%s", a.command.c_str(), want, kUsage);
     return 2;
   }
+  if (!a.render_poses.empty() && a.command != "overlay") {
+    std::fprintf(stderr, "stillpoint-synth: --render-poses is for overlay only\n%s", kUsage);
+    return 2;
+  }
   if (a.command == "score") return runScore(a);
   if (a.command == "edit") return runEdit(a);
   if (a.command == "overlay" && a.camera.empty()) {
@@ -328,6 +337,7 @@ int main(int argc, char** argv) {
   opt.max_frames = static_cast<int>(a.max_frames);
   opt.png_compression = static_cast<int>(a.png_compression);
   opt.write_images = !a.no_write;
+  opt.render_poses = a.render_poses;
   Result<GenerationReport> report = Error{""};
   std::string out;
   if (a.command == "overlay") {

@@ -19,6 +19,7 @@
 
 #include "png_writer.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
+#include "stillpoint/eval/metrics.hpp"
 #include "stillpoint/eval/trajectory.hpp"
 #include "stillpoint/synth/room.hpp"
 #include "stillpoint/synth/sensor.hpp"
@@ -226,6 +227,30 @@ Status writeMoversYaml(const fs::path& path, const std::string& mode, const std:
   return writeTextFile(path, std::string(e.c_str()) + "\n");
 }
 
+// The trajectory at `path`, mapped into the ground truth's world by the rigid
+// alignment of its positions (one map, at least 10 poses matched within 20 ms).
+Result<eval::Trajectory> renderPoses(const std::string& path, const eval::Trajectory& gt) {
+  Result<eval::Trajectory> poses = eval::readTumTrajectory(path);
+  if (!poses.ok()) return Error{"--render-poses: " + poses.error()};
+  if (poses->empty()) return Error{"--render-poses: " + path + ": no poses"};
+  for (const eval::StampedPose& p : *poses)
+    if (p.map_id != poses->front().map_id) return Error{"--render-poses: " + path + " holds more than one map"};
+  const std::vector<eval::Match> matches = eval::associate(*poses, gt, 0.02);
+  constexpr std::size_t kMinMatches = 10;
+  if (matches.size() < kMinMatches)
+    return Error{"--render-poses: " + path + ": " + std::to_string(matches.size()) +
+                 " poses lie within 20 ms of groundtruth.txt, at least " + std::to_string(kMinMatches) + " needed"};
+  std::vector<Vec3> from, to;
+  for (const eval::Match& m : matches) {
+    from.push_back((*poses)[m.est_index].T_w_c.translation());
+    to.push_back(gt[m.gt_index].T_w_c.translation());
+  }
+  Result<eval::Alignment> a = eval::alignUmeyama(from, to, false);
+  if (!a.ok()) return Error{"--render-poses: " + path + ": " + a.error()};
+  for (eval::StampedPose& p : *poses) p.T_w_c = a->apply(p.T_w_c);
+  return poses;
+}
+
 }  // namespace
 
 std::uint64_t frameSeed(std::uint64_t seed, std::size_t index) {
@@ -320,6 +345,8 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
   Result<eval::Trajectory> gt = eval::readTumTrajectory(data->groundTruthPath());
   if (!gt.ok()) return Error{gt.error()};
   if (gt->empty()) return Error{data->groundTruthPath() + ": no poses"};
+  Result<eval::Trajectory> placed = options.render_poses.empty() ? gt : renderPoses(options.render_poses, *gt);
+  if (!placed.ok()) return Error{placed.error()};
 
   // The first frame with a pose fixes the time origin and the stage frame.
   std::size_t first = data->size();
@@ -329,7 +356,7 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
   for (std::size_t i = 0; i < data->size(); ++i) {
     Result<dataset::RgbdFrame> f = data->load(i);
     if (!f.ok()) continue;
-    if (std::optional<SE3> T = interpolatePose(*gt, f->stamp, kMaxPoseGap)) {
+    if (std::optional<SE3> T = interpolatePose(*placed, f->stamp, kMaxPoseGap)) {
       first = i;
       t0 = f->stamp;
       T_w_c0 = *T;
@@ -360,7 +387,7 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
       ++skipped_bad;
       return Status::success();
     }
-    const std::optional<SE3> T_w_c = interpolatePose(*gt, f->stamp, kMaxPoseGap);
+    const std::optional<SE3> T_w_c = interpolatePose(*placed, f->stamp, kMaxPoseGap);
     if (!T_w_c) return Status::success();
     cv::Mat depth_raw;
     f->depth_m.convertTo(depth_raw, CV_16UC1, camera.depth_factor);  // exact: raw / factor round-trips

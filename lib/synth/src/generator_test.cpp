@@ -13,6 +13,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "stillpoint/dataset/testing.hpp"
+#include "stillpoint/eval/trajectory.hpp"
 #include "stillpoint/synth/generator.hpp"
 #include "stillpoint/synth/movers.hpp"
 #include "stillpoint/synth/room.hpp"
@@ -175,6 +176,110 @@ TEST(Overlay, BadInputGivesClearErrors) {
   EXPECT_NE(r.error().find("movers[0].size"), std::string::npos) << r.error();
   fs::remove_all(in);
   fs::remove_all(in2);
+}
+
+// A camera path that is not a line (a rigid alignment of its positions is
+// then unique), looking along +z and turning a little about y.
+eval::Trajectory curvedPath(const std::vector<Timestamp>& stamps) {
+  eval::Trajectory path;
+  for (std::size_t k = 0; k < stamps.size(); ++k) {
+    const double a = 0.15 * static_cast<double>(k);
+    SE3 T = SE3::Identity();
+    T.linear() = Eigen::AngleAxisd(0.02 * std::sin(a), Vec3::UnitY()).toRotationMatrix();
+    T.translation() = Vec3(0.2 * std::sin(a), 0.1 * (1 - std::cos(a)), 0.02 * static_cast<double>(k));
+    path.push_back({stamps[k], T});
+  }
+  return path;
+}
+
+std::vector<cv::Mat> readMasks(const fs::path& dir) {
+  std::vector<cv::Mat> masks;
+  for (const std::string& f : listFiles(dir / "mask.txt")) masks.push_back(cv::imread((dir / f).string(), cv::IMREAD_UNCHANGED));
+  return masks;
+}
+
+// --render-poses: movers are placed by the given trajectory, aligned onto the
+// ground truth: the same path in another world frame renders the same masks,
+// and a pose turned in one frame moves the mover in that frame alone.
+TEST(Overlay, RenderPosesPlaceTheMoversAndAreAlignedOntoTheGroundTruth) {
+  const fs::path in = tempDir("rp_in");
+  dataset::testing::SyntheticDatasetOptions o;
+  o.n_frames = 12;
+  o.width = 96;
+  o.height = 72;
+  Result<dataset::testing::SyntheticDataset> data = dataset::testing::writeSyntheticTumDataset(in.string(), o);
+  ASSERT_TRUE(data.ok()) << data.error();
+  const eval::Trajectory gt = curvedPath(data->colour_stamps);
+  ASSERT_TRUE(eval::writeTumTrajectory((in / "groundtruth.txt").string(), gt));
+  SynthConfig config;
+  MoverSpec still = boxMover(Vec3(0.0, 0.0, 1.0));
+  still.path.type = PathType::kStatic;
+  config.movers = {still};
+  config.sensor.sigma_at_1m = 0.0;
+
+  const auto run = [&](const std::string& name, const std::string& poses) -> std::vector<cv::Mat> {
+    const fs::path out = tempDir(name);
+    GenerateOptions go;
+    go.render_poses = poses;
+    Result<GenerationReport> r = generateOverlay(in.string(), out.string(), data->camera, config, go);
+    EXPECT_TRUE(r.ok()) << r.error();
+    if (!r.ok()) return {};
+    EXPECT_EQ(readFile(in / "groundtruth.txt"), readFile(out / "groundtruth.txt"));
+    std::vector<cv::Mat> masks = readMasks(out);
+    fs::remove_all(out);
+    return masks;
+  };
+  const auto differing = [](const cv::Mat& a, const cv::Mat& b) { return cv::countNonZero(a != b); };
+  const std::vector<cv::Mat> by_gt = run("rp_gt", "");
+  ASSERT_EQ(by_gt.size(), 12u);
+  for (const cv::Mat& m : by_gt) ASSERT_GT(cv::countNonZero(m), 500);
+
+  // The same path in a world turned and shifted.
+  SE3 X = SE3::Identity();
+  X.linear() = Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized()).toRotationMatrix();
+  X.translation() = Vec3(3, -1, 2);
+  eval::Trajectory moved = gt;
+  for (eval::StampedPose& p : moved) p.T_w_c = X * p.T_w_c;
+  const fs::path moved_file = in / "moved.txt";
+  ASSERT_TRUE(eval::writeTumTrajectory(moved_file.string(), moved));
+  const std::vector<cv::Mat> by_moved = run("rp_moved", moved_file.string());
+  ASSERT_EQ(by_moved.size(), 12u);
+  for (std::size_t k = 0; k < 12; ++k) EXPECT_LE(differing(by_gt[k], by_moved[k]), 20) << "frame " << k;
+
+  // Frame 6 turned by 2 degrees: its mover shifts by about 3 pixels.
+  eval::Trajectory turned = gt;
+  turned[6].T_w_c.linear() = turned[6].T_w_c.linear() * Eigen::AngleAxisd(0.035, Vec3::UnitY()).toRotationMatrix();
+  const fs::path turned_file = in / "turned.txt";
+  ASSERT_TRUE(eval::writeTumTrajectory(turned_file.string(), turned));
+  const std::vector<cv::Mat> by_turned = run("rp_turned", turned_file.string());
+  ASSERT_EQ(by_turned.size(), 12u);
+  for (std::size_t k = 0; k < 12; ++k) {
+    if (k == 6) EXPECT_GT(differing(by_gt[k], by_turned[k]), 100);
+    else EXPECT_LE(differing(by_gt[k], by_turned[k]), 20) << "frame " << k;
+  }
+
+  // Bad trajectories: missing, too short, two maps.
+  GenerateOptions go;
+  go.render_poses = (in / "missing.txt").string();
+  Result<GenerationReport> r = generateOverlay(in.string(), tempDir("rp_bad").string(), data->camera, config, go);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("missing.txt"), std::string::npos) << r.error();
+  const fs::path short_file = in / "short.txt";
+  ASSERT_TRUE(eval::writeTumTrajectory(short_file.string(), eval::Trajectory(gt.begin(), gt.begin() + 3)));
+  go.render_poses = short_file.string();
+  r = generateOverlay(in.string(), tempDir("rp_bad").string(), data->camera, config, go);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("at least 10"), std::string::npos) << r.error();
+  eval::Trajectory two_maps = gt;
+  for (std::size_t k = 6; k < two_maps.size(); ++k) two_maps[k].map_id = 1;
+  const fs::path maps_file = in / "maps.txt";
+  ASSERT_TRUE(eval::writeTumTrajectory(maps_file.string(), two_maps));
+  go.render_poses = maps_file.string();
+  r = generateOverlay(in.string(), tempDir("rp_bad").string(), data->camera, config, go);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().find("more than one map"), std::string::npos) << r.error();
+  fs::remove_all(tempDir("rp_bad"));
+  fs::remove_all(in);
 }
 
 SynthConfig smallRoom(std::uint64_t seed) {

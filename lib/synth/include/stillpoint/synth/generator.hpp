@@ -63,6 +63,13 @@ struct GenerateOptions {
   // 0: our stored-block writer (fast, large files); 1-9: OpenCV's zlib level.
   int png_compression = 0;
   bool write_images = true;   // false: decode and render only (speed measurement)
+  // Overlay: a TUM trajectory of the input's camera to place the movers by
+  // instead of groundtruth.txt, rigidly aligned onto it (e.g. the input's own
+  // replay). Motion capture is off the images by up to a degree, so an object
+  // placed by it drifts against the real scene although it stands still; poses
+  // fitted to the images keep it in place. groundtruth.txt is still what the
+  // output is scored against. Empty: groundtruth.txt.
+  std::string render_poses;
 };
 
 struct MoverStats {
@@ -74,7 +81,7 @@ struct MoverStats {
 
 struct GenerationReport {
   int frames = 0;               // frames generated
-  int skipped_no_pose = 0;      // overlay: colour frames outside the ground truth
+  int skipped_no_pose = 0;      // overlay: colour frames outside the ground truth (or the render poses)
   int frames_with_movers = 0;
   double coverage_mean = 0, coverage_max = 0;  // fraction of pixels on any mover
   std::vector<MoverStats> movers;
