@@ -141,11 +141,21 @@ TEST_F(SynthCli, BadInputExitsOneWithAMessage) {
   r = synth({"score", scratch_.string(), (scratch_ / "f.txt").string()});
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_TRUE(contains(r.err, "mask.txt"));
+  // Render poses that cannot be read name the file.
+  const fs::path excerpt = fs::path(STILLPOINT_DATA_DIR) / "tum_fr3_teddy_200";
+  if (!fs::is_directory(excerpt)) return;
+  r = synth({"overlay", excerpt.string(), (scratch_ / "o2").string(), "--camera", "fr3", "--preset", "poster-walk",
+             "--render-poses", (scratch_ / "no_poses.txt").string(), "--no-write"});
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_TRUE(contains(r.err, "no_poses.txt")) << r.err;
 }
 
 TEST_F(SynthCli, UsageErrorsExitTwo) {
   EXPECT_EQ(synth({}).exit_code, 2);
   EXPECT_EQ(synth({"room", "a", "--frames", "zero"}).exit_code, 2);
+  const RunResult poses = synth({"room", "a", "--preset", "room-static", "--render-poses", "t.txt"});
+  EXPECT_EQ(poses.exit_code, 2);
+  EXPECT_TRUE(contains(poses.err, "--render-poses is for overlay only"));
   const RunResult help = synth({"--help"});
   EXPECT_EQ(help.exit_code, 0);
   EXPECT_TRUE(contains(help.out, "usage: stillpoint-synth"));
