@@ -356,6 +356,8 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
   for (std::size_t i = 0; i < data->size(); ++i) {
     Result<dataset::RgbdFrame> f = data->load(i);
     if (!f.ok()) continue;
+    // Only frames the ground truth scores: the render poses may span more.
+    if (!interpolatePose(*gt, f->stamp, kMaxPoseGap)) continue;
     if (std::optional<SE3> T = interpolatePose(*placed, f->stamp, kMaxPoseGap)) {
       first = i;
       t0 = f->stamp;
@@ -388,7 +390,7 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
       return Status::success();
     }
     const std::optional<SE3> T_w_c = interpolatePose(*placed, f->stamp, kMaxPoseGap);
-    if (!T_w_c) return Status::success();
+    if (!T_w_c || !interpolatePose(*gt, f->stamp, kMaxPoseGap)) return Status::success();
     cv::Mat depth_raw;
     f->depth_m.convertTo(depth_raw, CV_16UC1, camera.depth_factor);  // exact: raw / factor round-trips
     r.load_ms = msSince(t_load);

@@ -68,7 +68,8 @@ struct GenerateOptions {
   // replay). Motion capture is off the images by up to a degree, so an object
   // placed by it drifts against the real scene although it stands still; poses
   // fitted to the images keep it in place. groundtruth.txt is still what the
-  // output is scored against. Empty: groundtruth.txt.
+  // output is scored against, and only frames it has a pose for are written.
+  // Empty: groundtruth.txt.
   std::string render_poses;
 };
 
