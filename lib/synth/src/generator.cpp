@@ -345,20 +345,27 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
   Result<eval::Trajectory> gt = eval::readTumTrajectory(data->groundTruthPath());
   if (!gt.ok()) return Error{gt.error()};
   if (gt->empty()) return Error{data->groundTruthPath() + ": no poses"};
-  Result<eval::Trajectory> placed = options.render_poses.empty() ? gt : renderPoses(options.render_poses, *gt);
-  if (!placed.ok()) return Error{placed.error()};
+  constexpr double kMaxPoseGap = 0.1;  // s between ground-truth samples
+  // The poses the movers are placed by; only frames the ground truth scores
+  // are written (the render poses may span more).
+  Result<eval::Trajectory> rendered = eval::Trajectory{};
+  if (!options.render_poses.empty()) rendered = renderPoses(options.render_poses, *gt);
+  if (!rendered.ok()) return Error{rendered.error()};
+  const bool by_gt = options.render_poses.empty();
+  const eval::Trajectory& placed = by_gt ? *gt : *rendered;
+  const auto placement = [&](Timestamp t) -> std::optional<SE3> {
+    if (!by_gt && !interpolatePose(*gt, t, kMaxPoseGap)) return std::nullopt;
+    return interpolatePose(placed, t, kMaxPoseGap);
+  };
 
   // The first frame with a pose fixes the time origin and the stage frame.
   std::size_t first = data->size();
   Timestamp t0;
   SE3 T_w_c0 = SE3::Identity();
-  constexpr double kMaxPoseGap = 0.1;  // s between ground-truth samples
   for (std::size_t i = 0; i < data->size(); ++i) {
     Result<dataset::RgbdFrame> f = data->load(i);
     if (!f.ok()) continue;
-    // Only frames the ground truth scores: the render poses may span more.
-    if (!interpolatePose(*gt, f->stamp, kMaxPoseGap)) continue;
-    if (std::optional<SE3> T = interpolatePose(*placed, f->stamp, kMaxPoseGap)) {
+    if (std::optional<SE3> T = placement(f->stamp)) {
       first = i;
       t0 = f->stamp;
       T_w_c0 = *T;
@@ -389,8 +396,8 @@ Result<GenerationReport> generateOverlay(const std::string& input_dir, const std
       ++skipped_bad;
       return Status::success();
     }
-    const std::optional<SE3> T_w_c = interpolatePose(*placed, f->stamp, kMaxPoseGap);
-    if (!T_w_c || !interpolatePose(*gt, f->stamp, kMaxPoseGap)) return Status::success();
+    const std::optional<SE3> T_w_c = placement(f->stamp);
+    if (!T_w_c) return Status::success();
     cv::Mat depth_raw;
     f->depth_m.convertTo(depth_raw, CV_16UC1, camera.depth_factor);  // exact: raw / factor round-trips
     r.load_ms = msSince(t_load);
