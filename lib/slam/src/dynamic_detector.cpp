@@ -555,6 +555,12 @@ void DynamicDetector::endFrame(const Frame& frame, bool tracked, const Placement
   chain_.clear();
 }
 
+void DynamicDetector::skipFrame() {
+  if (anchor_matches_.valid()) anchor_matches_.wait();
+  anchor_matches_ = {};
+  chain_.clear();
+}
+
 void DynamicDetector::forgetHistory() {
   // The helper may still be reading the anchor it is asked to forget.
   if (anchor_matches_.valid()) anchor_matches_.wait();

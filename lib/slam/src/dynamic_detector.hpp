@@ -75,6 +75,9 @@ class DynamicDetector {
   // The frame is done: `tracked` frames become history (placed at `where`),
   // a lost one clears it.
   void endFrame(const Frame& frame, bool tracked, const Placement& where);
+  // The frame is dropped (its pose was implausible): it neither becomes
+  // history nor clears it.
+  void skipFrame();
   // A loop closure or a global BA moved the world (the map is in `epoch`
   // now; a map lock held): the history's poses follow their keyframes. The
   // evidence it holds is frame to frame and stays valid; the map right after

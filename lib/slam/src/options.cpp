@@ -27,6 +27,10 @@ Status TrackingOptions::validate() const {
   if (trajectory_records < -1) return Error{"tracking.trajectory_records must be >= -1 (-1: every frame)"};
   if (motion_prior_sigma_m < 0) return Error{"tracking.motion_prior_sigma_m must be >= 0 (0: no prior)"};
   if (motion_prior_sigma_deg <= 0) return Error{"tracking.motion_prior_sigma_deg must be > 0"};
+  if (!(max_acceleration >= 0)) return Error{"tracking.max_acceleration must be >= 0 (m/s^2; 0: no check)"};
+  if (!(max_angular_acceleration > 0)) return Error{"tracking.max_angular_acceleration must be > 0 (deg/s^2)"};
+  if (!(max_jump_m >= 0)) return Error{"tracking.max_jump_m must be >= 0"};
+  if (!(max_jump_deg >= 0)) return Error{"tracking.max_jump_deg must be >= 0"};
   if (mover_cells_every < 1) return Error{"tracking.mover_cells_every must be >= 1 (1: off)"};
   if (!(mover_cells_min_share >= 0 && mover_cells_min_share <= 1))
     return Error{"tracking.mover_cells_min_share must be in [0, 1]"};

@@ -281,6 +281,48 @@ TEST(SlamSystemTracking, RoomSequenceFollowsTheTrueMotion) {
   EXPECT_LT(degrees(a.frame_to_frame.max_rotation), 0.15);
 }
 
+// One frame shows the view from 6 frames on (10 cm further) at its own
+// stamp: a pose no camera reaches in 33 ms, as when wrong matches hold it.
+// That frame has no pose, and the next ones are tracked from the one before
+// it, in the same map. Without the check the frame is tracked where its view
+// is, 10 cm from where the camera can be.
+TEST(SlamSystemTracking, AFrameThatJumpsFurtherThanACameraMovesHasNoPose) {
+  constexpr int kJump = 30, kAhead = 6;
+  const Sequence seq = roomSequence(50);
+  ASSERT_GT((seq.T_w_c[kJump + kAhead].translation() - seq.T_w_c[kJump].translation()).norm(), 0.08);
+  for (const bool check : {true, false}) {
+    SCOPED_TRACE(check ? "motion check on" : "motion check off");
+    SlamOptions options = sequentialOptions();
+    if (!check) options.tracking.max_acceleration = 0;
+    auto system = makeSystem(seq.camera, options);
+    ASSERT_TRUE(system);
+    double worst_after = 0;
+    for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) {
+      RgbdInput input = seq.frames[k == kJump ? kJump + kAhead : k];
+      input.stamp = seq.frames[k].stamp;
+      const auto out = system->track(input);
+      ASSERT_TRUE(out.ok()) << out.error();
+      if (k == kJump) {
+        if (check) {
+          EXPECT_EQ(out->state, TrackingState::kLost);
+        } else {
+          ASSERT_EQ(out->state, TrackingState::kOk);
+          EXPECT_GT((out->T_w_c.translation() - seq.T_w_c[kJump].translation()).norm(), 0.08);
+        }
+        continue;
+      }
+      ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << k;
+      if (k > kJump) worst_after = std::max(worst_after, (out->T_w_c.translation() - seq.T_w_c[k].translation()).norm());
+    }
+    system->finish();
+    EXPECT_EQ(system->mapStats().maps, 1u);
+    if (check) {
+      EXPECT_LT(worst_after, 0.015);
+    }
+    std::printf("%s: worst online error after the jump %.1f mm\n", check ? "check on" : "check off", worst_after * 1e3);
+  }
+}
+
 // The camera goes on at the same pace into a place the map has never seen
 // (a second room, textured otherwise, where a board crosses at walking
 // pace): relocalisation cannot place it, and the view moves as the camera

@@ -46,6 +46,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   geometry_ = GeometryOutput{};
   semantic_marked_ = 0;
   starved_ = false;
+  rejected_ = false;
   carried_.clear();
   const bool tracking = hasPose(state_);
   followWorldMoves();
@@ -97,6 +98,10 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     out->quality = measureQuality(ok);  // before the outliers are dropped
     if (ok) {
       updateVelocity();
+      // The poses the motion check extrapolates: tracked in a row on full evidence.
+      if (state_ != TrackingState::kOk || starved_) steady_poses_.clear();
+      steady_poses_.push_back({current_.stamp, current_.T_c_w});
+      if (steady_poses_.size() > 3) steady_poses_.pop_front();
       // Temporary odometry points never outlive the frame they helped track.
       for (int i = 0; i < current_.size(); ++i)
         if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
@@ -113,7 +118,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
                               << " local kfs " << local_keyframes_.size() << " local points " << local_points_.size()
                               << (new_keyframe ? " NEW KF" : ""));
   out->stages = times_;
-  out->state = state_;
+  out->state = rejected_ ? TrackingState::kLost : state_;
   out->map_id = map_id_;
   out->features = current_.size();
   out->tracked = ok ? inliers_ : 0;
@@ -127,6 +132,11 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
           objects_.update(current_, out->geometry, map_id_, [this](std::uint8_t id) { return map_->className(id); });
     else
       objects_.missed(current_.stamp);
+  }
+  if (rejected_) {
+    // The frame never happened for what comes next: its pose is wrong.
+    if (detector_) detector_->skipFrame();
+    return nullptr;
   }
   markMoverCells(ok);
   if (detector_) detector_->endFrame(current_, ok, placed);
@@ -218,10 +228,24 @@ bool Tracker::trackFrame(bool clusters_pending) {
       ok = keepPredictedPoseOnStaticEvidence();
     }
     if (!ok) ok = keepPoseOnLastFrame();
+    rejected_ = ok && !plausibleMotion();
+    if (rejected_) ok = false;
+    // Rejected again after a frame without a pose: the place recognition's
+    // pose, independent of the motion model, decides.
+    if (rejected_ && blind_since_) {
+      rejected_ = false;
+      relocalised = ok = relocalise();
+    }
     if (ok && judged) updateProbation();  // not on a frame the detector did not judge
     // The first frame with depth after a blind spell that the motion model
     // could not bridge: the camera may be anywhere the maps know.
-    if (!ok && blind_since_) relocalised = ok = relocalise();
+    if (!ok && !rejected_ && blind_since_) relocalised = ok = relocalise();
+  }
+  if (rejected_) {
+    // No pose, but not lost: the next frame is tracked from the last one as
+    // after a blind frame, and relocalised if the motion model cannot.
+    if (!blind_since_) blind_since_ = current_.stamp;
+    return false;
   }
   on_loaded_map_ = known_place_ = false;
   if (ok) {
@@ -802,6 +826,57 @@ int Tracker::timedOptimizePose(const SE3* prior) {
     current_.outlier[i] = chi2 > (o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
   }
   return inliers;
+}
+
+namespace {
+
+// The pose at `stamp` if the camera kept the motion from `before` to `from`.
+SE3 extrapolate(const Tracker::StampedPose& before, const Tracker::StampedPose& from, Timestamp stamp) {
+  const double dt = secondsBetween(from.stamp, before.stamp);
+  const double s = dt > 0 ? secondsBetween(stamp, from.stamp) / dt : 1.0;
+  const SE3 v = renormalized(from.T_c_w * before.T_c_w.inverse());
+  SE3 scaled = SE3::Identity();
+  scaled.linear() = expSO3(s * logSO3(v.linear()));
+  scaled.translation() = s * v.translation();
+  return renormalized(scaled * from.T_c_w);
+}
+
+}  // namespace
+
+bool Tracker::plausibleMotion() {
+  // The pose is compared with the last steady frame's motion carried on,
+  // and with the motion of the frame before carried on from there: a pose
+  // that is wrong by less than the bounds passes, and the right pose after
+  // it departs from the first prediction but not from the second. The check
+  // trusts the motion only once it has predicted kTrustedFrames frames in a
+  // row: the first frames of a map, or those after a frame starved by
+  // movers, may carry a pose error into it.
+  constexpr int kTrustedFrames = 3;
+  const TrackingOptions& t = options_.tracking;
+  const auto& h = steady_poses_;
+  if (t.max_acceleration <= 0 || state_ != TrackingState::kOk || h.size() < 3 || h.back().stamp != last_.stamp) {
+    predicted_frames_ = 0;
+    return true;
+  }
+  double worst_m = 0, worst_deg = 0;
+  bool plausible = false;
+  for (std::size_t from = 1; from <= 2 && !plausible; ++from) {
+    const StampedPose& f = h[h.size() - from];
+    const SE3 predicted = extrapolate(h[h.size() - from - 1], f, current_.stamp);
+    const double dt = secondsBetween(current_.stamp, f.stamp);
+    const double moved = (current_.T_c_w.inverse().translation() - predicted.inverse().translation()).norm();
+    const double turned = rotationAngle(current_.T_c_w.linear() * predicted.linear().transpose()) * 180.0 / M_PI;
+    plausible = moved <= t.max_jump_m + 0.5 * t.max_acceleration * dt * dt &&
+                turned <= t.max_jump_deg + 0.5 * t.max_angular_acceleration * dt * dt;
+    if (from == 1) worst_m = moved, worst_deg = turned;
+  }
+  if (plausible || predicted_frames_ < kTrustedFrames) {
+    predicted_frames_ = plausible ? predicted_frames_ + 1 : 0;
+    return true;
+  }
+  SP_DEBUG(logger, "frame " << current_.id << ": the pose departs from the motion model's by " << worst_m << " m and "
+                            << worst_deg << " degrees: implausible, no pose");
+  return false;
 }
 
 SE3 Tracker::predictedPose(const SE3& last) const {

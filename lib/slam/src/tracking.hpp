@@ -5,10 +5,12 @@
 //   2. the dynamic-object detector judges the frame under that pose, drops
 //      the features of moving surfaces and refits (dynamic_detector.cpp);
 //   3. stage 2, the local map: more matches, the final pose (tracking.cpp);
-//   4. the keyframe decision (keyframe_policy.cpp);
-//   5. trajectory bookkeeping (trajectory.hpp).
+//   4. the motion check: a pose no camera reaches is dropped (tracking.cpp);
+//   5. the keyframe decision (keyframe_policy.cpp);
+//   6. trajectory bookkeeping (trajectory.hpp).
 // Semantic masks reach the frames between keyframes before stage 1
 // (semantic_masks.cpp).
+#include <deque>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -27,6 +29,11 @@ struct SemanticResult;
 
 class Tracker {
  public:
+  struct StampedPose {
+    Timestamp stamp;
+    SE3 T_c_w;
+  };
+
   // `clustering` (may be null: geometry module off) delivers the depth
   // clusters of frames submitted to it.
   Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map,
@@ -126,6 +133,9 @@ class Tracker {
   int timedOptimizePose(const SE3* prior = nullptr);
   // The motion model's pose for current_, from `last` (the last frame's pose).
   SE3 predictedPose(const SE3& last) const;
+  // Whether the frame's pose moves as a camera can from the motion model's
+  // prediction (tracking.max_acceleration).
+  bool plausibleMotion();
   void updateVelocity();
   void updateProbation();
   void markMoverCells(bool tracked);
@@ -252,6 +262,9 @@ class Tracker {
   // until its result is back; then the newest such frame, with its masks.
   std::optional<Frame> awaiting_masks_, masked_frame_;
   std::vector<char> awaiting_matched_;  // per feature of awaiting_masks_: a map-point inlier
+  bool rejected_ = false;  // the frame's pose failed plausibleMotion(): no pose, tracking goes on
+  int predicted_frames_ = 0;  // frames in a row the motion predicted within plausibleMotion()'s bounds
+  std::deque<StampedPose> steady_poses_;  // the last steady frames' poses (plausibleMotion())
   bool starved_ = false;  // the pose stands on keepPoseOnStaticEvidence()
   // Stage-1 matches to the last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
