@@ -112,6 +112,7 @@ void Tracker::switchToMap(std::uint32_t id) {
   merge_candidate_.reset();
   // Its frames hang in the other map's world.
   if (detector_) detector_->forgetHistory();
+  steady_poses_.clear();
   SP_WARN(logger, "frame " << current_.id << ": relocalised in map " << id << " (map " << from << " is kept)");
 }
 

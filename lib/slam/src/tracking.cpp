@@ -160,6 +160,7 @@ void Tracker::catchUpWithWorld() {
   const SE3 D = renormalized(reference_at_pose_.inverse() * reference_->anchor()->T_c_w());
   current_.T_c_w = renormalized(current_.T_c_w * D);
   if (has_last_) last_.T_c_w = renormalized(last_.T_c_w * D);
+  for (StampedPose& p : steady_poses_) p.T_c_w = renormalized(p.T_c_w * D);
   notePoseWorld();
 }
 
@@ -167,6 +168,8 @@ void Tracker::followWorldMoves() {
   if (!has_last_ || !reference_ || !hasPose(state_)) return;
   std::shared_lock lock(map_->mutex());
   if (map_->epoch() == seen_epoch_ || reference_->bad) return;
+  // The steady poses hang in the old world; the motion check starts over.
+  steady_poses_.clear();
   last_.T_c_w = renormalized(T_last_reference_ * reference_->T_c_w());
   // A loop closure fuses the points it found again into the older ones: the
   // last frame's matches follow them there, or the next frame's motion model
