@@ -43,14 +43,15 @@ struct TrackingOptions {
   // (m, degrees): a mover near the camera cannot drag the first pose (0: none).
   double motion_prior_sigma_m = 0.002;
   double motion_prior_sigma_deg = 1.0;
-  // A tracked frame whose pose departs from the motion model's prediction by
-  // more than max_jump_m + max_acceleration dt^2 / 2 (m/s^2) in position, or
+  // A tracked frame whose pose departs from the last steady frames' motion
+  // carried on (from the last frame, and from the one before it) by more than
+  // max_jump_m + max_acceleration dt^2 / 2 (m/s^2) in position, or
   // max_jump_deg + max_angular_acceleration dt^2 / 2 (deg/s^2) in rotation,
-  // dt since the last frame, has no pose: no camera moves so (30 m/s^2 is
-  // 3 g), the pose rests on wrong matches. Tracking goes on from the last
-  // frame, as after a blind one (0: no check). The jumps cover the noise of
-  // a velocity taken from two poses (at most 1.1 cm and 1.3 degrees at 30 Hz
-  // on the excerpt).
+  // dt since the frame predicted from, has no pose: no camera moves so
+  // (30 m/s^2 is 3 g), the pose rests on wrong matches. Tracking goes on from
+  // the last frame, as after a blind one (0: no check; docs/pose-health.md).
+  // The jumps cover the noise of a velocity taken from two poses (at most
+  // 1.1 cm and 1.3 degrees at 30 Hz on the excerpt).
   double max_acceleration = 30.0;
   double max_angular_acceleration = 3000.0;
   double max_jump_m = 0.03;
