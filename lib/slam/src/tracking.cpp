@@ -833,15 +833,19 @@ int Tracker::timedOptimizePose(const SE3* prior) {
 
 namespace {
 
+// `motion` (a camera-frame step T_c_w' = motion T_c_w) s times over.
+SE3 scaledMotion(const SE3& motion, double s) {
+  SE3 v = SE3::Identity();
+  v.linear() = expSO3(s * logSO3(motion.linear()));
+  v.translation() = s * motion.translation();
+  return v;
+}
+
 // The pose at `stamp` if the camera kept the motion from `before` to `from`.
 SE3 extrapolate(const Tracker::StampedPose& before, const Tracker::StampedPose& from, Timestamp stamp) {
   const double dt = secondsBetween(from.stamp, before.stamp);
   const double s = dt > 0 ? secondsBetween(stamp, from.stamp) / dt : 1.0;
-  const SE3 v = renormalized(from.T_c_w * before.T_c_w.inverse());
-  SE3 scaled = SE3::Identity();
-  scaled.linear() = expSO3(s * logSO3(v.linear()));
-  scaled.translation() = s * v.translation();
-  return renormalized(scaled * from.T_c_w);
+  return renormalized(scaledMotion(renormalized(from.T_c_w * before.T_c_w.inverse()), s) * from.T_c_w);
 }
 
 }  // namespace
@@ -892,11 +896,7 @@ SE3 Tracker::predictedPose(const SE3& last) const {
   const double dt = secondsBetween(current_.stamp, last_.stamp);
   const double ratio = velocity_dt_ > 0 && dt > 0 ? dt / velocity_dt_ : 1.0;
   if (ratio < 1.5 && ratio > 1.0 / 1.5) return renormalized(velocity_ * last);
-  const double s = std::clamp(ratio, 0.25, 4.0);
-  SE3 v = SE3::Identity();
-  v.linear() = expSO3(s * logSO3(velocity_.linear()));
-  v.translation() = s * velocity_.translation();
-  return renormalized(v * last);
+  return renormalized(scaledMotion(velocity_, std::clamp(ratio, 0.25, 4.0)) * last);
 }
 
 void Tracker::updateProbation() {
