@@ -24,6 +24,12 @@
 #                standee (not turned to face the camera, which would turn
 #                it while it stands): mapped with the room unless masks
 #                keep it out.
+#   cover        1.8 m tall, 1.3 m away, crossing at 0.6 m/s; the camera
+#                passes right in front of it: 37 % of the image on average,
+#                and for 19 frames all of it, too near for depth. After them
+#                it still fills most of the view, and the map started there
+#                must stand on the room (set MIN_POSED_PERCENT: the frames
+#                without depth have no pose).
 #
 # usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
 #                              [MASK_DELAY_FRAMES | semantic:MASK_DELAY_FRAMES]
@@ -31,7 +37,7 @@
 set -euo pipefail
 
 if [[ $# -ne 10 && $# -ne 11 ]]; then
-  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go|behind-bear[-early]|stand-walk" \
+  echo "usage: $0 REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M near|stop-and-go|behind-bear[-early]|stand-walk|cover" \
     "[MASK_DELAY_FRAMES]" >&2
   exit 1
 fi
@@ -45,8 +51,9 @@ case $walk in
   behind-bear) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 3 1050 walk 1) ;;
   behind-bear-early) path=(-0.45 0.9 0.45 0.15 4 2 1.7 0.85 1 0 walk 1) ;;
   stand-walk)  path=(-0.3 1.0 0.6 0.3 4 2 1.7 0.85 0 0 static_then_move 0) ;;
+  cover)       path=(-0.8 1.3 0.8 0.6 4 2 1.8 0.9 0.5 0 walk 1) ;;
   *)
-    echo "unknown PATH '$walk' (near, stop-and-go, behind-bear, behind-bear-early or stand-walk)" >&2
+    echo "unknown PATH '$walk' (near, stop-and-go, behind-bear, behind-bear-early, stand-walk or cover)" >&2
     exit 1
     ;;
 esac

@@ -553,6 +553,38 @@ TEST(SemanticModule, ThreadedRunBuildsTheFirstMapWithoutTheMoversInView) {
   EXPECT_EQ(*calls, static_cast<int>((*system)->keyframes().size()));  // keyframes only, once each
 }
 
+// A mover that fills the view where a map would start: the masks the frame
+// is segmented with ahead leave fewer features than a map needs
+// (tracking.min_init_features), so the map waits for a view showing more of
+// the scene; not for ever: after tracking.new_map_after_lost_s of waiting it
+// starts as without the masks ahead.
+TEST(SemanticModule, AMapStartWaitsWhileAMoverFillsTheView) {
+  const auto& frames = planeFrames();
+  ASSERT_GE(frames.inputs.size(), 20u);
+  SlamOptions options = semanticOptions(false);
+  options.tracking.new_map_after_lost_s = 0.2;
+  auto fake = std::make_unique<RectangleSegmenter>(cv::Rect(0, 0, 600, 480), false);  // all but a 40 px strip
+  const std::shared_ptr<int> calls = fake->calls;
+  auto system = SlamSystem::create(frames.camera, options, std::move(fake));
+  ASSERT_TRUE(system.ok()) << system.error();
+  int started = -1;
+  for (int i = 0; i < static_cast<int>(frames.inputs.size()) && started < 0; ++i) {
+    const auto out = (*system)->track(frames.inputs[i]);
+    ASSERT_TRUE(out.ok()) << out.error();
+    if (out->state == TrackingState::kOk) {
+      started = i;
+    } else {
+      EXPECT_EQ(out->state, TrackingState::kInitialising) << "frame " << i;
+      EXPECT_EQ(*calls, i + 1);  // segmented ahead (no keyframe yet to segment otherwise)
+    }
+  }
+  ASSERT_GT(started, 0);
+  const double waited = secondsBetween(frames.inputs[started].stamp, frames.inputs[0].stamp);
+  EXPECT_GE(waited, 0.2);
+  EXPECT_LT(waited, 0.3);
+  (*system)->finish();
+}
+
 // A stop on request (stillpointd on SIGTERM) drops the keyframes still
 // queued for segmentation instead of segmenting them first.
 TEST(SemanticModule, FinishCanDropQueuedKeyframes) {

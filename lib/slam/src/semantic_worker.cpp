@@ -134,6 +134,7 @@ SemanticWorker::SemanticWorker(std::unique_ptr<semantic::Segmenter> segmenter, c
 SemanticWorker::~SemanticWorker() { finish(); }
 
 SemanticResult SemanticWorker::process(const SemanticJob& job) {
+  std::lock_guard lock(process_mutex_);
   const auto t0 = std::chrono::steady_clock::now();
   SemanticResult out;
   out.keyframe_id = job.keyframe_id;

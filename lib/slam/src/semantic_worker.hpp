@@ -89,7 +89,8 @@ class SemanticWorker {
 
   const semantic::ModelCard& card() const { return segmenter_->card(); }
 
-  // Segments one keyframe on the calling thread (no queue, no sink).
+  // Segments one keyframe on the calling thread (no queue, no sink); calls
+  // from several threads take turns.
   SemanticResult process(const SemanticJob& job);
 
   // Threaded use.
@@ -106,7 +107,8 @@ class SemanticWorker {
 
   std::unique_ptr<semantic::Segmenter> segmenter_;
   SemanticOptions options_;
-  std::vector<SemanticTrack> tracks_;  // only touched by process() (one caller at a time)
+  std::mutex process_mutex_;  // one process() at a time: the network and tracks_
+  std::vector<SemanticTrack> tracks_;
   Sink sink_;
   mutable std::mutex mutex_;
   std::condition_variable_any cv_;

@@ -175,6 +175,25 @@ struct SlamSystem::Impl {
     std::lock_guard lock(frame_masks_mutex);
     frame_masks = std::move(r);
   }
+  // Movers present where a map starts (the first, or a new one after a
+  // loss): a live run, or one modelling the delay, segments the frame the
+  // map is built from before it is built, so its points on movable objects
+  // never exist and the next frames cannot track on them while the
+  // segmentation would be under way. (A sequential run segments every
+  // keyframe before the next frame anyway.) The result is then that
+  // keyframe's: it is not segmented twice.
+  const RgbdInput* input_now = nullptr;  // during tracker.track()
+  std::optional<SemanticResult> map_start_masks;
+  void segmentMapStart(Frame* frame) {
+    const bool modelled_delay = options.sequential && options.semantic.sequential_latency_frames > 0;
+    if (!semantic || (options.sequential && !modelled_delay) || !input_now || input_now->bgr.empty()) return;
+    SemanticResult r = semantic->process(SemanticJob{
+        -1, input_now->bgr.clone(), input_now->depth_m.empty() ? cv::Mat() : input_now->depth_m.clone(),
+        std::chrono::steady_clock::now()});
+    if (!r.ok) return;
+    markMovable(frame, r, map, 1.0);
+    map_start_masks = std::move(r);
+  }
   void applyFrameMasks() {
     std::optional<SemanticResult> r;
     {
@@ -281,6 +300,7 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
         impl->mapper.postSemantic(std::move(r));
     });
     if (!options.sequential) s.semantic->start(hooks.semantic_start);
+    s.tracker.setMapStartMasks([impl = &s](Frame* frame) { impl->segmentMapStart(frame); });
   }
   if (!options.sequential) s.mapper.start();
   return system;
@@ -355,23 +375,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   }
   // The tracker keeps it for geometry.freespace_frames frames.
   if (clusters_pending && s.options.geometry.photo_release_ncc > 0) frame.gray = input.gray.clone();
-  // Movers present at start-up: a live run segments the frame that will be
-  // the first keyframe before the map is built from it, so its points on
-  // movable objects never exist and the next frames cannot track on them
-  // while the segmentation would be under way. (A sequential run segments
-  // every keyframe before the next frame anyway, unless it models the delay.)
-  std::optional<SemanticResult> first_masks;
   const bool modelled_delay = s.options.sequential && s.options.semantic.sequential_latency_frames > 0;
-  if (s.semantic && (!s.options.sequential || modelled_delay) && !input.bgr.empty() && s.map.mapsStarted() == 0 &&
-      s.tracker.state() == TrackingState::kInitialising) {
-    SemanticResult r = s.semantic->process(
-        SemanticJob{-1, input.bgr.clone(), input.depth_m.empty() ? cv::Mat() : input.depth_m.clone(),
-                    std::chrono::steady_clock::now()});
-    if (r.ok) {
-      markMovable(&frame, r, s.map, s.options.semantic.max_removed_fraction);
-      first_masks = std::move(r);
-    }
-  }
   const auto t1 = std::chrono::steady_clock::now();
 
   if (s.latency.busy()) s.latency.advance(frame.id, [&s](const SemanticJob& job) { s.applySegmentation(job); });
@@ -379,7 +383,10 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   TrackOutput out;
   const bool idle = s.options.sequential || s.mapper.idle();
   s.tracked_any = true;
+  s.input_now = &input;
+  s.map_start_masks.reset();
   KeyFrame* kf = s.tracker.track(std::move(frame), idle, clusters_pending, &out);
+  s.input_now = nullptr;
   const auto t2 = std::chrono::steady_clock::now();
   out.extract_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stages.extract = out.extract_ms;
@@ -426,10 +433,13 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
         s.semantic->submit(std::move(job));
     }
   }
-  if (kf && first_masks) {
-    first_masks->keyframe_id = kf->id;  // its result, applied as any keyframe's
+  if (kf && s.map_start_masks) {
+    s.map_start_masks->keyframe_id = kf->id;  // its result, applied as any keyframe's
+    // Its points were made outside the masks: they wait for nothing.
     s.map.maskRequested(kf->id);
-    s.mapper.postSemantic(std::move(*first_masks));
+    s.map.maskResolved(kf->id);
+    s.mapper.postSemantic(std::move(*s.map_start_masks));
+    s.map_start_masks.reset();
   } else if (kf && s.semantic) {
     if (input.bgr.empty()) {
       ++s.semantic_no_colour;

@@ -55,6 +55,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   bool ok = false;
   DynamicDetector::Placement placed;  // where the frame's pose hangs
   if (state_ == TrackingState::kInitialising) {
+    flagMapStartMovers();
     std::unique_lock lock(map_->mutex());
     ok = initialise();
     if (ok) new_keyframe = reference_;
@@ -74,6 +75,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     if (ok) notePoseWorld();
     if (!ok && newMapDue()) {
       lock.unlock();
+      flagMapStartMovers();
       std::unique_lock write(map_->mutex());
       ok = startNewMap();
       if (ok) new_keyframe = reference_;
@@ -351,16 +353,47 @@ void Tracker::noteLoadedMapSupport() {
   if (on_loaded_map_) last_on_loaded_map_ = current_.stamp;
 }
 
+void Tracker::flagMapStartMovers() {
+  masked_ahead_ = false;
+  if (!map_start_masks_) return;
+  if (map_start_waiting_since_ &&
+      secondsBetween(current_.stamp, *map_start_waiting_since_) >= options_.tracking.new_map_after_lost_s)
+    return;  // waited long enough: the map starts as without them
+  const auto masked = [this] { return std::count(current_.dynamic.begin(), current_.dynamic.end(), kSemanticDynamic); };
+  const auto before = masked();
+  map_start_masks_(&current_);
+  masked_ahead_ = masked() > before;
+}
+
+bool Tracker::mapStartRefused(const std::vector<int>* only) {
+  std::vector<char> allowed(current_.size(), only ? 0 : 1);
+  if (only)
+    for (int i : *only) allowed[i] = 1;
+  int points = 0;
+  for (int i = 0; i < current_.size(); ++i) points += current_.depth[i] > 0 && !current_.dynamic[i] && allowed[i];
+  const int needed = only ? options_.tracking.new_map_min_static_matches : options_.tracking.min_init_features;
+  if (points >= needed || !masked_ahead_) return false;
+  SP_DEBUG(logger, "frame " << current_.id << ": a map would have " << points << " points outside the movers' masks, "
+                            << needed << " needed");
+  if (!map_start_waiting_since_) map_start_waiting_since_ = current_.stamp;
+  return true;
+}
+
 bool Tracker::startNewMap() {
-  SP_WARN(logger, "frame " << current_.id << ": lost for " << secondsBetween(current_.stamp, *lost_since_)
-                           << " s and not relocalised: starting map " << map_->mapsStarted()
-                           << " (map " << map_->activeMapId() << " is kept)");
+  const std::vector<int>* only = static_support_.agree.empty() ? nullptr : &static_support_.agree;
   current_.clearMatches();
-  std::fill(current_.dynamic.begin(), current_.dynamic.end(), kNotDynamic);
+  // Masks stay: they say what the features are, whichever map they join.
+  for (auto& d : current_.dynamic)
+    if (d != kSemanticDynamic) d = kNotDynamic;
   // Started sooner on the view's static support: the map stands on it alone
   // (a mover's features that were not matched are not known to move), and
   // what moved otherwise is flagged.
   for (int i : static_support_.moved) current_.dynamic[i] = kGeometryDynamic;
+  // A view a mover fills waits for more of the scene (the frame stays lost).
+  if (mapStartRefused(only)) return false;
+  SP_WARN(logger, "frame " << current_.id << ": lost for " << secondsBetween(current_.stamp, *lost_since_)
+                           << " s and not relocalised: starting map " << map_->mapsStarted()
+                           << " (map " << map_->activeMapId() << " is kept)");
   reference_ = nullptr;
   local_keyframes_.clear();
   local_points_.clear();
@@ -375,7 +408,7 @@ bool Tracker::startNewMap() {
     // them.
     detector_->forgetHistory();
   }
-  if (!initialise(static_support_.agree.empty() ? nullptr : &static_support_.agree)) return false;
+  if (!initialise(only)) return false;
   state_ = TrackingState::kNewMap;
   young_map_until_frame_ = static_support_.agree.empty() ? -1 : current_.id + options_.geometry.anchor_frames;
   lost_since_.reset();
@@ -917,6 +950,8 @@ bool Tracker::initialise(const std::vector<int>* only) {
                              << options_.tracking.min_init_features << " to initialise");
     return false;
   }
+  if (mapStartRefused(only)) return false;
+  map_start_waiting_since_.reset();
   current_.T_c_w = SE3::Identity();
   map_id_ = map_->beginMap();
   auto kf = std::make_unique<KeyFrame>(map_->nextKeyFrameId(), current_);

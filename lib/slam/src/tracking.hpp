@@ -11,6 +11,7 @@
 // Semantic masks reach the frames between keyframes before stage 1
 // (semantic_masks.cpp).
 #include <deque>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -59,6 +60,11 @@ class Tracker {
   // Place recognition's vocabulary (null: none; keyframes are then found by
   // their small views). Set before the first frame; outlives the tracker.
   void setVocabulary(const features::Vocabulary* vocabulary) { vocabulary_ = vocabulary; }
+  // Called with the frame a map is about to be built from (the first map, or
+  // a new one after a loss), outside the map lock: it may flag the frame's
+  // movers (kSemanticDynamic, the semantic module segmenting the frame ahead),
+  // which then make no points. Set before the first frame; null: none.
+  void setMapStartMasks(std::function<void(Frame*)> flag) { map_start_masks_ = std::move(flag); }
   // The words of a frame's static features (dynamic ones take no part in
   // recognising a place); empty without a vocabulary.
   features::BowVector staticWords(const Frame& frame) const;
@@ -87,6 +93,13 @@ class Tracker {
   // Starts a map at the current frame: from every feature with depth not
   // flagged, or from `only` these when given.
   bool initialise(const std::vector<int>* only = nullptr);
+  // The semantic module segments the frame a map is about to start from
+  // (map_start_masks_), unless the start has waited new_map_after_lost_s for
+  // a view its movers do not fill.
+  void flagMapStartMovers();
+  // Whether the masks flagMapStartMovers() set leave too few points for a
+  // map (initialise(only)); the start then waits for a later frame.
+  bool mapStartRefused(const std::vector<int>* only);
   // Lost for tracking.new_map_after_lost_s, or the view moves as the camera
   // did (staticSupport) outside a place a loaded map holds, and the frame
   // could start a map.
@@ -234,6 +247,9 @@ class Tracker {
   // frame's static support (staticSupport).
   SE3 loss_velocity_ = SE3::Identity();
   StaticSupport static_support_;
+  std::function<void(Frame*)> map_start_masks_;
+  bool masked_ahead_ = false;                            // this frame's movers masked by it
+  std::optional<Timestamp> map_start_waiting_since_;  // a map start refused for want of points
   // A place a loaded map holds (noteLoadedMapSupport): this frame's view
   // shows less new ground than a keyframe would map (no keyframe is made);
   // its pose also stands on at least kMapMatchesWithoutTemporary of the
