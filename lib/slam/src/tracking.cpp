@@ -92,6 +92,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     }
   }
   if (ok && state_ == TrackingState::kOk) lookForOlderMaps();
+  if (ok) map_start_waiting_since_.reset();  // a later map start waits afresh
   {
     // Map point positions and keyframe poses change under local BA, which
     // holds the exclusive lock.
