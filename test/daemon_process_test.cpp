@@ -779,7 +779,8 @@ fs::path oniFileDriver() {
 }
 
 std::vector<std::string> openni2Env(const fs::path& dir, const std::string& sequence,
-                                    const std::string& gone_after = "", bool file_player = false) {
+                                    const std::string& gone_after = "", bool file_player = false,
+                                    const std::string& pairs = "") {
   const fs::path lib = dir / "oni-lib";
   fs::create_directories(lib / "OpenNI2" / "Drivers");
   fs::copy_file(fs::canonical(STILLPOINT_OPENNI2_LIBRARY), lib / "libOpenNI2.so.0",
@@ -791,6 +792,7 @@ std::vector<std::string> openni2Env(const fs::path& dir, const std::string& sequ
                   fs::copy_options::overwrite_existing);
   std::vector<std::string> env = {"LD_LIBRARY_PATH=" + lib.string(), "STILLPOINT_ONI_REPLAY_DIR=" + sequence};
   if (!gone_after.empty()) env.push_back("STILLPOINT_ONI_GONE_AFTER=" + gone_after);
+  if (!pairs.empty()) env.push_back("STILLPOINT_ONI_PAIRS=" + pairs);
   return env;
 }
 
@@ -903,7 +905,9 @@ int runProgram(const std::vector<std::string>& args, const std::vector<std::stri
 // property (the replay driver has it) or playback yields no frames.
 void checkOniRoundTrip(const fs::path& d, const std::string& sequence, const std::string& camera, int kFrames,
                        const std::string& ring) {
-  const auto env = openni2Env(d, sequence, "", /*file_player=*/true);
+  // The camera serves exactly kFrames pairs: the recorder takes frames on its
+  // own thread and would record any the camera sends before the streams stop.
+  const auto env = openni2Env(d, sequence, "", /*file_player=*/true, std::to_string(kFrames));
   const std::string oni = (d / "rec.oni").string();
   ASSERT_EQ(runProgram({STILLPOINT_ONI_TOOL, "record", oni, std::to_string(kFrames)}, env, d / "record.txt", 60s), 0)
       << readFile(d / "record.txt.err");

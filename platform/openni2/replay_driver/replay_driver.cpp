@@ -8,11 +8,16 @@
 //   STILLPOINT_ONI_REPLAY_DIR   the TUM-layout folder (required for a device to appear)
 //   STILLPOINT_ONI_GONE_AFTER   optional: after this many frames the device disconnects
 //                               (unplug); it reconnects ~1 s later, serving from the start
+//   STILLPOINT_ONI_PAIRS        optional: serve only this many pairs, counted from the first
+//                               one that finds every open stream started; then the device
+//                               stays connected and sends nothing more (a recording of
+//                               exactly that many pairs)
 // The device URI is "stillpoint-replay://<folder>". Colour is RGB888 and depth
 // 1 mm 640x480 at 30 fps; both frames of a pair carry the colour image's TUM
 // stamp in microseconds, so they are synchronised by construction.
 #include <Driver/OniDriverAPI.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdlib>
@@ -136,8 +141,8 @@ class ReplayDriver;
 
 class ReplayDevice final : public DeviceBase {
  public:
-  ReplayDevice(ReplayDriver* driver, stillpoint::dataset::TumDataset data, long gone_after)
-      : driver_(driver), data_(std::move(data)), gone_after_(gone_after) {
+  ReplayDevice(ReplayDriver* driver, stillpoint::dataset::TumDataset data, long gone_after, long pairs)
+      : driver_(driver), data_(std::move(data)), gone_after_(gone_after), pairs_(pairs) {
     for (int i = 0; i < 2; ++i) {
       modes_[i] = ReplayStream(i == 0 ? ONI_SENSOR_COLOR : ONI_SENSOR_DEPTH).mode();
       sensors_[i].sensorType = i == 0 ? ONI_SENSOR_COLOR : ONI_SENSOR_DEPTH;
@@ -193,6 +198,7 @@ class ReplayDevice final : public DeviceBase {
   ReplayDriver* driver_;
   stillpoint::dataset::TumDataset data_;
   long gone_after_;
+  long pairs_;
   OniVideoMode modes_[2];
   OniSensorInfo sensors_[2];
   std::mutex mutex_;
@@ -212,6 +218,7 @@ class ReplayDriver final : public DriverBase {
     if (!dir || !*dir) return ONI_STATUS_OK;  // no sequence: no device
     dir_ = dir;
     if (const char* g = std::getenv("STILLPOINT_ONI_GONE_AFTER")) gone_after_ = std::atol(g);
+    if (const char* p = std::getenv("STILLPOINT_ONI_PAIRS")) pairs_ = std::atol(p);
     std::memset(&info_, 0, sizeof info_);
     std::snprintf(info_.uri, sizeof info_.uri, "%s%s", kScheme, dir_.c_str());
     std::snprintf(info_.vendor, sizeof info_.vendor, "stillpoint");
@@ -230,7 +237,7 @@ class ReplayDriver final : public DriverBase {
       getServices().errorLoggerAppend("stillpoint replay: %s", data.error().c_str());
       return nullptr;
     }
-    return new (std::nothrow) ReplayDevice(this, std::move(*data), gone_after_);
+    return new (std::nothrow) ReplayDevice(this, std::move(*data), gone_after_, pairs_);
   }
   void deviceClose(DeviceBase* device) override { delete device; }
   OniStatus tryDevice(const char* uri) override {
@@ -254,6 +261,7 @@ class ReplayDriver final : public DriverBase {
  private:
   std::string dir_;
   long gone_after_ = 0;
+  long pairs_ = 0;
   OniDeviceInfo info_{};
   std::atomic<bool> present_{true};
   std::thread replug_;
@@ -262,7 +270,8 @@ class ReplayDriver final : public DriverBase {
 void ReplayDevice::run() {
   const auto start = std::chrono::steady_clock::now();
   std::int64_t first_ns = -1;
-  for (std::size_t i = 0; i < data_.size() && !stop_; ++i) {
+  long served = 0;
+  for (std::size_t i = 0; i < data_.size() && !stop_ && (pairs_ <= 0 || served < pairs_); ++i) {
     auto frame = data_.load(i);
     if (!frame) continue;
     if (first_ns < 0) first_ns = frame->stamp.nanoseconds();
@@ -278,8 +287,12 @@ void ReplayDevice::run() {
     const std::uint64_t stamp_us = static_cast<std::uint64_t>(frame->stamp.nanoseconds() / 1000);
     {
       std::lock_guard lock(mutex_);
+      const bool all_started = !streams_.empty() && std::all_of(streams_.begin(), streams_.end(),
+                                                                [](const ReplayStream* s) { return s->running(); });
+      if (pairs_ > 0 && !all_started) continue;  // the counted pairs begin once every stream runs
       for (ReplayStream* s : streams_)
         s->deliver(s->type() == ONI_SENSOR_COLOR ? rgb : depth_mm, stamp_us, static_cast<int>(i + 1));
+      ++served;
     }
     if (gone_after_ > 0 && static_cast<long>(i + 1) == gone_after_) {
       driver_->unplug();

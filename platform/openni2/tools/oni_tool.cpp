@@ -72,8 +72,9 @@ int record(const std::string& out, int n, const std::string& uri) {
     if (streams[ready]->readFrame(&frame) != openni::STATUS_OK) continue;
     ++(ready == 0 ? colour_frames : depth_frames);
   }
-  // The recorder took the frames through its own listener: stop the streams
-  // first so that it writes no frame beyond the last one counted here.
+  // The recorder takes the frames through its own listener, on the camera's
+  // thread: a camera that sends on may have put a frame beyond the last one
+  // counted here into the recording before the streams stop. Stop them first.
   colour.stop();
   depth.stop();
   recorder.stop();
