@@ -366,6 +366,24 @@ void LoopCloser::correct(const Loop& loop) {
     group[g]->T_c_w() = initial[index.at(group[g])];
     for (const auto& [n, w] : group[g]->connections) links_before[g].insert(n);
   }
+  // The essential graph: the spanning tree and strong covisibility as they
+  // were before the loop (taken before the fusion below links the two sides:
+  // a link across the loop holds the drift the loop corrects), the new links
+  // across it as they are now.
+  std::vector<PoseGraphEdge> edges;
+  auto relative = [](const SE3& T_i_w, const SE3& T_j_w) { return renormalized(T_i_w * T_j_w.inverse()); };
+  for (std::size_t n = 0; n < ks.size(); ++n) {
+    KeyFrame* k = ks[n];
+    if (k->parent && index.count(k->parent)) {
+      const std::size_t p = index.at(k->parent);
+      edges.push_back({n, p, relative(before[n], before[p])});
+    }
+    for (const auto& [other, w] : k->connections) {
+      if (w < kStrongCovisibility || other->id >= k->id || !index.count(other)) continue;
+      const std::size_t o = index.at(other);
+      edges.push_back({n, o, relative(before[n], before[o])});
+    }
+  }
   // Fuse: the keyframe's features take the older side's points, and so do
   // the rest of the group's where the loop puts them. A point this lap mapped
   // again and only a neighbour sees would otherwise stay beside its older
@@ -395,22 +413,6 @@ void LoopCloser::correct(const Loop& loop) {
   }
   for (KeyFrame* g : group) g->updateConnections();
 
-  // The essential graph: the spanning tree and strong covisibility as they
-  // were before the loop, the new links across it as they are now.
-  std::vector<PoseGraphEdge> edges;
-  auto relative = [](const SE3& T_i_w, const SE3& T_j_w) { return renormalized(T_i_w * T_j_w.inverse()); };
-  for (std::size_t n = 0; n < ks.size(); ++n) {
-    KeyFrame* k = ks[n];
-    if (k->parent && index.count(k->parent)) {
-      const std::size_t p = index.at(k->parent);
-      edges.push_back({n, p, relative(before[n], before[p])});
-    }
-    for (const auto& [other, w] : k->connections) {
-      if (w < kStrongCovisibility || other->id >= k->id || !index.count(other)) continue;
-      const std::size_t o = index.at(other);
-      edges.push_back({n, o, relative(before[n], before[o])});
-    }
-  }
   for (std::size_t g = 0; g < group.size(); ++g)
     for (const auto& [other, w] : group[g]->connections) {
       if (links_before[g].count(other) || !index.count(other) ||

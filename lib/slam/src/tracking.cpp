@@ -49,7 +49,6 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   rejected_ = false;
   carried_.clear();
   const bool tracking = hasPose(state_);
-  followWorldMoves();
   if (detector_) detector_->startFrame(current_, clusters_pending, tracking);
   KeyFrame* new_keyframe = nullptr;
   bool ok = false;
@@ -62,6 +61,9 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
     if (ok) notePoseWorld();
   } else {
     std::shared_lock lock(map_->mutex());
+    // Under the lock the frame is tracked in: a loop closed just before must
+    // not leave the last pose, and the motion model with it, in the old world.
+    followWorldMoves();
     ok = trackFrame(clusters_pending);
     if (ok && switch_to_map_) {
       lock.unlock();
@@ -169,7 +171,6 @@ void Tracker::catchUpWithWorld() {
 
 void Tracker::followWorldMoves() {
   if (!has_last_ || !reference_ || !hasPose(state_)) return;
-  std::shared_lock lock(map_->mutex());
   if (map_->epoch() == seen_epoch_ || reference_->bad) return;
   // The steady poses hang in the old world; the motion check starts over.
   steady_poses_.clear();
@@ -215,8 +216,8 @@ bool Tracker::trackFrame(bool clusters_pending) {
       ScopedStageTimer timer(&times_.semantic);
       markSemanticMovers();
     }
-    // The world may have moved since followWorldMoves() (the map lock was
-    // free in between).
+    // The world may have moved since the detector started the frame (no map
+    // lock was held then).
     if (detector_) detector_->followWorld(map_->epoch());
     ok = initialPose();
     const bool judged = ok && clusters_pending;

@@ -158,8 +158,8 @@ class Tracker {
   PoseHealth health_ = PoseHealth::kLost;
   int better_frames_ = 0;
   // A loop closure or global BA moved the world since the last frame:
-  // re-express the last pose through its reference keyframe.
-  void followWorldMoves();  // SlamOptions::report_fates
+  // re-express the last pose through its reference keyframe. A map lock held.
+  void followWorldMoves();
   // Relocalisation (relocalisation.cpp).
   bool relocalise();
   bool relocalise(const std::vector<KeyFrame*>& candidates);
