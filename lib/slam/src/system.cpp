@@ -184,16 +184,19 @@ struct SlamSystem::Impl {
   // keyframe's: it is not segmented twice.
   const RgbdInput* input_now = nullptr;  // during tracker.track()
   std::optional<SemanticResult> map_start_masks;
-  void segmentMapStart(Frame* frame) {
-    const bool modelled_delay = options.sequential && options.semantic.sequential_latency_frames > 0;
-    if (!semantic || (options.sequential && !modelled_delay) || !input_now || input_now->bgr.empty()) return;
+  bool segmentMapStart(Frame* frame) {
+    if (!semantic || segmentsInline() || !input_now || input_now->bgr.empty()) return false;
     SemanticResult r = semantic->process(SemanticJob{
         -1, input_now->bgr.clone(), input_now->depth_m.empty() ? cv::Mat() : input_now->depth_m.clone(),
         std::chrono::steady_clock::now()});
-    if (!r.ok) return;
-    markMovable(frame, r, map, 1.0);
+    if (!r.ok) return false;
+    const bool flagged = markMovable(frame, r, map, 1.0);
     map_start_masks = std::move(r);
+    return flagged;
   }
+  // A sequential run that does not model the segmentation's delay segments
+  // each keyframe as it is made, before the next frame.
+  bool segmentsInline() const { return options.sequential && options.semantic.sequential_latency_frames <= 0; }
   void applyFrameMasks() {
     std::optional<SemanticResult> r;
     {
@@ -300,7 +303,7 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
         impl->mapper.postSemantic(std::move(r));
     });
     if (!options.sequential) s.semantic->start(hooks.semantic_start);
-    s.tracker.setMapStartMasks([impl = &s](Frame* frame) { impl->segmentMapStart(frame); });
+    s.tracker.setMapStartMasks([impl = &s](Frame* frame) { return impl->segmentMapStart(frame); });
   }
   if (!options.sequential) s.mapper.start();
   return system;
@@ -420,7 +423,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
     // loaded map holds), so none brings masks: the frame itself is segmented
     // whenever the segmenter is free, and its masks follow its movers into
     // the frames after it as a keyframe's do.
-    const bool inline_now = s.options.sequential && !modelled_delay;
+    const bool inline_now = s.segmentsInline();
     const bool free = inline_now || (modelled_delay ? !s.latency.busy() : s.semantic->idle());
     if (free) {
       const std::int64_t id = s.tracker.keepForMasks();
@@ -448,7 +451,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
                                 << " so far)");
     } else {
       // The job keeps its own images unless it is segmented right now.
-      const bool inline_now = s.options.sequential && !modelled_delay;
+      const bool inline_now = s.segmentsInline();
       SemanticJob job{kf->id, inline_now ? input.bgr : input.bgr.clone(),
                       inline_now ? input.depth_m : input.depth_m.clone(), t2};
       s.map.maskRequested(kf->id);

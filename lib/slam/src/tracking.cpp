@@ -56,7 +56,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   if (state_ == TrackingState::kInitialising) {
     flagMapStartMovers();
     std::unique_lock lock(map_->mutex());
-    ok = initialise();
+    ok = !mapStartRefused(nullptr) && initialise();
     if (ok) new_keyframe = reference_;
     if (ok) notePoseWorld();
   } else {
@@ -361,20 +361,19 @@ void Tracker::flagMapStartMovers() {
   if (map_start_waiting_since_ &&
       secondsBetween(current_.stamp, *map_start_waiting_since_) >= options_.tracking.new_map_after_lost_s)
     return;  // waited long enough: the map starts as without them
-  const auto masked = [this] { return std::count(current_.dynamic.begin(), current_.dynamic.end(), kSemanticDynamic); };
-  const auto before = masked();
-  map_start_masks_(&current_);
-  masked_ahead_ = masked() > before;
+  masked_ahead_ = map_start_masks_(&current_);
 }
 
 bool Tracker::mapStartRefused(const std::vector<int>* only) {
-  std::vector<char> allowed(current_.size(), only ? 0 : 1);
-  if (only)
-    for (int i : *only) allowed[i] = 1;
+  if (!masked_ahead_) return false;
+  const auto usable = [this](int i) { return current_.depth[i] > 0 && !current_.dynamic[i]; };
   int points = 0;
-  for (int i = 0; i < current_.size(); ++i) points += current_.depth[i] > 0 && !current_.dynamic[i] && allowed[i];
+  if (only)
+    for (int i : *only) points += usable(i);
+  else
+    for (int i = 0; i < current_.size(); ++i) points += usable(i);
   const int needed = only ? options_.tracking.new_map_min_static_matches : options_.tracking.min_init_features;
-  if (points >= needed || !masked_ahead_) return false;
+  if (points >= needed) return false;
   SP_DEBUG(logger, "frame " << current_.id << ": a map would have " << points << " points outside the movers' masks, "
                             << needed << " needed");
   if (!map_start_waiting_since_) map_start_waiting_since_ = current_.stamp;
@@ -952,8 +951,6 @@ bool Tracker::initialise(const std::vector<int>* only) {
                              << options_.tracking.min_init_features << " to initialise");
     return false;
   }
-  if (mapStartRefused(only)) return false;
-  map_start_waiting_since_.reset();
   current_.T_c_w = SE3::Identity();
   map_id_ = map_->beginMap();
   auto kf = std::make_unique<KeyFrame>(map_->nextKeyFrameId(), current_);

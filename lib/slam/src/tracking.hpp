@@ -63,8 +63,9 @@ class Tracker {
   // Called with the frame a map is about to be built from (the first map, or
   // a new one after a loss), outside the map lock: it may flag the frame's
   // movers (kSemanticDynamic, the semantic module segmenting the frame ahead),
-  // which then make no points. Set before the first frame; null: none.
-  void setMapStartMasks(std::function<void(Frame*)> flag) { map_start_masks_ = std::move(flag); }
+  // which then make no points; returns whether it flagged any. Set before the
+  // first frame; null: none.
+  void setMapStartMasks(std::function<bool(Frame*)> flag) { map_start_masks_ = std::move(flag); }
   // The words of a frame's static features (dynamic ones take no part in
   // recognising a place); empty without a vocabulary.
   features::BowVector staticWords(const Frame& frame) const;
@@ -98,7 +99,8 @@ class Tracker {
   // a view its movers do not fill.
   void flagMapStartMovers();
   // Whether the masks flagMapStartMovers() set leave too few points for a
-  // map (initialise(only)); the start then waits for a later frame.
+  // map (initialise(only)); the start then waits for a later frame. Called
+  // before anything of the lost map is let go.
   bool mapStartRefused(const std::vector<int>* only);
   // Lost for tracking.new_map_after_lost_s, or the view moves as the camera
   // did (staticSupport) outside a place a loaded map holds, and the frame
@@ -247,8 +249,8 @@ class Tracker {
   // frame's static support (staticSupport).
   SE3 loss_velocity_ = SE3::Identity();
   StaticSupport static_support_;
-  std::function<void(Frame*)> map_start_masks_;
-  bool masked_ahead_ = false;                            // this frame's movers masked by it
+  std::function<bool(Frame*)> map_start_masks_;
+  bool masked_ahead_ = false;                         // this frame's movers masked by it
   std::optional<Timestamp> map_start_waiting_since_;  // a map start refused for want of points
   // A place a loaded map holds (noteLoadedMapSupport): this frame's view
   // shows less new ground than a keyframe would map (no keyframe is made);
