@@ -63,6 +63,7 @@ class LoopCloser {
   LoopStats stats() const;
 
  private:
+  friend class LoopCorrection;  // the unit test of correct()
   struct Loop {
     std::int64_t keyframe = -1, candidate = -1;
     SE3 T_kf_candidate;
