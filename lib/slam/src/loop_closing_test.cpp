@@ -60,19 +60,7 @@ class LoopCorrection : public ::testing::Test {
   }
 
   std::unique_ptr<KeyFrame> keyFrame(std::int64_t id, const SE3& T_c_w) {
-    Frame f;
-    f.id = id;
-    f.camera = &camera_;
-    f.levels = &testing::oneLevel();
-    f.T_c_w = T_c_w;
-    const int n = 2 * kShared;
-    f.keys.resize(n);
-    f.un.resize(n);
-    f.depth.assign(n, 1.0f);
-    f.u_right.assign(n, -1.0f);
-    f.descriptors = cv::Mat::zeros(n, 32, CV_8U);
-    f.clearMatches();
-    return std::make_unique<KeyFrame>(id, f);
+    return testing::handMadeKeyFrame(id, 2 * kShared, T_c_w, &camera_);
   }
 
   // Closes the loop from the last keyframe to the first, fusing the last

@@ -20,21 +20,6 @@ SE3 pose(double tx, double ty, double tz, double yaw) {
   return T;
 }
 
-// A keyframe with `n` features (their image positions are never looked at here).
-std::unique_ptr<KeyFrame> keyFrame(std::int64_t id, int n, const SE3& T_c_w) {
-  Frame f;
-  f.id = id;
-  f.levels = &testing::oneLevel();
-  f.T_c_w = T_c_w;
-  f.keys.resize(n);
-  f.un.resize(n);
-  f.depth.assign(n, 1.0f);
-  f.u_right.assign(n, -1.0f);
-  f.descriptors = cv::Mat::zeros(n, 32, CV_8U);
-  f.clearMatches();
-  return std::make_unique<KeyFrame>(id, f);
-}
-
 bool near(const SE3& a, const SE3& b) { return (a.matrix() - b.matrix()).cwiseAbs().maxCoeff() < 1e-12; }
 
 // Keyframes 0 <- 1 <- 2 (spanning tree), sharing points: 40 seen by all
@@ -42,12 +27,12 @@ bool near(const SE3& a, const SE3& b) { return (a.matrix() - b.matrix()).cwiseAb
 class CulledKeyFrames : public ::testing::Test {
  protected:
   void SetUp() override {
-    kf0_ = map_.addKeyFrame(keyFrame(0, 70, pose(0, 0, 0, 0)));
-    kf1_ = map_.addKeyFrame(keyFrame(1, 70, pose(0.1, 0, 0, 0.05)));
+    kf0_ = map_.addKeyFrame(testing::handMadeKeyFrame(0, 70, pose(0, 0, 0, 0)));
+    kf1_ = map_.addKeyFrame(testing::handMadeKeyFrame(1, 70, pose(0.1, 0, 0, 0.05)));
     for (int i = 0; i < 40; ++i) observe(map_.createPoint(Vec3(i, 0, 2), kf1_), {kf0_, kf1_}, i);
     for (int i = 40; i < 50; ++i) only_kf1_.push_back(observe(map_.createPoint(Vec3(i, 1, 2), kf1_), {kf1_}, i));
     kf1_->updateConnections();
-    kf2_ = map_.addKeyFrame(keyFrame(2, 70, pose(0.2, 0, 0.05, 0.1)));
+    kf2_ = map_.addKeyFrame(testing::handMadeKeyFrame(2, 70, pose(0.2, 0, 0.05, 0.1)));
     for (int i = 0; i < 40; ++i) kf2_->addObservation(kf1_->frame.points[i], i);
     for (int i = 50; i < 70; ++i) shared_12_.push_back(observe(map_.createPoint(Vec3(i, 2, 2), kf1_), {kf1_, kf2_}, i));
     kf2_->updateConnections();
@@ -153,8 +138,8 @@ TEST_F(CulledKeyFrames, StayUnlinkedWhenTheirConnectionsAreUpdatedLate) {
 
 TEST(MapPoint, ReferenceIsDroppedWithItsObservation) {
   Map map;
-  KeyFrame* a = map.addKeyFrame(keyFrame(0, 4, SE3::Identity()));
-  KeyFrame* b = map.addKeyFrame(keyFrame(1, 4, SE3::Identity()));
+  KeyFrame* a = map.addKeyFrame(testing::handMadeKeyFrame(0, 4, SE3::Identity()));
+  KeyFrame* b = map.addKeyFrame(testing::handMadeKeyFrame(1, 4, SE3::Identity()));
   auto p = map.createPoint(Vec3(0, 0, 1), b);
   a->addObservation(p, 0);
   b->addObservation(p, 1);
@@ -200,8 +185,8 @@ TEST(Map, PointsAwaitTheirKeyframesMaskUntilAResultAtOrAfterItComesBack) {
 // replay).
 TEST(Map, AKeyframeThatLosesItsSharedPointsLeavesItsOldNeighbourEntirely) {
   Map map;
-  KeyFrame* a = map.addKeyFrame(keyFrame(0, 40, SE3::Identity()));
-  KeyFrame* b = map.addKeyFrame(keyFrame(1, 40, SE3::Identity()));
+  KeyFrame* a = map.addKeyFrame(testing::handMadeKeyFrame(0, 40, SE3::Identity()));
+  KeyFrame* b = map.addKeyFrame(testing::handMadeKeyFrame(1, 40, SE3::Identity()));
   for (int i = 0; i < 30; ++i) {
     auto p = map.createPoint(Vec3(0.1 * i, 0, 2), a);
     a->addObservation(p, i);
@@ -243,7 +228,7 @@ TEST(PlaceRecognition, SimilarKeyFramesRanksByScoreAndForgetsCulledOnes) {
   };
   std::vector<KeyFrame*> kfs;
   for (int k = 0; k < 4; ++k) {
-    auto kf = keyFrame(k, 4, SE3::Identity());
+    auto kf = testing::handMadeKeyFrame(k, 4, SE3::Identity());
     kf->origin = k == 0;
     kf->bow = k == 0 ? words({1, 2, 3, 4}) : k == 1 ? words({1, 2, 3, 9}) : k == 2 ? words({1, 7, 8, 9}) : words({20, 21});
     kfs.push_back(map.addKeyFrame(std::move(kf)));

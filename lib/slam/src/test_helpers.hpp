@@ -3,9 +3,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <memory>
 #include <string>
 
 #include "frame.hpp"
+#include "map.hpp"
 
 namespace stillpoint::slam::testing {
 
@@ -26,6 +28,24 @@ inline const LevelInfo& oneLevel() {
     return l;
   }();
   return lv;
+}
+
+// A keyframe with `n` features, 1 m deep, whose image positions and
+// descriptors are never looked at (hand-built maps).
+inline std::unique_ptr<KeyFrame> handMadeKeyFrame(std::int64_t id, int n, const SE3& T_c_w,
+                                                  const CameraModel* camera = nullptr) {
+  Frame f;
+  f.id = id;
+  f.camera = camera;
+  f.levels = &oneLevel();
+  f.T_c_w = T_c_w;
+  f.keys.resize(n);
+  f.un.resize(n);
+  f.depth.assign(n, 1.0f);
+  f.u_right.assign(n, -1.0f);
+  f.descriptors = cv::Mat::zeros(n, 32, CV_8U);
+  f.clearMatches();
+  return std::make_unique<KeyFrame>(id, f);
 }
 
 }  // namespace stillpoint::slam::testing
