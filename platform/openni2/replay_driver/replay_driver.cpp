@@ -195,6 +195,11 @@ class ReplayDevice final : public DeviceBase {
 
  private:
   void run();
+  bool allStarted() {
+    std::lock_guard lock(mutex_);
+    return !streams_.empty() &&
+           std::all_of(streams_.begin(), streams_.end(), [](const ReplayStream* s) { return s->running(); });
+  }
   ReplayDriver* driver_;
   stillpoint::dataset::TumDataset data_;
   long gone_after_;
@@ -277,6 +282,7 @@ void ReplayDevice::run() {
     if (first_ns < 0) first_ns = frame->stamp.nanoseconds();
     std::this_thread::sleep_until(start + std::chrono::nanoseconds(frame->stamp.nanoseconds() - first_ns));
     if (stop_) break;
+    if (pairs_ > 0 && !allStarted()) continue;  // the counted pairs begin once every stream runs
     cv::Mat rgb(kHeight, kWidth, CV_8UC3), depth_mm;
     for (int y = 0; y < kHeight; ++y)
       for (int x = 0; x < kWidth; ++x) {
@@ -287,9 +293,6 @@ void ReplayDevice::run() {
     const std::uint64_t stamp_us = static_cast<std::uint64_t>(frame->stamp.nanoseconds() / 1000);
     {
       std::lock_guard lock(mutex_);
-      const bool all_started = !streams_.empty() && std::all_of(streams_.begin(), streams_.end(),
-                                                                [](const ReplayStream* s) { return s->running(); });
-      if (pairs_ > 0 && !all_started) continue;  // the counted pairs begin once every stream runs
       for (ReplayStream* s : streams_)
         s->deliver(s->type() == ONI_SENSOR_COLOR ? rgb : depth_mm, stamp_us, static_cast<int>(i + 1));
       ++served;
