@@ -29,7 +29,17 @@ void ClusteringWorker::submit(std::int64_t frame_id, cv::Mat depth_m) {
   wake_.notify_one();
 }
 
+void ClusteringWorker::restart() {
+  std::lock_guard lock(mutex_);
+  restart_ = true;
+}
+
 std::shared_ptr<const DepthClusters> ClusteringWorker::process(const cv::Mat& depth_m) {
+  {
+    std::lock_guard lock(mutex_);
+    if (restart_) clusterer_.reset();
+    restart_ = false;
+  }
   const auto t0 = std::chrono::steady_clock::now();
   auto clusters = clusterer_.cluster(depth_m, camera_);
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();

@@ -1,7 +1,10 @@
 #include "stillpoint/geometry/depth_clustering.hpp"
 
+#include "stillpoint/geometry/clustering_worker.hpp"
+
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <map>
 #include <set>
 
@@ -125,6 +128,31 @@ TEST(DepthClustering, ScalesWithResolution) {
   EXPECT_EQ(DepthClusterer::stepFor(o, 1280, 960), 16);
   o.clusters_at_vga = 1;
   EXPECT_FALSE(o.validate());
+}
+
+// After a loss the view has changed: the next frame's K-Means must not
+// start from centres of the frames before.
+TEST(ClusteringWorker, RestartClustersTheNextFrameFromFreshCentres) {
+  const CameraModel cam = vga();
+  for (const bool thread : {false, true}) {
+    ClusteringWorker worker(cam, {}, thread);
+    const std::chrono::seconds wait(10);
+    worker.submit(0, threeSurfaces());
+    ASSERT_TRUE(worker.result(0, wait));
+    worker.submit(1, threeSurfaces());
+    auto warm = worker.result(1, wait);
+    ASSERT_TRUE(warm);
+    EXPECT_TRUE(warm->warm_started);
+    worker.restart();
+    worker.submit(2, threeSurfaces());
+    auto fresh = worker.result(2, wait);
+    ASSERT_TRUE(fresh);
+    EXPECT_FALSE(fresh->warm_started) << (thread ? "threaded" : "inline");
+    DepthClusterer cold;
+    auto expected = cold.cluster(threeSurfaces(), cam);
+    ASSERT_TRUE(expected.ok());
+    EXPECT_EQ(cv::countNonZero(fresh->labels != expected->labels), 0);
+  }
 }
 
 }  // namespace

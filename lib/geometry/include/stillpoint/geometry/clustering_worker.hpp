@@ -32,6 +32,9 @@ class ClusteringWorker {
 
   // Clusters one image in the caller's thread (what the thread runs).
   std::shared_ptr<const DepthClusters> process(const cv::Mat& depth_m);
+  // The next clustering starts from fresh centres, not from the last
+  // frame's: the view before (a loss, another map) says nothing of it.
+  void restart();
 
   std::int64_t deadlineMisses() const;
   double lastClusteringMs() const;
@@ -51,6 +54,7 @@ class ClusteringWorker {
   std::int64_t result_id_ = -1;   // finished
   std::shared_ptr<const DepthClusters> result_;
   std::int64_t misses_ = 0;
+  bool restart_ = false;  // the next clustering starts afresh
   double last_ms_ = 0;
   log::RateLimiter fail_log_{std::chrono::seconds(5)};
   std::jthread thread_;  // last: starts after the members it uses
