@@ -568,6 +568,12 @@ void DynamicDetector::forgetHistory() {
   anchors_.clear();
   anchor_places_.clear();
   seen_.clear();
+  // So do the depth clusters: each frame's start from the last one's
+  // centres, and after a loss the view has changed as much as the world.
+  // Centres carried over from the lost frames gave a person close to the
+  // camera one cluster with the teddy bear beside it, and the bear was
+  // flagged with the person.
+  if (clustering_) clustering_->restart();
 }
 
 void DynamicDetector::followWorld(std::uint64_t epoch) {

@@ -381,7 +381,15 @@ bool Tracker::mapStartRefused(const std::vector<int>* only) {
 }
 
 bool Tracker::startNewMap() {
-  const std::vector<int>* only = static_support_.agree.empty() ? nullptr : &static_support_.agree;
+  const bool on_support = !static_support_.agree.empty();
+  // The support was found before the frame's movers were masked. A person
+  // near the camera who moves about as the camera did before the loss can
+  // outnumber the room among the matches the prediction admits and take the
+  // fit; the room's near surfaces then count as moved, and the map stands on
+  // its far ones alone. Found again without the masked features (none left:
+  // the map start is refused below, and waits).
+  if (on_support && masked_ahead_) static_support_ = staticSupport(loss_velocity_);
+  const std::vector<int>* only = on_support ? &static_support_.agree : nullptr;
   current_.clearMatches();
   // Masks stay: they say what the features are, whichever map they join.
   for (auto& d : current_.dynamic)
@@ -411,7 +419,7 @@ bool Tracker::startNewMap() {
   }
   if (!initialise(only)) return false;
   state_ = TrackingState::kNewMap;
-  young_map_until_frame_ = static_support_.agree.empty() ? -1 : current_.id + options_.geometry.anchor_frames;
+  young_map_until_frame_ = on_support ? current_.id + options_.geometry.anchor_frames : -1;
   lost_since_.reset();
   blind_since_.reset();
   return true;
