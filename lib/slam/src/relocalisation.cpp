@@ -144,7 +144,8 @@ Tracker::StaticSupport Tracker::staticSupport(const SE3& predicted) const {
   std::vector<int> feature;
   std::vector<Vec3> from, to;
   for (const auto& [j, i] : matchByDescriptor(current_, last_, 0.7f, false, true)) {
-    if (current_.depth[j] <= 0 || last_.depth[i] <= 0 || current_.dynamic[j] == kSemanticDynamic) continue;
+    if (current_.depth[j] <= 0 || last_.depth[i] <= 0) continue;
+    if (current_.dynamic[j] == kSemanticDynamic) continue;  // a mask's mover
     feature.push_back(j);
     from.push_back(camera_.unproject(Vec2(last_.un[i].x, last_.un[i].y), last_.depth[i]));
     to.push_back(camera_.unproject(Vec2(current_.un[j].x, current_.un[j].y), current_.depth[j]));
