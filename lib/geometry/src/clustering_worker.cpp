@@ -31,14 +31,13 @@ void ClusteringWorker::submit(std::int64_t frame_id, cv::Mat depth_m) {
 
 void ClusteringWorker::restart() {
   std::lock_guard lock(mutex_);
-  restart_ = true;
+  taken_centres_.clear();
 }
 
 std::shared_ptr<const DepthClusters> ClusteringWorker::process(const cv::Mat& depth_m) {
   {
     std::lock_guard lock(mutex_);
-    if (restart_) clusterer_.reset();
-    restart_ = false;
+    clusterer_.warmStartFrom(taken_centres_);
   }
   const auto t0 = std::chrono::steady_clock::now();
   auto clusters = clusterer_.cluster(depth_m, camera_);
@@ -68,7 +67,7 @@ void ClusteringWorker::run(std::stop_token stop) {
     auto clusters = process(depth);
     {
       std::lock_guard lock(mutex_);
-      result_id_ = id;
+      result_id_ = clustered_id_ = id;
       result_ = std::move(clusters);
     }
     done_.notify_all();
@@ -85,13 +84,25 @@ std::shared_ptr<const DepthClusters> ClusteringWorker::result(std::int64_t frame
       depth = std::move(pending_depth_);
       pending_id_ = -1;
     }
-    return process(depth);
+    auto clusters = process(depth);
+    std::lock_guard lock(mutex_);
+    clustered_id_ = frame_id;
+    if (clusters) taken_centres_ = clusters->centres;
+    return clusters;
   }
   std::unique_lock lock(mutex_);
-  if (done_.wait_for(lock, deadline, [&] { return result_id_ >= frame_id; }) && result_id_ == frame_id)
+  const bool ready = done_.wait_for(lock, deadline, [&] { return result_id_ >= frame_id; });
+  if (ready && result_id_ == frame_id) {
+    if (result_) taken_centres_ = result_->centres;
     return result_;
+  }
   ++misses_;
   return nullptr;
+}
+
+std::int64_t ClusteringWorker::lastClusteredFrame() const {
+  std::lock_guard lock(mutex_);
+  return clustered_id_;
 }
 
 std::int64_t ClusteringWorker::deadlineMisses() const {

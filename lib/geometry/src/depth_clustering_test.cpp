@@ -7,6 +7,7 @@
 #include <chrono>
 #include <map>
 #include <set>
+#include <thread>
 
 namespace stillpoint::geometry {
 namespace {
@@ -152,6 +153,48 @@ TEST(ClusteringWorker, RestartClustersTheNextFrameFromFreshCentres) {
     auto expected = cold.cluster(threeSurfaces(), cam);
     ASSERT_TRUE(expected.ok());
     EXPECT_EQ(cv::countNonZero(fresh->labels != expected->labels), 0);
+  }
+}
+
+// A frame the tracker does not take (a lost or relocalised one) is still
+// clustered by the thread; the next frame's K-Means must start where it
+// would have without it, as in a replay without the thread, which clusters
+// only the frames tracking takes.
+TEST(ClusteringWorker, AFrameNotTakenLeavesTheNextOneAlone) {
+  const CameraModel cam = vga();
+  // A face filling the view, 0.5 m away: centres far from the room's.
+  cv::Mat face(480, 640, CV_32F, cv::Scalar(3.0f));
+  face(cv::Rect(40, 20, 560, 440)).setTo(0.5f);
+  const cv::Mat later = threeSurfaces({300, 200, 160, 140});
+  DepthClusterer replay;
+  ASSERT_TRUE(replay.cluster(threeSurfaces(), cam).ok());
+  const auto expected = replay.cluster(later, cam);
+  ASSERT_TRUE(expected.ok());
+  DepthClusterer after_face;
+  ASSERT_TRUE(after_face.cluster(threeSurfaces(), cam).ok());
+  ASSERT_TRUE(after_face.cluster(face, cam).ok());
+  const auto from_face = after_face.cluster(later, cam);
+  ASSERT_TRUE(from_face.ok());
+  // Otherwise the test could not tell the two starts apart.
+  ASSERT_GT(cv::countNonZero(from_face->labels != expected->labels), 0);
+  for (const bool thread : {false, true}) {
+    SCOPED_TRACE(thread ? "threaded" : "inline");
+    ClusteringWorker worker(cam, {}, thread);
+    const std::chrono::seconds wait(10);
+    worker.submit(0, threeSurfaces());
+    ASSERT_TRUE(worker.result(0, wait));
+    worker.submit(1, face);
+    if (thread) {
+      const auto until = std::chrono::steady_clock::now() + wait;
+      while (worker.lastClusteredFrame() < 1 && std::chrono::steady_clock::now() < until)
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      ASSERT_EQ(worker.lastClusteredFrame(), 1);
+    }
+    worker.submit(2, later);
+    const auto clusters = worker.result(2, wait);
+    ASSERT_TRUE(clusters);
+    EXPECT_TRUE(clusters->warm_started);
+    EXPECT_EQ(cv::countNonZero(clusters->labels != expected->labels), 0);
   }
 }
 
