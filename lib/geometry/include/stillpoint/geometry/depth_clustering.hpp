@@ -61,7 +61,6 @@ class DepthClusterer {
   // taken by `camera`. Errors on size/type mismatch; an image with fewer valid
   // samples than clusters yields zero clusters (not an error).
   Result<DepthClusters> cluster(const cv::Mat& depth_m, const CameraModel& camera);
-  void reset() { previous_.clear(); }
   // The next cluster() starts from these centres (camera frame; empty: from
   // the grid), not from the last call's.
   void warmStartFrom(std::vector<Vec3> centres) { previous_ = std::move(centres); }
