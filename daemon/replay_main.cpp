@@ -657,9 +657,9 @@ int main(int argc, char** argv) {
       std::printf("              %d frames segmented where no keyframe is made (a mapped place)\n",
                   map.semantic_frames_segmented);
     std::printf("              %d instances applied (%d by hysteresis, %d the pose had followed), %d unconfirmed by "
-                "geometry, %d over the removal cap\n",
+                "geometry, %d over the removal cap, %d on objects the map saw as static\n",
                 map.semantic_instances_applied, map.semantic_instances_continued, map.semantic_instances_followed,
-                map.semantic_instances_unconfirmed, map.semantic_instances_capped);
+                map.semantic_instances_unconfirmed, map.semantic_instances_capped, map.semantic_instances_known_static);
     std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks)\n",
                 map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled);
     std::printf("              %.1f features per frame followed from the last segmented keyframe's masks%s\n",

@@ -9,6 +9,8 @@
 #include <list>
 #include <mutex>
 #include <thread>
+#include <unordered_map>
+#include <unordered_set>
 #include <utility>
 
 #include "map.hpp"
@@ -34,6 +36,34 @@ class RecentSamples {
   std::size_t next_ = 0;
 };
 
+// Where the semantic module saw objects of static classes (a teddy bear, a
+// chair) and movable ones, per map and 10 cm cell of its world: how many
+// segmented keyframes had a feature there on a confident static instance
+// (SemanticResult::static_mask), and how many in an applied movable region.
+// Detectors relabel an object from frame to frame (COCO calls the teddy bear
+// a person while a person stands beside it); a place seen as a static object
+// more often than as a movable one, and at least `min` times, is one the map
+// has seen standing. Kept by place, not by map point: each keyframe maps its
+// own copy of a surface and points come and go, the place stays.
+class StaticSightings {
+ public:
+  // One keyframe's sightings: each cell counts once per keyframe and kind.
+  void add(std::uint32_t map_id, const std::vector<Vec3>& on_static, const std::vector<Vec3>& in_movable);
+  bool seenStanding(std::uint32_t map_id, const Vec3& p, int min) const;
+  std::size_t cells() const { return counts_.size(); }
+
+ private:
+  struct Count {
+    int on_static = 0;
+    int in_movable = 0;
+  };
+  static std::uint64_t key(std::uint32_t map_id, const Vec3& p);
+  // Bounded: past kMaxCells (a building's worth of surface many times over)
+  // the memory starts afresh.
+  static constexpr std::size_t kMaxCells = 1u << 21;
+  std::unordered_map<std::uint64_t, Count> counts_;
+};
+
 // What the semantic results did to the map (written under the map's
 // exclusive lock, read under a shared one).
 struct SemanticStats {
@@ -41,6 +71,7 @@ struct SemanticStats {
   int features_removed = 0, points_removed = 0, points_culled = 0;
   int instances_applied = 0, instances_unconfirmed = 0, instances_capped = 0, instances_continued = 0;
   int instances_followed = 0;  // applied over the cap: the pose had followed them
+  int instances_known_static = 0;  // left alone: the map had seen their place standing (StaticSightings)
   RecentSamples latency_ms;  // keyframe creation -> result applied
   RecentSamples segment_ms;
 };
@@ -111,6 +142,7 @@ class LocalMapper {
   std::deque<SemanticResult> mailbox_;  // guarded by queue_mutex_
   bool semantic_confirm_ = false;
   SemanticStats semantic_stats_;
+  StaticSightings static_sightings_;
   mutable std::mutex labels_mutex_;
   std::shared_ptr<const cv::Mat> latest_labels_;  // guarded by labels_mutex_
   Timestamp latest_labels_stamp_;                 // guarded by labels_mutex_

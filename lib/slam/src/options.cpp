@@ -142,6 +142,10 @@ Status SemanticOptions::validate() const {
   if (track_max_keyframes < 1 || track_max_keyframes > 100)
     return Error{"semantic.track_max_keyframes must be in [1, 100]"};
   if (track_min_hits < 1 || track_min_hits > 100) return Error{"semantic.track_min_hits must be in [1, 100]"};
+  if (!(static_memory_score >= 0 && static_memory_score <= 1))
+    return Error{"semantic.static_memory_score must be in [0, 1]"};
+  if (static_memory_sightings < 0 || static_memory_sightings > 1000)
+    return Error{"semantic.static_memory_sightings must be in [0, 1000] (0: off)"};
   for (const std::string& d : model_dirs)
     if (d.empty()) return Error{"semantic.model_dirs: empty folder name"};
   return Status::success();

@@ -3,6 +3,7 @@
 // and how they follow their objects into the frames between keyframes
 // (tracking's thread, Tracker::markSemanticMovers).
 #include <algorithm>
+#include <cmath>
 
 #include "local_mapping.hpp"
 #include "matcher.hpp"
@@ -11,13 +12,66 @@
 #include "tracking.hpp"
 
 namespace stillpoint::slam {
+
+namespace {
+constexpr double kCell = 0.1;  // m
+
+std::uint64_t cellKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
+  const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x3ffff; };  // 18 bits each
+  return (static_cast<std::uint64_t>(map_id & 0xff) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
+}
+}  // namespace
+
+std::uint64_t StaticSightings::key(std::uint32_t map_id, const Vec3& p) {
+  return cellKey(map_id, (p / kCell).array().floor().cast<int>().matrix());
+}
+
+void StaticSightings::add(std::uint32_t map_id, const std::vector<Vec3>& on_static,
+                          const std::vector<Vec3>& in_movable) {
+  if (counts_.size() > kMaxCells) counts_.clear();
+  // A sighting counts in the 2 x 2 x 2 cells whose centres surround it: a
+  // surface lying on a cell border, seen a millimetre either side of it from
+  // two keyframes, is one place.
+  const auto count = [&](const std::vector<Vec3>& points, int Count::*kind) {
+    std::unordered_set<std::uint64_t> seen;
+    for (const Vec3& p : points) {
+      const Eigen::Vector3i base = (p / kCell - Vec3::Constant(0.5)).array().floor().cast<int>().matrix();
+      for (int corner = 0; corner < 8; ++corner) {
+        const std::uint64_t k =
+            cellKey(map_id, base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
+        if (seen.insert(k).second) ++(counts_[k].*kind);
+      }
+    }
+  };
+  count(on_static, &Count::on_static);
+  count(in_movable, &Count::in_movable);
+}
+
+bool StaticSightings::seenStanding(std::uint32_t map_id, const Vec3& p, int min) const {
+  const auto it = counts_.find(key(map_id, p));
+  return it != counts_.end() && it->second.on_static >= min && it->second.on_static > it->second.in_movable;
+}
+
 namespace {
 log::Logger logger("semantic");
+// Features of a region that must lie where a static object was seen
+// standing before the region counts as that object (and a majority of those
+// with depth).
+constexpr int kMinStanding = 5;
 // Feature j of `to` was found as feature i of `from`: it takes its class.
 void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
   if (from.movable_class.empty() || from.movable_class[i] == 0) return;
   to->movable_class.resize(to->size(), 0);
   to->movable_class[j] = from.movable_class[i];
+}
+
+// Whether pixel `px` (clamped to the image) lies on a confident instance of a
+// static class.
+bool onStaticObject(const SemanticResult& r, const cv::Point2f& px) {
+  if (r.static_mask.empty()) return false;
+  const int x = std::clamp(cvRound(px.x), 0, r.static_mask.cols - 1);
+  const int y = std::clamp(cvRound(px.y), 0, r.static_mask.rows - 1);
+  return r.static_mask.at<std::uint8_t>(y, x) != 0;
 }
 
 // Which regions of one segmentation a view keeps out: the rule a segmented
@@ -26,6 +80,12 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
 // the others, best score first, may together take at most
 // semantic.max_removed_fraction of the view's features with a map point, and
 // none when the model needs confirmation.
+//
+// An unconfirmed region most of whose features with depth lie where the map
+// has seen a static object standing (`seen_standing` per feature: 1 yes, 0
+// no, -1 not known; may be null) is that object under another label, and is
+// left alone: its mask would take a static object out of the pose, keyframe
+// after keyframe.
 //
 // The cap keeps a false positive from emptying the map. It does not hold for
 // a region the geometry module took for the world: when it flags a larger
@@ -42,16 +102,18 @@ struct RegionChoice {
   int unconfirmed = 0;    // regions left alone for want of confirmation
   int capped = 0;         // regions left alone over the removal cap
   int followed = 0;       // applied over the cap: the pose followed them
+  int known_static = 0;   // regions left alone: the map saw their place standing
 };
 
 RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::vector<char>& has_point,
-                           const SemanticOptions& o, bool confirmation_required) {
+                           const std::vector<int>* seen_standing, const SemanticOptions& o,
+                           bool confirmation_required) {
   const int n_regions = static_cast<int>(r.regions.size());
   RegionChoice c;
   c.region_of.assign(f.size(), 0);
   c.with_point.assign(n_regions, 0);
   c.applied.assign(n_regions + 1, 0);
-  std::vector<int> flagged(n_regions, 0), judged(n_regions, 0);
+  std::vector<int> flagged(n_regions, 0), judged(n_regions, 0), tested(n_regions, 0), standing(n_regions, 0);
   int flagged_outside = 0, judged_outside = 0;
   for (int i = 0; i < f.size(); ++i) {
     c.with_point_total += has_point[i];
@@ -65,6 +127,10 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
     }
     c.region_of[i] = label;
     c.with_point[label - 1] += has_point[i];
+    if (seen_standing && (*seen_standing)[i] >= 0) {
+      ++tested[label - 1];
+      standing[label - 1] += (*seen_standing)[i];
+    }
     flagged[label - 1] += moving;
     judged[label - 1] += in_cluster;
   }
@@ -73,6 +139,10 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
   int removed = 0;
   for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
     const bool confirmed = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
+    if (!confirmed && standing[k] >= kMinStanding && 2 * standing[k] > tested[k]) {
+      ++c.known_static;
+      continue;
+    }
     if (!confirmed && confirmation_required) {
       ++c.unconfirmed;
       continue;
@@ -123,12 +193,37 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   std::vector<char> live(f.size(), 0);
   for (int i = 0; i < f.size(); ++i) live[i] = f.points[i] && !f.points[i]->bad;
   const SemanticOptions& o = options_.semantic;
-  const RegionChoice choice = chooseRegions(r, f, live, o, semantic_confirm_);
+  // Where the map has seen a static object standing, read before this
+  // result adds its own sightings. The memory needs the geometry module: a
+  // static object's mask spills over a person beside it, and only the
+  // module's flags keep the person's place from being remembered as standing
+  // (docs/dynamic-objects.md).
+  const bool memory = o.static_memory_sightings > 0 && options_.geometry.enabled;
+  std::vector<int> seen_standing(f.size(), -1);
+  if (memory)
+    for (int i = 0; i < f.size(); ++i)
+      if (f.depth[i] > 0)
+        seen_standing[i] = static_sightings_.seenStanding(kf->map_id, f.unprojectToWorld(i), o.static_memory_sightings);
+  const RegionChoice choice = chooseRegions(r, f, live, &seen_standing, o, semantic_confirm_);
   const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
   st.instances_unconfirmed += choice.unconfirmed;
   st.instances_capped += choice.capped;
   st.instances_followed += choice.followed;
+  st.instances_known_static += choice.known_static;
+  // This keyframe's sightings: in an applied region or flagged by the
+  // geometry module a moving one, else on a static instance a static one.
+  if (memory) {
+    std::vector<Vec3> on_static, in_movable;
+    for (int i = 0; i < f.size(); ++i) {
+      if (!(f.depth[i] > 0)) continue;
+      if (applied[region_of[i]] || f.dynamic[i] == kGeometryDynamic)
+        in_movable.push_back(f.unprojectToWorld(i));
+      else if (onStaticObject(r, f.keys[i].pt))
+        on_static.push_back(f.unprojectToWorld(i));
+    }
+    static_sightings_.add(kf->map_id, on_static, in_movable);
+  }
   for (int k = 0; k < n_regions; ++k) {
     if (!applied[k + 1]) {
       SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' ("
@@ -239,7 +334,10 @@ bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_require
   // The regions are chosen as a keyframe's (chooseRegions), the removal cap
   // counted on the frame's map-point matches. Its own result replaces the
   // marks the frame carried from earlier masks: one that found no one ends them.
-  const RegionChoice choice = chooseRegions(r, f, awaiting_matched_, options_.semantic, confirmation_required);
+  // The sightings of static objects are local mapping's: a frame segmented
+  // where no keyframe is made does not consult them.
+  const RegionChoice choice =
+      chooseRegions(r, f, awaiting_matched_, nullptr, options_.semantic, confirmation_required);
   const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
   std::vector<std::uint8_t> class_of(applied.size(), 0);

@@ -20,6 +20,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "local_mapping.hpp"
 #include "semantic_worker.hpp"
 #include "stillpoint/dataset/testing.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
@@ -677,6 +678,51 @@ TEST(SemanticModule, RemovalCapKeepsAHugeUnconfirmedMaskFromEmptyingTheMap) {
   EXPECT_LT(uncapped.stats.points, capped.stats.points);
 }
 
+TEST(StaticSightings, APlaceSeenStandingTwiceAndNeverMovingIsKnown) {
+  StaticSightings memory;
+  const Vec3 bear(1.03, 0.52, 0.91), same_cell(1.08, 0.57, 0.96), away(1.33, 0.52, 0.91);
+  memory.add(0, {bear, same_cell}, {});  // one keyframe counts a cell once
+  EXPECT_FALSE(memory.seenStanding(0, bear, 2));
+  memory.add(0, {same_cell}, {});
+  EXPECT_TRUE(memory.seenStanding(0, bear, 2));
+  EXPECT_FALSE(memory.seenStanding(0, away, 1));
+  EXPECT_FALSE(memory.seenStanding(1, bear, 1));  // another map's world
+  // A surface on a cell border, seen a millimetre either side of it.
+  memory.add(0, {Vec3(-2.0, 3.0, 1.5004)}, {});
+  memory.add(0, {Vec3(-2.0, 3.0, 1.4996)}, {});
+  EXPECT_TRUE(memory.seenStanding(0, Vec3(-2.0, 3.0, 1.5), 2));
+  memory.add(0, {}, {bear});
+  memory.add(0, {}, {bear});
+  EXPECT_FALSE(memory.seenStanding(0, bear, 2)) << "seen moving as often as standing";
+}
+
+// The teddy bear labelled a person: a region most of whose features lie where
+// earlier keyframes saw a static object (and no motion) is left alone; with
+// the memory off, the same detections take the features out.
+TEST(SemanticModule, AStaticObjectRelabelledMovableIsLeftAlone) {
+  for (const int sightings : {2, 0}) {
+    SCOPED_TRACE("static_memory_sightings " + std::to_string(sightings));
+    SlamOptions options = semanticOptions();
+    options.semantic.static_memory_sightings = sightings;
+    options.keyframes.tracked_ratio = 0.9;  // more keyframes than the plane needs, to be segmented
+    // Sightings count where the geometry module judged the feature, which it
+    // does not on the first frame: the first 3 keyframes give the middle of
+    // the view 2 sightings.
+    const RunResult run = runWith(options, std::make_unique<RelabellingSegmenter>(kRect, 3));
+    ASSERT_GE(run.stats.semantic_keyframes_segmented, 5);
+    const int relabelled = run.stats.semantic_keyframes_segmented - 3;
+    if (sightings > 0) {
+      EXPECT_EQ(run.stats.semantic_instances_known_static, relabelled);
+      EXPECT_EQ(run.stats.semantic_instances_applied, 0);
+      EXPECT_EQ(run.stats.semantic_features_removed, 0);
+    } else {
+      EXPECT_EQ(run.stats.semantic_instances_known_static, 0);
+      EXPECT_EQ(run.stats.semantic_instances_applied, relabelled);
+      EXPECT_GT(run.stats.semantic_features_removed, 20 * relabelled);
+    }
+  }
+}
+
 TEST(SemanticModule, FramesWithoutColourAreTrackedButNotSegmented) {
   const RunResult run = runWith(semanticOptions(), std::make_unique<RectangleSegmenter>(kRect, false), false);
   ASSERT_EQ(run.trajectory.size(), planeFrames().inputs.size());
@@ -746,7 +792,7 @@ TEST(SemanticModule, DilationGrowsTheMaskByItsRadius) {
   inst.box = cv::Rect(0, 0, 10, 10);
   seg.instances.push_back(inst);
   SemanticResult r;
-  buildRegions(seg, 5, &r);
+  buildRegions(seg, 5, 0.5, &r);
   ASSERT_EQ(r.regions.size(), 1u);
   EXPECT_EQ(r.labels.at<std::uint8_t>(45, 35), 1);  // 5 px left of the box
   EXPECT_EQ(r.labels.at<std::uint8_t>(45, 34), 0);

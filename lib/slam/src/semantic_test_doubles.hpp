@@ -63,4 +63,47 @@ class RectangleSegmenter : public semantic::Segmenter {
 
 inline const cv::Rect kRect(40, 100, 200, 280);  // x 40..239, y 100..379
 
+// A detector that changes its mind: its first `static_calls` calls label the
+// whole image a "teddy bear" (a static class), the later ones `rect` a
+// "person", as COCO calls the teddy bear a person beside a person.
+class RelabellingSegmenter : public semantic::Segmenter {
+ public:
+  RelabellingSegmenter(cv::Rect rect, int static_calls) : rect_(rect), static_calls_(static_calls) {
+    card_.name = "relabelling";
+    card_.classes = {"person", "teddy bear"};
+    card_.movable = {"person"};
+  }
+  Result<semantic::Segmentation> segment(const cv::Mat& bgr) override {
+    if (bgr.empty() || bgr.type() != CV_8UC3) return Error{"not a BGR image"};
+    const bool as_static = calls_++ < static_calls_;
+    semantic::Segmentation seg = noOneFound(bgr.size());
+    const cv::Rect image(cv::Point(0, 0), bgr.size());
+    const cv::Rect r = (as_static ? image : rect_) & image;
+    semantic::Instance inst;
+    inst.class_id = as_static ? 1 : 0;
+    inst.class_name = as_static ? "teddy bear" : "person";
+    inst.score = 0.9f;
+    inst.box = r;
+    inst.mask = cv::Mat(r.size(), CV_8U, cv::Scalar(255));
+    inst.area = r.area();
+    inst.movable = !as_static;
+    seg.labels(r).setTo(inst.class_id);
+    if (inst.movable) {
+      seg.movable_mask(r).setTo(255);
+      seg.movable_pixels = r.area();
+    }
+    seg.instances.push_back(inst);
+    return seg;
+  }
+  const semantic::ModelCard& card() const override { return card_; }
+  const std::vector<int>& movableClassIds() const override { return ids_; }
+
+ private:
+  cv::Rect rect_;
+  int static_calls_;
+  int calls_ = 0;
+  semantic::ModelCard card_;
+  std::vector<int> ids_{0};
+};
+
 }  // namespace stillpoint::slam

@@ -97,10 +97,18 @@ int continueTracks(const SemanticOptions& options, double strong_score, semantic
   return continued;
 }
 
-void buildRegions(const semantic::Segmentation& seg, int dilation_px, SemanticResult* out) {
+void buildRegions(const semantic::Segmentation& seg, int dilation_px, double static_min_score, SemanticResult* out) {
   const cv::Size size = seg.movable_mask.size();
   out->labels = cv::Mat(size, CV_8U, cv::Scalar(0));
+  out->static_mask = cv::Mat(size, CV_8U, cv::Scalar(0));
   out->regions.clear();
+  const cv::Rect whole(cv::Point(0, 0), size);
+  for (const semantic::Instance& inst : seg.instances) {
+    if (inst.movable || inst.score < static_min_score || inst.area == 0 || inst.mask.empty()) continue;
+    const cv::Rect box = inst.box & whole;
+    if (box.empty() || box.size() != inst.mask.size()) continue;
+    out->static_mask(box).setTo(255, inst.mask);
+  }
   std::vector<const semantic::Instance*> kept;
   for (const semantic::Instance& inst : seg.instances)
     if (inst.movable && inst.kept && inst.area > 0 && !inst.mask.empty()) kept.push_back(&inst);
@@ -155,7 +163,7 @@ SemanticResult SemanticWorker::process(const SemanticJob& job) {
       if (auto agreed = semantic::applyDepthAgreement(job.depth_m, {}, &*seg); !agreed)
         SP_DEBUG(logger, "keyframe " << job.keyframe_id << ": depth agreement: " << agreed.error());
     }
-    buildRegions(*seg, options_.mask_dilation_px, &out);
+    buildRegions(*seg, options_.mask_dilation_px, options_.static_memory_score, &out);
     out.ok = true;
   }
   out.segment_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();

@@ -56,6 +56,10 @@ struct SemanticResult {
   // dilated instances overlap, the higher-scoring one wins.
   cv::Mat labels;
   std::vector<SemanticRegion> regions;
+  // CV_8U 0/255, image size: the pixels of confident instances of static
+  // classes (a teddy bear, a chair), undilated: the map remembers which of its
+  // points were seen on them (MapPoint::Semantic::static_hits).
+  cv::Mat static_mask;
   double segment_ms = 0;  // segment() + depth agreement + dilation
   SteadyTime created;
 };
@@ -124,7 +128,9 @@ class SemanticWorker {
 int regionAt(const SemanticResult& r, const cv::Point2f& px);
 
 // Builds the region label image from a segmentation: kept movable instances,
-// each dilated by `dilation_px`, painted in ascending score order.
-void buildRegions(const semantic::Segmentation& seg, int dilation_px, SemanticResult* out);
+// each dilated by `dilation_px`, painted in ascending score order; and the
+// static mask from the instances of static classes scoring at least
+// `static_min_score`.
+void buildRegions(const semantic::Segmentation& seg, int dilation_px, double static_min_score, SemanticResult* out);
 
 }  // namespace stillpoint::slam

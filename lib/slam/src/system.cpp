@@ -646,6 +646,7 @@ MapStats SlamSystem::mapStats() const {
     stats.semantic_instances_capped = st.instances_capped;
     stats.semantic_instances_followed = st.instances_followed;
     stats.semantic_instances_continued = st.instances_continued;
+    stats.semantic_instances_known_static = st.instances_known_static;
     std::tie(stats.semantic_latency_ms_median, stats.semantic_latency_ms_p95) = medianP95(st.latency_ms.values());
     std::tie(stats.segmentation_ms_median, stats.segmentation_ms_p95) = medianP95(st.segment_ms.values());
     stats.semantic_model = impl_->semantic_model;
