@@ -37,25 +37,30 @@ class RecentSamples {
 };
 
 // Where the semantic module saw objects of static classes (a teddy bear, a
-// chair) and movable ones, per map and 10 cm cell of its world: how many
-// segmented keyframes had a feature there on a confident static instance
-// (SemanticResult::static_mask), and how many in an applied movable region.
-// Detectors relabel an object from frame to frame (COCO calls the teddy bear
-// a person while a person stands beside it); a place seen as a static object
-// more often than as a movable one, and at least `min` times, is one the map
-// has seen standing. Kept by place, not by map point: each keyframe maps its
-// own copy of a surface and points come and go, the place stays.
+// chair) and movers, per map and 10 cm cell of its world: how many segmented
+// keyframes had a feature there on a confident static instance
+// (SemanticResult::static_mask), over what time, and how many had one there in
+// an applied movable region or flagged by the geometry module. Detectors
+// relabel an object from frame to frame (COCO calls the teddy bear a person
+// while a person stands beside it); a place seen as a static object at least
+// `min` times over at least `min_span_s`, and more often than a mover, is one
+// the map has seen standing. The span keeps out a person who walks behind a
+// static object and is painted with its mask for a moment. Kept by place, not
+// by map point: each keyframe maps its own copy of a surface and points come
+// and go, the place stays.
 class StaticSightings {
  public:
   // One keyframe's sightings: each cell counts once per keyframe and kind.
-  void add(std::uint32_t map_id, const std::vector<Vec3>& on_static, const std::vector<Vec3>& in_movable);
-  bool seenStanding(std::uint32_t map_id, const Vec3& p, int min) const;
+  void add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
+           const std::vector<Vec3>& in_movable);
+  bool seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const;
   std::size_t cells() const { return counts_.size(); }
 
  private:
   struct Count {
     int on_static = 0;
     int in_movable = 0;
+    Timestamp first_static, last_static;  // the first and last static sighting
   };
   static std::uint64_t key(std::uint32_t map_id, const Vec3& p);
   // Bounded: past kMaxCells (a building's worth of surface many times over)

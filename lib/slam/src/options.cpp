@@ -146,6 +146,8 @@ Status SemanticOptions::validate() const {
     return Error{"semantic.static_memory_score must be in [0, 1]"};
   if (static_memory_sightings < 0 || static_memory_sightings > 1000)
     return Error{"semantic.static_memory_sightings must be in [0, 1000] (0: off)"};
+  if (!(static_memory_span_s >= 0 && static_memory_span_s <= 3600))
+    return Error{"semantic.static_memory_span_s must be in [0, 3600]"};
   for (const std::string& d : model_dirs)
     if (d.empty()) return Error{"semantic.model_dirs: empty folder name"};
   return Status::success();

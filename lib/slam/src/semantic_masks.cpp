@@ -26,7 +26,7 @@ std::uint64_t StaticSightings::key(std::uint32_t map_id, const Vec3& p) {
   return cellKey(map_id, (p / kCell).array().floor().cast<int>().matrix());
 }
 
-void StaticSightings::add(std::uint32_t map_id, const std::vector<Vec3>& on_static,
+void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
                           const std::vector<Vec3>& in_movable) {
   if (counts_.size() > kMaxCells) counts_.clear();
   // A sighting counts in the 2 x 2 x 2 cells whose centres surround it: a
@@ -39,7 +39,12 @@ void StaticSightings::add(std::uint32_t map_id, const std::vector<Vec3>& on_stat
       for (int corner = 0; corner < 8; ++corner) {
         const std::uint64_t k =
             cellKey(map_id, base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
-        if (seen.insert(k).second) ++(counts_[k].*kind);
+        if (!seen.insert(k).second) continue;
+        Count& c = counts_[k];
+        ++(c.*kind);
+        if (kind != &Count::on_static) continue;
+        if (c.on_static == 1) c.first_static = stamp;
+        c.last_static = stamp;
       }
     }
   };
@@ -47,9 +52,12 @@ void StaticSightings::add(std::uint32_t map_id, const std::vector<Vec3>& on_stat
   count(in_movable, &Count::in_movable);
 }
 
-bool StaticSightings::seenStanding(std::uint32_t map_id, const Vec3& p, int min) const {
+bool StaticSightings::seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const {
   const auto it = counts_.find(key(map_id, p));
-  return it != counts_.end() && it->second.on_static >= min && it->second.on_static > it->second.in_movable;
+  if (it == counts_.end()) return false;
+  const Count& c = it->second;
+  return c.on_static >= min && c.on_static > c.in_movable &&
+         secondsBetween(c.last_static, c.first_static) >= min_span_s;
 }
 
 namespace {
@@ -203,7 +211,8 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   if (memory)
     for (int i = 0; i < f.size(); ++i)
       if (f.depth[i] > 0)
-        seen_standing[i] = static_sightings_.seenStanding(kf->map_id, f.unprojectToWorld(i), o.static_memory_sightings);
+        seen_standing[i] = static_sightings_.seenStanding(kf->map_id, f.unprojectToWorld(i), o.static_memory_sightings,
+                                                        o.static_memory_span_s);
   const RegionChoice choice = chooseRegions(r, f, live, &seen_standing, o, semantic_confirm_);
   const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
@@ -222,7 +231,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       else if (onStaticObject(r, f.keys[i].pt))
         on_static.push_back(f.unprojectToWorld(i));
     }
-    static_sightings_.add(kf->map_id, on_static, in_movable);
+    static_sightings_.add(kf->map_id, f.stamp, on_static, in_movable);
   }
   for (int k = 0; k < n_regions; ++k) {
     if (!applied[k + 1]) {

@@ -680,20 +680,23 @@ TEST(SemanticModule, RemovalCapKeepsAHugeUnconfirmedMaskFromEmptyingTheMap) {
 
 TEST(StaticSightings, APlaceSeenStandingTwiceAndNeverMovingIsKnown) {
   StaticSightings memory;
+  const auto at = [](double s) { return Timestamp::fromSeconds(100.0 + s); };
   const Vec3 bear(1.03, 0.52, 0.91), same_cell(1.08, 0.57, 0.96), away(1.33, 0.52, 0.91);
-  memory.add(0, {bear, same_cell}, {});  // one keyframe counts a cell once
-  EXPECT_FALSE(memory.seenStanding(0, bear, 2));
-  memory.add(0, {same_cell}, {});
-  EXPECT_TRUE(memory.seenStanding(0, bear, 2));
-  EXPECT_FALSE(memory.seenStanding(0, away, 1));
-  EXPECT_FALSE(memory.seenStanding(1, bear, 1));  // another map's world
+  memory.add(0, at(0), {bear, same_cell}, {});  // one keyframe counts a cell once
+  EXPECT_FALSE(memory.seenStanding(0, bear, 2, 0.0));
+  memory.add(0, at(1), {same_cell}, {});
+  EXPECT_TRUE(memory.seenStanding(0, bear, 2, 0.0));
+  EXPECT_FALSE(memory.seenStanding(0, bear, 2, 2.0)) << "seen for a second only";
+  memory.add(0, at(2.5), {bear}, {});
+  EXPECT_TRUE(memory.seenStanding(0, bear, 2, 2.0));
+  EXPECT_FALSE(memory.seenStanding(0, away, 1, 0.0));
+  EXPECT_FALSE(memory.seenStanding(1, bear, 1, 0.0));  // another map's world
   // A surface on a cell border, seen a millimetre either side of it.
-  memory.add(0, {Vec3(-2.0, 3.0, 1.5004)}, {});
-  memory.add(0, {Vec3(-2.0, 3.0, 1.4996)}, {});
-  EXPECT_TRUE(memory.seenStanding(0, Vec3(-2.0, 3.0, 1.5), 2));
-  memory.add(0, {}, {bear});
-  memory.add(0, {}, {bear});
-  EXPECT_FALSE(memory.seenStanding(0, bear, 2)) << "seen moving as often as standing";
+  memory.add(0, at(3), {Vec3(-2.0, 3.0, 1.5004)}, {});
+  memory.add(0, at(4), {Vec3(-2.0, 3.0, 1.4996)}, {});
+  EXPECT_TRUE(memory.seenStanding(0, Vec3(-2.0, 3.0, 1.5), 2, 0.0));
+  for (double s : {5.0, 6.0, 7.0}) memory.add(0, at(s), {}, {bear});
+  EXPECT_FALSE(memory.seenStanding(0, bear, 2, 0.0)) << "seen moving as often as standing";
 }
 
 // The teddy bear labelled a person: a region most of whose features lie where
@@ -704,6 +707,7 @@ TEST(SemanticModule, AStaticObjectRelabelledMovableIsLeftAlone) {
     SCOPED_TRACE("static_memory_sightings " + std::to_string(sightings));
     SlamOptions options = semanticOptions();
     options.semantic.static_memory_sightings = sightings;
+    options.semantic.static_memory_span_s = 0.15;  // the run is 1 s long
     options.keyframes.tracked_ratio = 0.9;  // more keyframes than the plane needs, to be segmented
     // Sightings count where the geometry module judged the feature, which it
     // does not on the first frame: the first 3 keyframes give the middle of

@@ -266,16 +266,18 @@ struct SemanticOptions {
   int track_max_keyframes = 8;
   int track_min_hits = 2;
   bool track_any_class = false;
-  // What the map has seen standing: a feature of a segmented keyframe on an
-  // instance of a static class scoring at least static_memory_score is a
-  // static sighting of its place (10 cm cells). A region of a movable class
-  // most of whose features lie where static objects were seen in at least
-  // static_memory_sightings keyframes, and more often than movable ones, is
-  // that static object under another label (COCO calls the teddy bear a
-  // person beside a person) and is left alone, unless the geometry module
-  // confirms it moving (0: off).
+  // What the map has seen standing (with the geometry module): a feature of
+  // a segmented keyframe on an instance of a static class scoring at least
+  // static_memory_score is a static sighting of its place (10 cm cells). A
+  // region of a movable class most of whose features lie where static
+  // objects were seen in at least static_memory_sightings keyframes over at
+  // least static_memory_span_s, and more often than movers, is that static
+  // object under another label (COCO calls the teddy bear a person beside a
+  // person) and is left alone, unless the geometry module confirms it moving
+  // (0 sightings: off).
   double static_memory_score = 0.5;
   int static_memory_sightings = 2;
+  double static_memory_span_s = 2.0;
   Status validate() const;
 };
 
