@@ -73,15 +73,6 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
   to->movable_class[j] = from.movable_class[i];
 }
 
-// Whether pixel `px` (clamped to the image) lies on a confident instance of a
-// static class.
-bool onStaticObject(const SemanticResult& r, const cv::Point2f& px) {
-  if (r.static_mask.empty()) return false;
-  const int x = std::clamp(cvRound(px.x), 0, r.static_mask.cols - 1);
-  const int y = std::clamp(cvRound(px.y), 0, r.static_mask.rows - 1);
-  return r.static_mask.at<std::uint8_t>(y, x) != 0;
-}
-
 // Which regions of one segmentation a view keeps out: the rule a segmented
 // keyframe and a segmented frame share. A region most of whose judged
 // features the geometry module found moving is confirmed and always kept out;
@@ -208,11 +199,15 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   // (docs/dynamic-objects.md).
   const bool memory = o.static_memory_sightings > 0 && options_.geometry.enabled;
   std::vector<int> seen_standing(f.size(), -1);
-  if (memory)
-    for (int i = 0; i < f.size(); ++i)
-      if (f.depth[i] > 0)
-        seen_standing[i] = static_sightings_.seenStanding(kf->map_id, f.unprojectToWorld(i), o.static_memory_sightings,
-                                                        o.static_memory_span_s);
+  std::vector<Vec3> world(memory ? f.size() : 0);
+  if (memory) {
+    for (int i = 0; i < f.size(); ++i) {
+      if (!(f.depth[i] > 0)) continue;
+      world[i] = f.unprojectToWorld(i);
+      seen_standing[i] =
+          static_sightings_.seenStanding(kf->map_id, world[i], o.static_memory_sightings, o.static_memory_span_s);
+    }
+  }
   const RegionChoice choice = chooseRegions(r, f, live, &seen_standing, o, semantic_confirm_);
   const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
@@ -225,11 +220,11 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   if (memory) {
     std::vector<Vec3> on_static, in_movable;
     for (int i = 0; i < f.size(); ++i) {
-      if (!(f.depth[i] > 0)) continue;
+      if (seen_standing[i] < 0) continue;  // no depth
       if (applied[region_of[i]] || f.dynamic[i] == kGeometryDynamic)
-        in_movable.push_back(f.unprojectToWorld(i));
+        in_movable.push_back(world[i]);
       else if (onStaticObject(r, f.keys[i].pt))
-        on_static.push_back(f.unprojectToWorld(i));
+        on_static.push_back(world[i]);
     }
     static_sightings_.add(kf->map_id, f.stamp, on_static, in_movable);
   }

@@ -196,12 +196,21 @@ int SemanticWorker::dropped() const {
   return dropped_;
 }
 
+namespace {
+// The value of a CV_8U image at pixel `px`, clamped to the image; 0 when empty.
+int valueAt(const cv::Mat& image, const cv::Point2f& px) {
+  if (image.empty()) return 0;
+  const int x = std::clamp(cvRound(px.x), 0, image.cols - 1), y = std::clamp(cvRound(px.y), 0, image.rows - 1);
+  return image.at<std::uint8_t>(y, x);
+}
+}  // namespace
+
 int regionAt(const SemanticResult& r, const cv::Point2f& px) {
-  if (r.labels.empty()) return 0;
-  const int x = std::clamp(cvRound(px.x), 0, r.labels.cols - 1), y = std::clamp(cvRound(px.y), 0, r.labels.rows - 1);
-  const int label = r.labels.at<std::uint8_t>(y, x);
+  const int label = valueAt(r.labels, px);
   return label <= static_cast<int>(r.regions.size()) ? label : 0;
 }
+
+bool onStaticObject(const SemanticResult& r, const cv::Point2f& px) { return valueAt(r.static_mask, px) != 0; }
 
 bool SemanticWorker::idle() const {
   std::lock_guard lock(mutex_);

@@ -126,6 +126,8 @@ class SemanticWorker {
 // The region (1-based index into r.regions) whose label covers pixel `px`
 // (clamped to the image), 0 for none.
 int regionAt(const SemanticResult& r, const cv::Point2f& px);
+// Whether pixel `px` (clamped to the image) lies on r.static_mask.
+bool onStaticObject(const SemanticResult& r, const cv::Point2f& px);
 
 // Builds the region label image from a segmentation: kept movable instances,
 // each dilated by `dilation_px`, painted in ascending score order; and the
