@@ -654,8 +654,9 @@ int main(int argc, char** argv) {
                 map.semantic_keyframes_segmented, map.semantic_keyframes_dropped, map.semantic_keyframes_no_colour,
                 map.semantic_failures);
     if (map.semantic_frames_segmented > 0)
-      std::printf("              %d frames segmented where no keyframe is made (a mapped place)\n",
-                  map.semantic_frames_segmented);
+      std::printf("              %d frames segmented where no keyframe is made (a mapped place), %d of their "
+                  "regions on objects the map saw as static\n",
+                  map.semantic_frames_segmented, map.semantic_frame_regions_known_static);
     std::printf("              %d instances applied (%d by hysteresis, %d the pose had followed), %d unconfirmed by "
                 "geometry, %d over the removal cap, %d on objects the map saw as static\n",
                 map.semantic_instances_applied, map.semantic_instances_continued, map.semantic_instances_followed,

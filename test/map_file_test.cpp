@@ -19,6 +19,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/checksum.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/semantic/segmenter.hpp"
 #include "stillpoint/slam/system.hpp"
@@ -38,6 +39,17 @@ std::string readBytes(const fs::path& p) {
 
 void writeBytes(const fs::path& p, const std::string& bytes) {
   std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes;
+}
+
+// A map file's bytes with another payload: format version, payload size and
+// checksum in the 40-byte header made to match.
+std::string resealed(const std::string& file, const std::string& payload, std::uint32_t version) {
+  std::string out = file.substr(0, 40) + payload;
+  const std::uint64_t size = payload.size(), sum = fnv1a64(payload.data(), payload.size());
+  std::memcpy(&out[8], &version, 4);
+  std::memcpy(&out[16], &size, 8);
+  std::memcpy(&out[24], &sum, 8);
+  return out;
 }
 
 class MapFile : public ::testing::Test {
@@ -362,6 +374,22 @@ TEST_F(MapFile, SavedAgainAfterLoadingIsTheSameFile) {
   EXPECT_NE(late.error().find("before the first frame"), std::string::npos) << late.error();
 }
 
+// Version 1 files, from before the map kept its sightings, are read too.
+TEST_F(MapFile, AVersionOneFileIsReadWithoutSightings) {
+  const std::string good = readBytes(*map_path_);
+  ASSERT_GT(good.size(), 1000u);
+  const fs::path old = *scratch_ / "version1.map";
+  writeBytes(old, resealed(good, good.substr(40, good.size() - 40 - 8), 1));  // without the sightings' count
+  auto system = makeSystem(false);
+  const Status s = system->loadMap(old.string());
+  ASSERT_TRUE(s.ok()) << s.error();
+  EXPECT_EQ(system->mapStats().points, map_points_);
+  // Saved again, it is this build's file.
+  const fs::path again = *scratch_ / "version1-again.map";
+  ASSERT_TRUE(system->saveMap(again.string()).ok());
+  EXPECT_EQ(readBytes(again), good);
+}
+
 TEST_F(MapFile, BadFilesAreErrorsNamingTheFile) {
   const fs::path path = *map_path_;
   const std::string good = readBytes(path);
@@ -396,6 +424,21 @@ TEST_F(MapFile, BadFilesAreErrorsNamingTheFile) {
     ASSERT_TRUE(out.ok());
     EXPECT_EQ(out->state, slam::TrackingState::kOk) << c.name;
   }
+  // A sighting of a map the file does not have (the suite's map has none:
+  // the file ends with their count, 0).
+  const std::string payload = good.substr(40);
+  ASSERT_EQ(payload.substr(payload.size() - 8), std::string(8, '\0'));
+  std::string sighting(8 + 32, '\0');
+  const std::uint64_t one = 1, key = std::uint64_t{200} << 54;
+  const std::int32_t seen = 3;
+  std::memcpy(&sighting[0], &one, 8);
+  std::memcpy(&sighting[8], &key, 8);
+  std::memcpy(&sighting[16], &seen, 4);
+  const fs::path foreign = *scratch_ / "sighting.map";
+  writeBytes(foreign, resealed(good, payload.substr(0, payload.size() - 8) + sighting, 2));
+  const Status s = makeSystem(false)->loadMap(foreign.string());
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().find("bad sighting 0"), std::string::npos) << s.error();
   // Another camera's map.
   auto fr1 = makeSystem(false, "fr1");
   const Status other = fr1->loadMap(path.string());

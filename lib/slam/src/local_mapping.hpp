@@ -36,39 +36,6 @@ class RecentSamples {
   std::size_t next_ = 0;
 };
 
-// Where the semantic module saw objects of static classes (a teddy bear, a
-// chair) and movers, per map and 10 cm cell of its world: how many segmented
-// keyframes had a feature there on a confident static instance
-// (SemanticResult::static_mask), over what time, and how many had one there in
-// an applied movable region or flagged by the geometry module. Detectors
-// relabel an object from frame to frame (COCO calls the teddy bear a person
-// while a person stands beside it); a place seen as a static object at least
-// `min` times over at least `min_span_s`, and more often than a mover, is one
-// the map has seen standing. The span keeps out a person who walks behind a
-// static object and is painted with its mask for a moment. Kept by place, not
-// by map point: each keyframe maps its own copy of a surface and points come
-// and go, the place stays.
-class StaticSightings {
- public:
-  // One keyframe's sightings: each cell counts once per keyframe and kind.
-  void add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
-           const std::vector<Vec3>& in_movable);
-  bool seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const;
-  std::size_t cells() const { return counts_.size(); }
-
- private:
-  struct Count {
-    int on_static = 0;
-    int in_movable = 0;
-    Timestamp first_static, last_static;  // the first and last static sighting
-  };
-  static std::uint64_t key(std::uint32_t map_id, const Vec3& p);
-  // Bounded: past kMaxCells (a building's worth of surface many times over)
-  // the memory starts afresh.
-  static constexpr std::size_t kMaxCells = 1u << 21;
-  std::unordered_map<std::uint64_t, Count> counts_;
-};
-
 // What the semantic results did to the map (written under the map's
 // exclusive lock, read under a shared one).
 struct SemanticStats {
@@ -147,7 +114,6 @@ class LocalMapper {
   std::deque<SemanticResult> mailbox_;  // guarded by queue_mutex_
   bool semantic_confirm_ = false;
   SemanticStats semantic_stats_;
-  StaticSightings static_sightings_;
   mutable std::mutex labels_mutex_;
   std::shared_ptr<const cv::Mat> latest_labels_;  // guarded by labels_mutex_
   Timestamp latest_labels_stamp_;                 // guarded by labels_mutex_

@@ -3,10 +3,89 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <unordered_set>
 
 #include "stillpoint/features/descriptor.hpp"
 
 namespace stillpoint::slam {
+
+namespace {
+constexpr double kSightingCell = 0.1;  // m
+
+std::uint64_t cellKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
+  const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x3ffff; };  // 18 bits each
+  return (static_cast<std::uint64_t>(map_id & 0xff) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
+}
+
+Eigen::Vector3i cellOf(std::uint64_t key) {
+  const auto value = [key](int shift) {
+    const int v = static_cast<int>((key >> shift) & 0x3ffff);
+    return v >= (1 << 17) ? v - (1 << 18) : v;  // two's complement in 18 bits
+  };
+  return {value(36), value(18), value(0)};
+}
+}  // namespace
+
+std::uint64_t StaticSightings::key(std::uint32_t map_id, const Vec3& p) {
+  return cellKey(map_id, (p / kSightingCell).array().floor().cast<int>().matrix());
+}
+
+void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
+                          const std::vector<Vec3>& in_movable) {
+  if (cells_.size() > kMaxCells) cells_.clear();
+  // A sighting counts in the 2 x 2 x 2 cells whose centres surround it: a
+  // surface lying on a cell border, seen a millimetre either side of it from
+  // two keyframes, is one place.
+  const auto count = [&](const std::vector<Vec3>& points, int Cell::*kind) {
+    std::unordered_set<std::uint64_t> seen;
+    for (const Vec3& p : points) {
+      const Eigen::Vector3i base = (p / kSightingCell - Vec3::Constant(0.5)).array().floor().cast<int>().matrix();
+      for (int corner = 0; corner < 8; ++corner) {
+        const std::uint64_t k =
+            cellKey(map_id, base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
+        if (!seen.insert(k).second) continue;
+        Cell& c = cells_[k];
+        ++(c.*kind);
+        if (kind != &Cell::on_static) continue;
+        // Stamps need not increase: a map file may come from a later recording.
+        if (c.on_static == 1 || stamp < c.first_static) c.first_static = stamp;
+        if (c.on_static == 1 || c.last_static < stamp) c.last_static = stamp;
+      }
+    }
+  };
+  count(on_static, &Cell::on_static);
+  count(in_movable, &Cell::in_movable);
+}
+
+bool StaticSightings::seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const {
+  const auto it = cells_.find(key(map_id, p));
+  if (it == cells_.end()) return false;
+  const Cell& c = it->second;
+  return c.on_static >= min && c.on_static > c.in_movable &&
+         secondsBetween(c.last_static, c.first_static) >= min_span_s;
+}
+
+void StaticSightings::moveMap(std::uint32_t from, std::uint32_t to, const SE3& T_to_from) {
+  std::vector<std::pair<std::uint64_t, Cell>> moved;
+  for (auto it = cells_.begin(); it != cells_.end();) {
+    if (mapOf(it->first) != (from & 0xff)) {
+      ++it;
+      continue;
+    }
+    moved.emplace_back(it->first, it->second);
+    it = cells_.erase(it);
+  }
+  for (const auto& [k, cell] : moved) {
+    const Vec3 centre = (cellOf(k).cast<double>() + Vec3::Constant(0.5)) * kSightingCell;
+    Cell& c = cells_[key(to, T_to_from * centre)];
+    const bool had_static = c.on_static > 0;
+    c.on_static += cell.on_static;
+    c.in_movable += cell.in_movable;
+    if (cell.on_static == 0) continue;
+    if (!had_static || cell.first_static < c.first_static) c.first_static = cell.first_static;
+    if (!had_static || c.last_static < cell.last_static) c.last_static = cell.last_static;
+  }
+}
 
 bool KeyFrameIdLess::operator()(const KeyFrame* a, const KeyFrame* b) const { return a->id < b->id; }
 
@@ -153,6 +232,7 @@ void Map::adoptLoaded(Map&& loaded) {
   next_frame_id_ = loaded.next_frame_id_;
   active_map_id_ = loaded.active_map_id_;
   maps_started_ = loaded.maps_started_;
+  static_sightings_ = std::move(loaded.static_sightings_);
   keyframes_by_word_.clear();
   for (const auto& kf : keyframes_)
     if (!kf->bad) indexKeyFrame(kf.get());

@@ -176,6 +176,48 @@ class KeyFrame {
   std::shared_ptr<PoseAnchor> anchor_;
 };
 
+// Where the semantic module saw objects of static classes (a teddy bear, a
+// chair) and movers, per map and 10 cm cell of its world: how many segmented
+// keyframes had a feature there on a confident static instance
+// (SemanticResult::static_mask), over what time, and how many had one there in
+// an applied movable region or flagged by the geometry module. Detectors
+// relabel an object from frame to frame (COCO calls the teddy bear a person
+// while a person stands beside it); a place seen as a static object at least
+// `min` times over at least `min_span_s`, and more often than a mover, is one
+// the map has seen standing. The span keeps out a person who walks behind a
+// static object and is painted with its mask for a moment. Kept by place, not
+// by map point: each keyframe maps its own copy of a surface and points come
+// and go, the place stays. Part of the map (Map::staticSightings) and of its
+// file: a robot back in the same building knows its furniture from the first
+// frame. Cells stay where they were seen when a loop closure moves keyframes.
+class StaticSightings {
+ public:
+  struct Cell {
+    int on_static = 0;
+    int in_movable = 0;
+    Timestamp first_static, last_static;  // the earliest and latest static sighting
+  };
+  // One keyframe's sightings: each cell counts once per keyframe and kind.
+  void add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
+           const std::vector<Vec3>& in_movable);
+  bool seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const;
+  // Map `from` joined map `to`, its world moved by T_to_from (a merge).
+  void moveMap(std::uint32_t from, std::uint32_t to, const SE3& T_to_from);
+  std::size_t cells() const { return cells_.size(); }
+  // The cells by key (map files): each key names a map (mapOf) and a cell.
+  const std::unordered_map<std::uint64_t, Cell>& byKey() const { return cells_; }
+  static std::uint32_t mapOf(std::uint64_t key) { return static_cast<std::uint32_t>(key >> 54); }
+  void restore(std::uint64_t key, const Cell& cell) { cells_[key] = cell; }
+  void clear() { cells_.clear(); }
+
+ private:
+  static std::uint64_t key(std::uint32_t map_id, const Vec3& p);
+  // Bounded: past kMaxCells (a building's worth of surface many times over)
+  // the memory starts afresh.
+  static constexpr std::size_t kMaxCells = 1u << 21;
+  std::unordered_map<std::uint64_t, Cell> cells_;
+};
+
 class Map;
 Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& levels, const std::string& path);
 Status loadMap(const std::string& path, const CameraModel& camera, const LevelInfo& levels, Map* map);
@@ -257,6 +299,10 @@ class Map {
   std::size_t pointCount() const;  // live (not bad) points
   std::size_t pointsInMemory() const;  // map points not yet freed (bad ones included)
   std::int64_t nextFrameId() { return next_frame_id_++; }
+  // Where static objects and movers were seen (the semantic module): written
+  // by local mapping under the exclusive lock, read under the shared one.
+  StaticSightings& staticSightings() { return static_sightings_; }
+  const StaticSightings& staticSightings() const { return static_sightings_; }
   // Semantic class names as small ids (Frame::movable_class), 1..255; 0 when
   // the table is full. Any thread; no map lock needed.
   std::uint8_t classId(const std::string& name);
@@ -297,6 +343,7 @@ class Map {
   std::uint32_t active_map_id_ = 0;
   std::uint32_t maps_started_ = 0;
   std::uint64_t epoch_ = 0;
+  StaticSightings static_sightings_;
   // Word -> the keyframes in the map whose view has it.
   std::unordered_map<features::WordId, std::vector<KeyFrame*>> keyframes_by_word_;
   void unindexKeyFrame(KeyFrame* kf);

@@ -154,6 +154,22 @@ Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& level
     }
   }
 
+  // Sightings by key, so that one map gives one file.
+  const auto& cells = map.staticSightings().byKey();
+  std::vector<std::uint64_t> keys;
+  keys.reserve(cells.size());
+  for (const auto& [k, cell] : cells) keys.push_back(k);
+  std::sort(keys.begin(), keys.end());
+  w.put<std::uint64_t>(keys.size());
+  for (std::uint64_t k : keys) {
+    const StaticSightings::Cell& cell = cells.at(k);
+    w.put<std::uint64_t>(k);
+    w.put<std::int32_t>(cell.on_static);
+    w.put<std::int32_t>(cell.in_movable);
+    w.put<std::int64_t>(cell.first_static.nanoseconds());
+    w.put<std::int64_t>(cell.last_static.nanoseconds());
+  }
+
   const std::string& payload = w.data();
   Writer header;
   header.bytes(kMagic, sizeof(kMagic));
@@ -193,7 +209,7 @@ Status loadMap(const std::string& path, const CameraModel& camera, const LevelIn
   header.get(&payload_size);
   header.get(&checksum);
   header.get(&reserved64);
-  if (version != kMapFormatVersion)
+  if (version != kMapFormatVersion && version != 1)
     return error("format version " + std::to_string(version) + ", this build reads version " +
                  std::to_string(kMapFormatVersion));
   if (payload_size != file.size() - kHeaderSize)
@@ -336,7 +352,29 @@ Status loadMap(const std::string& path, const CameraModel& camera, const LevelIn
       added->addObservation(it->second, static_cast<int>(i));
     }
   }
-  if (r.remaining() != 0) return error(std::to_string(r.remaining()) + " bytes after the last keyframe");
+  if (version >= 2) {
+    std::uint64_t n_cells = 0;
+    constexpr std::size_t kCellBytes = 8 + 4 + 4 + 8 + 8;
+    if (!r.get(&n_cells) || !r.fits(n_cells, kCellBytes)) return error("bad sightings count");
+    for (std::uint64_t k = 0; k < n_cells; ++k) {
+      std::uint64_t key = 0;
+      std::int32_t on_static = 0, in_movable = 0;
+      std::int64_t first_ns = 0, last_ns = 0;
+      r.get(&key);
+      r.get(&on_static);
+      r.get(&in_movable);
+      r.get(&first_ns);
+      r.get(&last_ns);
+      constexpr std::int64_t kMaxNs = Timestamp::kMaxSeconds * 1'000'000'000LL;
+      if (r.failed() || StaticSightings::mapOf(key) >= std::max(maps_started, 1u) || on_static < 0 ||
+          in_movable < 0 || first_ns < 0 || last_ns < first_ns || last_ns > kMaxNs)
+        return error("bad sighting " + std::to_string(k));
+      map->staticSightings().restore(
+          key, StaticSightings::Cell{on_static, in_movable, Timestamp::fromNanoseconds(first_ns),
+                                     Timestamp::fromNanoseconds(last_ns)});
+    }
+  }
+  if (r.remaining() != 0) return error(std::to_string(r.remaining()) + " bytes after the end of the map");
 
   // The graph: parents as saved, then covisibility; every point gets its
   // descriptor, normal and reference from its observations.

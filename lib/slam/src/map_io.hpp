@@ -1,7 +1,8 @@
 #pragma once
 // The map on disk: a versioned, checksummed binary file holding every
 // keyframe (features, depth, pose, map, spanning-tree parent) and every map
-// point (position, observations) of the maps in memory.
+// point (position, observations) of the maps in memory, and where the
+// semantic module saw static objects and movers (StaticSightings).
 //
 // Layout (little-endian):
 //   header, 40 bytes: magic "STPMAP\r\n", u32 format version, u32 reserved (0),
@@ -11,8 +12,11 @@
 //            then the points (id, position) and the keyframes (id, map,
 //            origin, stamp, T_c_w, parent, thumbnail, features: keypoint,
 //            undistorted position, depth, virtual right u, descriptor,
-//            point id or -1, dynamic cause, colour when the frame had one).
-// A file that is truncated, corrupt, of another version or for another
+//            point id or -1, dynamic cause, colour when the frame had one),
+//            then (version 2) the sightings (cell key, static and moving
+//            counts, first and last static stamp).
+// Version 1 files (no sightings) are read too. A file that is truncated,
+// corrupt, of another version or for another
 // camera is an error naming the file and what is wrong; the reader checks
 // every count and index against the bytes that remain, never trusts them.
 #include <string>
@@ -22,7 +26,7 @@
 
 namespace stillpoint::slam {
 
-inline constexpr std::uint32_t kMapFormatVersion = 1;
+inline constexpr std::uint32_t kMapFormatVersion = 2;
 
 // Writes the map (caller holds the map's lock, shared at least).
 Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& levels, const std::string& path);

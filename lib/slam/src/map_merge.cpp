@@ -119,6 +119,7 @@ void Tracker::mergeInto(std::uint32_t older, const SE3& T_older_newer, KeyFrame*
     origin->parent = older_keyframe;
     older_keyframe->children.push_back(origin);
   }
+  map_->staticSightings().moveMap(newer, older, T_older_newer);
   current_.T_c_w = renormalized(current_.T_c_w * T_newer_older);
   if (has_last_) last_.T_c_w = renormalized(last_.T_c_w * T_newer_older);
   map_->activate(older);

@@ -14,53 +14,6 @@
 namespace stillpoint::slam {
 
 namespace {
-constexpr double kCell = 0.1;  // m
-
-std::uint64_t cellKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
-  const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x3ffff; };  // 18 bits each
-  return (static_cast<std::uint64_t>(map_id & 0xff) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
-}
-}  // namespace
-
-std::uint64_t StaticSightings::key(std::uint32_t map_id, const Vec3& p) {
-  return cellKey(map_id, (p / kCell).array().floor().cast<int>().matrix());
-}
-
-void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
-                          const std::vector<Vec3>& in_movable) {
-  if (counts_.size() > kMaxCells) counts_.clear();
-  // A sighting counts in the 2 x 2 x 2 cells whose centres surround it: a
-  // surface lying on a cell border, seen a millimetre either side of it from
-  // two keyframes, is one place.
-  const auto count = [&](const std::vector<Vec3>& points, int Count::*kind) {
-    std::unordered_set<std::uint64_t> seen;
-    for (const Vec3& p : points) {
-      const Eigen::Vector3i base = (p / kCell - Vec3::Constant(0.5)).array().floor().cast<int>().matrix();
-      for (int corner = 0; corner < 8; ++corner) {
-        const std::uint64_t k =
-            cellKey(map_id, base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
-        if (!seen.insert(k).second) continue;
-        Count& c = counts_[k];
-        ++(c.*kind);
-        if (kind != &Count::on_static) continue;
-        if (c.on_static == 1) c.first_static = stamp;
-        c.last_static = stamp;
-      }
-    }
-  };
-  count(on_static, &Count::on_static);
-  count(in_movable, &Count::in_movable);
-}
-
-bool StaticSightings::seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const {
-  const auto it = counts_.find(key(map_id, p));
-  if (it == counts_.end()) return false;
-  const Count& c = it->second;
-  return c.on_static >= min && c.on_static > c.in_movable &&
-         secondsBetween(c.last_static, c.first_static) >= min_span_s;
-}
-
-namespace {
 log::Logger logger("semantic");
 // Features of a region that must lie where a static object was seen
 // standing before the region counts as that object (and a majority of those
@@ -84,7 +37,9 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
 // has seen a static object standing (`seen_standing` per feature: 1 yes, 0
 // no, -1 not known; may be null) is that object under another label, and is
 // left alone: its mask would take a static object out of the pose, keyframe
-// after keyframe.
+// after keyframe. Unless the geometry module flags a larger share of its
+// judged features than lie there: the memory knows the place, the module
+// what moves there now (a person standing just in front of a chair).
 //
 // The cap keeps a false positive from emptying the map. It does not hold for
 // a region the geometry module took for the world: when it flags a larger
@@ -97,6 +52,7 @@ struct RegionChoice {
   std::vector<int> region_of;   // per feature: its region (1-based), 0 for none
   std::vector<int> with_point;  // per region: its features with a map point
   std::vector<char> applied;    // per label (0 = no region): kept out
+  std::vector<char> known;      // per label: left alone, its place seen standing
   int with_point_total = 0;
   int unconfirmed = 0;    // regions left alone for want of confirmation
   int capped = 0;         // regions left alone over the removal cap
@@ -112,6 +68,7 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
   c.region_of.assign(f.size(), 0);
   c.with_point.assign(n_regions, 0);
   c.applied.assign(n_regions + 1, 0);
+  c.known.assign(n_regions + 1, 0);
   std::vector<int> flagged(n_regions, 0), judged(n_regions, 0), tested(n_regions, 0), standing(n_regions, 0);
   int flagged_outside = 0, judged_outside = 0;
   for (int i = 0; i < f.size(); ++i) {
@@ -138,8 +95,10 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
   int removed = 0;
   for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
     const bool confirmed = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
-    if (!confirmed && standing[k] >= kMinStanding && 2 * standing[k] > tested[k]) {
+    if (!confirmed && standing[k] >= kMinStanding && 2 * standing[k] > tested[k] &&
+        static_cast<long>(standing[k]) * judged[k] > static_cast<long>(flagged[k]) * tested[k]) {
       ++c.known_static;
+      c.known[k + 1] = 1;
       continue;
     }
     if (!confirmed && confirmation_required) {
@@ -205,7 +164,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       if (!(f.depth[i] > 0)) continue;
       world[i] = f.unprojectToWorld(i);
       seen_standing[i] =
-          static_sightings_.seenStanding(kf->map_id, world[i], o.static_memory_sightings, o.static_memory_span_s);
+          map_->staticSightings().seenStanding(kf->map_id, world[i], o.static_memory_sightings, o.static_memory_span_s);
     }
   }
   const RegionChoice choice = chooseRegions(r, f, live, &seen_standing, o, semantic_confirm_);
@@ -226,13 +185,14 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
       else if (onStaticObject(r, f.keys[i].pt))
         on_static.push_back(world[i]);
     }
-    static_sightings_.add(kf->map_id, f.stamp, on_static, in_movable);
+    map_->staticSightings().add(kf->map_id, f.stamp, on_static, in_movable);
   }
   for (int k = 0; k < n_regions; ++k) {
     if (!applied[k + 1]) {
       SP_DEBUG(logger, "keyframe " << kf->id << ": '" << r.regions[k].class_name << "' ("
                                    << choice.with_point[k] << " of " << choice.with_point_total
-                                   << " points) left alone");
+                                   << " points) left alone"
+                                   << (choice.known[k + 1] ? ": the map saw its place standing" : ""));
       continue;
     }
     ++st.instances_applied;
@@ -336,12 +296,27 @@ bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_require
     return false;
   }
   // The regions are chosen as a keyframe's (chooseRegions), the removal cap
-  // counted on the frame's map-point matches. Its own result replaces the
-  // marks the frame carried from earlier masks: one that found no one ends them.
-  // The sightings of static objects are local mapping's: a frame segmented
-  // where no keyframe is made does not consult them.
-  const RegionChoice choice =
-      chooseRegions(r, f, awaiting_matched_, nullptr, options_.semantic, confirmation_required);
+  // counted on the frame's map-point matches, regions on places the map has
+  // seen standing left alone. Its own result replaces the marks the frame
+  // carried from earlier masks: one that found no one ends them. Only
+  // keyframes add sightings.
+  const SemanticOptions& o = options_.semantic;
+  std::vector<int> seen_standing(f.size(), -1);
+  if (o.static_memory_sightings > 0 && options_.geometry.enabled) {
+    std::shared_lock lock(map_->mutex());
+    const StaticSightings& memory = map_->staticSightings();
+    for (int i = 0; i < f.size(); ++i)
+      if (f.depth[i] > 0 && regionAt(r, f.keys[i].pt) != 0)
+        seen_standing[i] =
+            memory.seenStanding(map_id_, f.unprojectToWorld(i), o.static_memory_sightings, o.static_memory_span_s);
+  }
+  const RegionChoice choice = chooseRegions(r, f, awaiting_matched_, &seen_standing, o, confirmation_required);
+  frame_regions_known_static_ += choice.known_static;
+  for (std::size_t k = 1; k < choice.known.size(); ++k)
+    if (choice.known[k])
+      SP_DEBUG(logger, "frame " << f.id << ": '" << r.regions[k - 1].class_name << "' ("
+                                << choice.with_point[k - 1] << " of " << choice.with_point_total
+                                << " matched features) left alone: the map saw its place standing");
   const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
   std::vector<std::uint8_t> class_of(applied.size(), 0);

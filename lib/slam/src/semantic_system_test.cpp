@@ -699,6 +699,75 @@ TEST(StaticSightings, APlaceSeenStandingTwiceAndNeverMovingIsKnown) {
   EXPECT_FALSE(memory.seenStanding(0, bear, 2, 0.0)) << "seen moving as often as standing";
 }
 
+// A map found again is merged into the older one: its places move with it.
+TEST(StaticSightings, PlacesMoveWithTheirMapIntoAnother) {
+  StaticSightings memory;
+  const auto at = [](double s) { return Timestamp::fromSeconds(100.0 + s); };
+  const Vec3 bear(-0.47, 0.52, 1.31);
+  // Stamps need not increase (a map file from a later recording).
+  memory.add(1, at(3), {bear}, {});
+  memory.add(1, at(0), {bear}, {});
+  EXPECT_TRUE(memory.seenStanding(1, bear, 2, 3.0));
+  SE3 T_0_1 = SE3::Identity();
+  T_0_1.linear() = Eigen::AngleAxisd(0.3, Vec3::UnitY()).toRotationMatrix();
+  T_0_1.translation() = Vec3(2.0, -0.1, 0.5);
+  memory.add(0, at(1), {T_0_1 * bear}, {});  // map 0 saw it once itself
+  memory.moveMap(1, 0, T_0_1);
+  EXPECT_FALSE(memory.seenStanding(1, bear, 1, 0.0));
+  EXPECT_TRUE(memory.seenStanding(0, T_0_1 * bear, 3, 3.0));
+  EXPECT_FALSE(memory.seenStanding(0, bear, 1, 0.0));
+}
+
+// The memory travels with the map file: a robot back in the same place knows
+// its furniture. A first run sees the view's middle as a static object only;
+// a second, localising on the saved map (no keyframes, so no sightings of its
+// own), is told it is a person in every segmented frame: it leaves most such
+// regions alone when the file holds the sightings, and none when the first
+// run kept no memory.
+TEST(SemanticModule, TheMapFileRemembersWhatItSawStanding) {
+  const Frames& frames = planeFrames();
+  const fs::path dir = fs::temp_directory_path() / ("stillpoint_sightings_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  for (const int first_run_sightings : {2, 0}) {
+    SCOPED_TRACE("first run's static_memory_sightings " + std::to_string(first_run_sightings));
+    SlamOptions options = semanticOptions();
+    options.semantic.static_memory_span_s = 0.15;  // the run is 1 s long
+    options.semantic.static_memory_sightings = first_run_sightings;
+    const std::string path = (dir / ("plane" + std::to_string(first_run_sightings) + ".map")).string();
+    {
+      auto first = SlamSystem::create(frames.camera, options, std::make_unique<RelabellingSegmenter>(kRect, 1000));
+      ASSERT_TRUE(first.ok()) << first.error();
+      for (const RgbdInput& input : frames.inputs) ASSERT_TRUE((*first)->track(input).ok());
+      (*first)->finish();
+      ASSERT_GE((*first)->mapStats().semantic_keyframes_segmented, 3);
+      ASSERT_TRUE((*first)->saveMap(path).ok());
+    }
+    options.semantic.static_memory_sightings = 2;
+    options.localisation = true;
+    auto second = SlamSystem::create(frames.camera, options, std::make_unique<RelabellingSegmenter>(kRect, 0));
+    ASSERT_TRUE(second.ok()) << second.error();
+    const Status loaded = (*second)->loadMap(path);
+    ASSERT_TRUE(loaded.ok()) << loaded.error();
+    for (const RgbdInput& input : frames.inputs) {
+      const auto out = (*second)->track(input);
+      ASSERT_TRUE(out.ok()) << out.error();
+      EXPECT_TRUE(hasPose(out->state));
+    }
+    (*second)->finish();
+    const MapStats stats = (*second)->mapStats();
+    ASSERT_GT(stats.semantic_frames_segmented, static_cast<int>(frames.inputs.size()) / 2);
+    EXPECT_EQ(stats.semantic_keyframes_segmented, 0);
+    if (first_run_sightings > 0) {
+      // All but the first few: what those show of the plane, the first run
+      // saw over less than the span.
+      EXPECT_GE(stats.semantic_frame_regions_known_static * 3, stats.semantic_frames_segmented * 2);
+    } else {
+      EXPECT_EQ(stats.semantic_frame_regions_known_static, 0);
+    }
+  }
+  fs::remove_all(dir);
+}
+
 // The teddy bear labelled a person: a region most of whose features lie where
 // earlier keyframes saw a static object (and no motion) is left alone; with
 // the memory off, the same detections take the features out.

@@ -635,6 +635,7 @@ MapStats SlamSystem::mapStats() const {
     const SemanticStats& st = impl_->mapper.semanticStats();
     stats.semantic_keyframes_segmented = st.segmented;
     stats.semantic_frames_segmented = impl_->frames_segmented.load();
+    stats.semantic_frame_regions_known_static = impl_->tracker.frameRegionsKnownStatic();
     stats.semantic_keyframes_no_colour = impl_->semantic_no_colour.load();
     stats.semantic_keyframes_dropped = impl_->semantic->dropped() + impl_->latency.dropped();
     stats.semantic_failures = st.failures;

@@ -87,6 +87,9 @@ class Tracker {
   // (markSemanticMovers), when it is newer than that keyframe. Returns
   // whether it was applied.
   bool applyFrameMasks(const SemanticResult& r, bool confirmation_required);
+  // Regions of such frames left alone: the map had seen their place standing
+  // (StaticSightings). Any thread.
+  int frameRegionsKnownStatic() const { return frame_regions_known_static_.load(); }
 
  private:
   // State machine (tracking.cpp).
@@ -280,6 +283,7 @@ class Tracker {
   // until its result is back; then the newest such frame, with its masks.
   std::optional<Frame> awaiting_masks_, masked_frame_;
   std::vector<char> awaiting_matched_;  // per feature of awaiting_masks_: a map-point inlier
+  std::atomic<int> frame_regions_known_static_{0};
   bool rejected_ = false;  // the frame's pose failed plausibleMotion(): no pose, tracking goes on
   int predicted_frames_ = 0;  // frames in a row the motion predicted within plausibleMotion()'s bounds
   std::deque<StampedPose> steady_poses_;  // the last steady frames' poses (plausibleMotion())

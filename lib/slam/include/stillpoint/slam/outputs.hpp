@@ -205,6 +205,7 @@ struct MapStats {
   // Results applied to frames segmented where no keyframe is made
   // (localisation, a place a loaded map holds).
   int semantic_frames_segmented = 0;
+  int semantic_frame_regions_known_static = 0;  // of their regions, left alone as below
   int semantic_keyframes_no_colour = 0;  // keyframes from frames without colour (not segmented)
   int semantic_keyframes_dropped = 0;    // left unsegmented: queue full (drop-oldest)
   int semantic_failures = 0;             // segment() errors
