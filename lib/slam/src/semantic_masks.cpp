@@ -37,9 +37,14 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
 // has seen a static object standing (`seen_standing` per feature: 1 yes, 0
 // no, -1 not known; may be null) is that object under another label, and is
 // left alone: its mask would take a static object out of the pose, keyframe
-// after keyframe. Unless the geometry module flags a larger share of its
-// judged features than lie there: the memory knows the place, the module
-// what moves there now (a person standing just in front of a chair).
+// after keyframe. In a frame segmented where no keyframe is made
+// (`frame_only`), only while the geometry module flags a smaller share of its
+// judged features than lie there: the memory knows the place, the module what
+// moves there now (a person standing just in front of a chair). There the map
+// already holds the place and its points carry the pose, so a relabelled
+// object costs little and a person left alone much; a keyframe's flags on a
+// static object are often half of it (it shares a depth cluster with the
+// person beside it), and there the memory is what keeps it in the pose.
 //
 // The cap keeps a false positive from emptying the map. It does not hold for
 // a region the geometry module took for the world: when it flags a larger
@@ -61,7 +66,7 @@ struct RegionChoice {
 };
 
 RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::vector<char>& has_point,
-                           const std::vector<int>* seen_standing, const SemanticOptions& o,
+                           const std::vector<int>* seen_standing, bool frame_only, const SemanticOptions& o,
                            bool confirmation_required) {
   const int n_regions = static_cast<int>(r.regions.size());
   RegionChoice c;
@@ -96,7 +101,7 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
   for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
     const bool confirmed = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];
     if (!confirmed && standing[k] >= kMinStanding && 2 * standing[k] > tested[k] &&
-        static_cast<long>(standing[k]) * judged[k] > static_cast<long>(flagged[k]) * tested[k]) {
+        (!frame_only || static_cast<long>(standing[k]) * judged[k] > static_cast<long>(flagged[k]) * tested[k])) {
       ++c.known_static;
       c.known[k + 1] = 1;
       continue;
@@ -167,7 +172,7 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
           map_->staticSightings().seenStanding(kf->map_id, world[i], o.static_memory_sightings, o.static_memory_span_s);
     }
   }
-  const RegionChoice choice = chooseRegions(r, f, live, &seen_standing, o, semantic_confirm_);
+  const RegionChoice choice = chooseRegions(r, f, live, &seen_standing, false, o, semantic_confirm_);
   const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
   st.instances_unconfirmed += choice.unconfirmed;
@@ -310,7 +315,7 @@ bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_require
         seen_standing[i] =
             memory.seenStanding(map_id_, f.unprojectToWorld(i), o.static_memory_sightings, o.static_memory_span_s);
   }
-  const RegionChoice choice = chooseRegions(r, f, awaiting_matched_, &seen_standing, o, confirmation_required);
+  const RegionChoice choice = chooseRegions(r, f, awaiting_matched_, &seen_standing, true, o, confirmation_required);
   frame_regions_known_static_ += choice.known_static;
   for (std::size_t k = 1; k < choice.known.size(); ++k)
     if (choice.known[k])
