@@ -661,6 +661,8 @@ int main(int argc, char** argv) {
                 "geometry, %d over the removal cap, %d on objects the map saw as static\n",
                 map.semantic_instances_applied, map.semantic_instances_continued, map.semantic_instances_followed,
                 map.semantic_instances_unconfirmed, map.semantic_instances_capped, map.semantic_instances_known_static);
+    std::printf("              %zu places (10 cm cells) in the map's memory of static objects and movers\n",
+                map.semantic_sighting_cells);
     std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks)\n",
                 map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled);
     std::printf("              %.1f features per frame followed from the last segmented keyframe's masks%s\n",

@@ -473,12 +473,12 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
                    "semantic_keyframes_no_colour=%d\nsemantic_failures=%d\nsemantic_instances_applied=%d\n"
                    "semantic_features_removed=%d\nsemantic_points_removed=%d\nsemantic_points_culled=%d\n"
                    "segmentation_ms_median=%.1f\nsegmentation_ms_p95=%.1f\nsemantic_latency_ms_median=%.1f\n"
-                   "semantic_latency_ms_p95=%.1f\n",
+                   "semantic_latency_ms_p95=%.1f\nsemantic_sighting_cells=%zu\n",
                    m.semantic_model.c_str(), m.semantic_keyframes_segmented, m.semantic_keyframes_dropped,
                    m.semantic_keyframes_no_colour, m.semantic_failures, m.semantic_instances_applied,
                    m.semantic_features_removed, m.semantic_points_removed, m.semantic_points_culled,
                    m.segmentation_ms_median, m.segmentation_ms_p95, m.semantic_latency_ms_median,
-                   m.semantic_latency_ms_p95);
+                   m.semantic_latency_ms_p95, m.semantic_sighting_cells);
     }
     if (std::fclose(f) != 0) result = Error{"cannot write " + config.output.status};
   }

@@ -208,7 +208,6 @@ class StaticSightings {
   const std::unordered_map<std::uint64_t, Cell>& byKey() const { return cells_; }
   static std::uint32_t mapOf(std::uint64_t key) { return static_cast<std::uint32_t>(key >> 54); }
   void restore(std::uint64_t key, const Cell& cell) { cells_[key] = cell; }
-  void clear() { cells_.clear(); }
 
  private:
   static std::uint64_t key(std::uint32_t map_id, const Vec3& p);

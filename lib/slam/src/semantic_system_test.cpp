@@ -758,11 +758,13 @@ TEST(SemanticModule, TheMapFileRemembersWhatItSawStanding) {
     ASSERT_GT(stats.semantic_frames_segmented, static_cast<int>(frames.inputs.size()) / 2);
     EXPECT_EQ(stats.semantic_keyframes_segmented, 0);
     if (first_run_sightings > 0) {
+      EXPECT_GT(stats.semantic_sighting_cells, 0u);
       // All but the first few: what those show of the plane, the first run
       // saw over less than the span.
       EXPECT_GE(stats.semantic_frame_regions_known_static * 3, stats.semantic_frames_segmented * 2);
     } else {
       EXPECT_EQ(stats.semantic_frame_regions_known_static, 0);
+      EXPECT_EQ(stats.semantic_sighting_cells, 0u);
     }
   }
   fs::remove_all(dir);

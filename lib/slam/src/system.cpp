@@ -618,6 +618,7 @@ MapStats SlamSystem::mapStats() const {
   stats.keyframes_in_memory = impl_->map.keyframes().size();
   stats.points_in_memory = impl_->map.pointsInMemory();
   stats.trajectory_records = impl_->tracker.records().size();
+  stats.semantic_sighting_cells = impl_->map.staticSightings().cells();
   stats.local_ba_runs = impl_->mapper.baRuns();
   stats.local_mapping_ms_total = impl_->mapper.totalMs();
   stats.dynamic_points_culled = impl_->mapper.dynamicPointsCulled();
