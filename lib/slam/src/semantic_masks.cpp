@@ -26,6 +26,12 @@ void copyMovableClass(const Frame& from, int i, Frame* to, int j) {
   to->movable_class[j] = from.movable_class[i];
 }
 
+// Whether regions consult the map's memory of what stands (StaticSightings).
+// It needs the geometry module: a static object's mask spills over a person
+// beside it, and only the module's flags keep the person's place from being
+// remembered as standing (docs/dynamic-objects.md).
+bool staticMemoryOn(const SlamOptions& o) { return o.semantic.static_memory_sightings > 0 && o.geometry.enabled; }
+
 // Which regions of one segmentation a view keeps out: the rule a segmented
 // keyframe and a segmented frame share. A region most of whose judged
 // features the geometry module found moving is confirmed and always kept out;
@@ -157,11 +163,8 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   for (int i = 0; i < f.size(); ++i) live[i] = f.points[i] && !f.points[i]->bad;
   const SemanticOptions& o = options_.semantic;
   // Where the map has seen a static object standing, read before this
-  // result adds its own sightings. The memory needs the geometry module: a
-  // static object's mask spills over a person beside it, and only the
-  // module's flags keep the person's place from being remembered as standing
-  // (docs/dynamic-objects.md).
-  const bool memory = o.static_memory_sightings > 0 && options_.geometry.enabled;
+  // result adds its own sightings.
+  const bool memory = staticMemoryOn(options_);
   std::vector<int> seen_standing(f.size(), -1);
   std::vector<Vec3> world(memory ? f.size() : 0);
   if (memory) {
@@ -307,7 +310,7 @@ bool Tracker::applyFrameMasks(const SemanticResult& r, bool confirmation_require
   // keyframes add sightings.
   const SemanticOptions& o = options_.semantic;
   std::vector<int> seen_standing(f.size(), -1);
-  if (o.static_memory_sightings > 0 && options_.geometry.enabled) {
+  if (staticMemoryOn(options_)) {
     std::shared_lock lock(map_->mutex());
     const StaticSightings& memory = map_->staticSightings();
     for (int i = 0; i < f.size(); ++i)
