@@ -605,8 +605,9 @@ int main(int argc, char** argv) {
   std::printf("frames:       %zu processed, %zu tracked, %zu lost, %zu initialising, %zu without depth, "
               "%zu skipped (bad input)\n",
               frames, tracked, lost, initialising, no_depth, skipped);
-  std::printf("recovery:     %zu relocalisations, %u map%s (%u started after a loss)\n", relocalised, map.maps,
-              map.maps == 1 ? "" : "s", map.maps > 0 ? map.maps - 1 : 0);
+  std::printf("recovery:     %zu relocalisations (%d refused: depth disagreed), %u map%s (%u started after a loss)\n",
+              relocalised, map.relocalisations_refused, map.maps, map.maps == 1 ? "" : "s",
+              map.maps > 0 ? map.maps - 1 : 0);
   if (!args.load_map.empty())
     std::printf("map file:     %s loaded in %.1f ms%s\n", args.load_map.c_str(), map_load_ms,
                 args.localisation ? ", localisation only" : "");

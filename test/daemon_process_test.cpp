@@ -719,6 +719,7 @@ TEST_F(DaemonProcess, RealExcerptMapSavedOnStopThenLocalisedAgainst) {
   EXPECT_EQ(status.at("map_keyframes"), mapped.at("map_keyframes"));
   EXPECT_EQ(status.at("map_points"), mapped.at("map_points"));
   EXPECT_EQ(status.at("maps"), "1");
+  EXPECT_EQ(status.at("relocalisations_refused"), "0");  // the first frame's place agrees with its depth
   const auto poses = readPoses(r, 193, 5s);
   ASSERT_EQ(poses.size(), 193u);
   std::size_t with_pose = 0;

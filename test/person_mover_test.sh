@@ -30,6 +30,10 @@
 #                it still fills most of the view, and the map started there
 #                must stand on the room (set MIN_POSED_PERCENT: the frames
 #                without depth have no pose).
+# With ON_EXCERPT_MAP=1 in the environment the sequence is replayed on a map
+# of the clean excerpt, made first by the same replay and saved (a robot's
+# map from an earlier run of the same way): after a cover the frame
+# relocalises on it.
 #
 # usage: person_mover_test.sh REPLAY EVAL SYNTH SEGMENT SOURCE_DIR DATA_DIR MODELS_DIR OUT_DIR MAX_ATE_M PATH
 #                              [MASK_DELAY_FRAMES | semantic:MASK_DELAY_FRAMES]
@@ -121,6 +125,12 @@ YAML
     printf 'orb:\n  num_features: %s\n' "${path[9]}" >>"$out_dir/slam.yaml"
   fi
   modules=(--modules "$with" --config "$out_dir/slam.yaml")
+fi
+if [[ ${ON_EXCERPT_MAP:-0} == 1 ]]; then
+  map=$out_dir/excerpt.map
+  echo "+ $replay $excerpt --camera fr3 --sequential ${modules[*]} --output $out_dir/excerpt.txt --save-map $map"
+  "$replay" "$excerpt" --camera fr3 --sequential "${modules[@]}" --output "$out_dir/excerpt.txt" --save-map "$map"
+  modules+=(--load-map "$map")
 fi
 bash "$(dirname "$0")/replay_accuracy_test.sh" "$replay" "$eval" "$sequence" fr3 "$out_dir/replay" "$max_ate" \
   "${modules[@]}"

@@ -463,9 +463,9 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
     const slam::MapStats map = system->mapStats();
     std::fprintf(f,
                  "map_keyframes=%zu\nmap_points=%zu\nkeyframes_in_memory=%zu\npoints_in_memory=%zu\n"
-                 "trajectory_records=%zu\nmap_id=%u\nmaps=%u\nframes_no_depth=%zu\n",
+                 "trajectory_records=%zu\nmap_id=%u\nmaps=%u\nframes_no_depth=%zu\nrelocalisations_refused=%d\n",
                  map.keyframes, map.points, map.keyframes_in_memory, map.points_in_memory, map.trajectory_records,
-                 map_id.load(), map.maps, map.no_depth_frames);
+                 map_id.load(), map.maps, map.no_depth_frames, map.relocalisations_refused);
     if (config.modules.semantic) {
       const slam::MapStats m = system->mapStats();
       std::fprintf(f,

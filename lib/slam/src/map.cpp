@@ -4,6 +4,7 @@
 #include <cassert>
 #include <cmath>
 #include <unordered_set>
+#include <vector>
 
 #include "stillpoint/features/descriptor.hpp"
 
@@ -425,6 +426,28 @@ std::size_t Map::pointCount() const {
   for (const auto& w : points_)
     if (auto p = w.lock(); p && !p->bad) ++n;
   return n;
+}
+
+DepthOffset depthOffset(const Frame& frame) {
+  std::vector<double> offsets;
+  for (int i = 0; i < frame.size(); ++i) {
+    if (!frame.points[i] || frame.outlier[i] || frame.depth[i] <= 0) continue;
+    offsets.push_back(frame.depth[i] - (frame.T_c_w * frame.points[i]->position).z());
+  }
+  DepthOffset result;
+  result.samples = static_cast<int>(offsets.size());
+  if (offsets.empty()) return result;
+  const auto median = [](std::vector<double>* v) {
+    std::nth_element(v->begin(), v->begin() + v->size() / 2, v->end());
+    return (*v)[v->size() / 2];
+  };
+  result.metres = median(&offsets);
+  for (double& d : offsets) d = std::abs(d - result.metres);
+  // 1.4826 MAD estimates a normal spread; the median's standard error is
+  // sqrt(pi / 2) times the mean's.
+  const double spread = 1.4826 * median(&offsets);
+  result.standard_error = 1.2533 * spread / std::sqrt(static_cast<double>(result.samples));
+  return result;
 }
 
 }  // namespace stillpoint::slam

@@ -348,4 +348,16 @@ class Map {
   void unindexKeyFrame(KeyFrame* kf);
 };
 
+// How far along the view the frame's pose lies from where its depth says:
+// the median of (measured - predicted depth) over the matched inliers with
+// depth, in metres, and its standard error (from their median absolute
+// deviation). A pose off along the view moves far points by a fraction of a
+// pixel, which their reprojections cannot see; their depth can.
+struct DepthOffset {
+  double metres = 0;
+  double standard_error = 0;
+  int samples = 0;
+};
+DepthOffset depthOffset(const Frame& frame);
+
 }  // namespace stillpoint::slam

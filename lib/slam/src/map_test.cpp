@@ -253,5 +253,50 @@ TEST(PlaceRecognition, SimilarKeyFramesRanksByScoreAndForgetsCulledOnes) {
   EXPECT_EQ(found[0].keyframe, kfs[2]);
 }
 
+// Far points seen past a near mover: 60 on a wall 3-5 m away, with depth
+// noise as a camera's; 20 of the mover's features matched by chance to far
+// points, 15 of them too near for depth, 5 with it; others fitted out or
+// without depth. A pose 8 cm back along the view shows as the wall's median
+// offset; the mover's few features with depth barely move it.
+TEST(DepthOffset, TellsAPoseOffAlongTheViewFromTheInliersDepth) {
+  const int n = 90;
+  Frame f;
+  f.keys.resize(n);
+  f.depth.assign(n, 0.0f);
+  f.points.resize(n);
+  f.outlier.assign(n, 0);
+  std::uint32_t seed = 7;
+  const auto noise = [&seed] {  // uniform in [-1, 1]
+    seed = seed * 1664525u + 1013904223u;
+    return static_cast<double>(seed >> 8) / (1u << 23) - 1.0;
+  };
+  for (int i = 0; i < n; ++i) {
+    const double z = i < 60 ? 3.0 + 2.0 * i / 60 : 4.0;
+    f.points[i] = std::make_shared<MapPoint>(i, Vec3(0.01 * i - 0.4, 0.2, z), nullptr);
+    if (i < 60) f.depth[i] = static_cast<float>(z + 0.01 * z * z * noise());
+    if (i >= 75 && i < 80) f.depth[i] = 0.4f;  // on the mover, its map point far behind it
+    if (i >= 80) f.outlier[i] = i % 2, f.depth[i] = i % 2 ? 0.5f : 0.0f;  // fitted out, or no depth
+  }
+  f.T_c_w = SE3::Identity();
+  const DepthOffset right = depthOffset(f);
+  EXPECT_EQ(right.samples, 65);
+  EXPECT_LT(std::abs(right.metres), 0.03);
+  f.T_c_w.translation() = Vec3(0, 0, 0.08);  // the camera 8 cm behind
+  const DepthOffset back = depthOffset(f);
+  EXPECT_LT(back.metres, -0.06);
+  EXPECT_GT(back.metres, -0.10);
+  EXPECT_GT(back.standard_error, 0.0);
+  EXPECT_LT(back.standard_error, 0.04);
+  EXPECT_GT(std::abs(back.metres), 3 * back.standard_error);
+  // Without the mover's features, the wall alone: its median within its noise.
+  for (int i = 60; i < 80; ++i) f.outlier[i] = 1;
+  f.T_c_w = SE3::Identity();
+  const DepthOffset wall = depthOffset(f);
+  EXPECT_EQ(wall.samples, 60);
+  EXPECT_LT(std::abs(wall.metres), 3 * wall.standard_error + 0.005);
+  f.depth.assign(n, 0.0f);
+  EXPECT_EQ(depthOffset(f).samples, 0);
+}
+
 }  // namespace
 }  // namespace stillpoint::slam

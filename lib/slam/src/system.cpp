@@ -631,6 +631,7 @@ MapStats SlamSystem::mapStats() const {
     stats.global_ba_runs = l.global_ba_runs;
     stats.global_ba_dropped = l.global_ba_dropped;
   }
+  stats.relocalisations_refused = impl_->tracker.relocalisationsRefused();
   if (impl_->clustering) stats.geometry_deadline_misses = impl_->clustering->deadlineMisses();
   if (impl_->semantic) {
     const SemanticStats& st = impl_->mapper.semanticStats();

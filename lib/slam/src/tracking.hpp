@@ -90,6 +90,9 @@ class Tracker {
   // Regions of such frames left alone: the map had seen their place standing
   // (StaticSightings). Any thread.
   int frameRegionsKnownStatic() const { return frame_regions_known_static_.load(); }
+  // Relocalised poses refused because their inliers' depth disagreed
+  // (relocalise()). Any thread.
+  int relocalisationsRefused() const { return relocalisations_refused_.load(); }
 
  private:
   // State machine (tracking.cpp).
@@ -284,6 +287,7 @@ class Tracker {
   std::optional<Frame> awaiting_masks_, masked_frame_;
   std::vector<char> awaiting_matched_;  // per feature of awaiting_masks_: a map-point inlier
   std::atomic<int> frame_regions_known_static_{0};
+  std::atomic<int> relocalisations_refused_{0};
   bool rejected_ = false;  // the frame's pose failed plausibleMotion(): no pose, tracking goes on
   int predicted_frames_ = 0;  // frames in a row the motion predicted within plausibleMotion()'s bounds
   std::deque<StampedPose> steady_poses_;  // the last steady frames' poses (plausibleMotion())

@@ -185,6 +185,9 @@ struct MapStats {
   std::size_t points = 0;     // in the map
   std::uint32_t maps = 0;     // maps started (1 + new maps after losses); 0 before the first
   std::size_t no_depth_frames = 0;  // frames with too little depth to track (TrackingState::kNoDepth)
+  // Relocalised poses refused: their inliers' depth put the camera more than
+  // 5 cm along the view from the pose (docs/place-recognition.md).
+  int relocalisations_refused = 0;
   // Memory held: keyframes and map points still allocated (culled ones not
   // yet freed included), and tracked frames kept for trajectory().
   std::size_t keyframes_in_memory = 0;
