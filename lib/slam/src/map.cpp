@@ -428,6 +428,13 @@ std::size_t Map::pointCount() const {
   return n;
 }
 
+bool offAlongView(const DepthOffset& offset) {
+  constexpr double kMaxOffsetM = 0.05;
+  constexpr int kMinSamples = 10;
+  return offset.samples >= kMinSamples && std::abs(offset.metres) > kMaxOffsetM &&
+         std::abs(offset.metres) > 3 * offset.standard_error;
+}
+
 DepthOffset depthOffset(const Frame& frame) {
   std::vector<double> offsets;
   for (int i = 0; i < frame.size(); ++i) {

@@ -359,5 +359,9 @@ struct DepthOffset {
   int samples = 0;
 };
 DepthOffset depthOffset(const Frame& frame);
+// A pose more than 5 cm along the view from where its inliers' depth puts
+// it, beyond 3 standard errors, with at least 10 of them: a place found for
+// the frame (relocalisation, a map merge's lookup) is refused then.
+bool offAlongView(const DepthOffset& offset);
 
 }  // namespace stillpoint::slam

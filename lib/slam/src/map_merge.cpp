@@ -67,6 +67,7 @@ void Tracker::lookForOlderMaps() {
         if (probe.dynamic[i]) probe.points[i] = nullptr;
       if (!poseFromMatches(&probe)) continue;
       if (optimizeFramePose(&probe) < options_.tracking.min_inliers_after_reloc) continue;
+      if (offAlongView(depthOffset(probe))) continue;  // as relocalisation refuses it (relocalisation.cpp)
       // T_c_older^-1 * T_c_newer: the current map's world in the older one's.
       T_older_newer = renormalized(probe.T_c_w.inverse() * current_.T_c_w);
       found_kf = kf;

@@ -14,10 +14,6 @@ namespace stillpoint::slam {
 namespace {
 log::Logger logger("tracking");
 constexpr std::size_t kOtherMapCandidates = 3;  // keyframes of other maps tried per lost frame
-// A relocalised pose whose inliers' depth puts the camera further than this
-// along the view, beyond 3 standard errors, is refused.
-constexpr double kMaxDepthOffsetM = 0.05;
-constexpr int kMinDepthOffsetSamples = 10;
 }  // namespace
 
 bool Tracker::poseFromMatches(Frame* frame) const {
@@ -139,8 +135,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
       // 6-13 cm on the wrong ones). The next candidate, or the next frame,
       // may see more.
       const DepthOffset offset = depthOffset(current_);
-      if (offset.samples >= kMinDepthOffsetSamples && std::abs(offset.metres) > kMaxDepthOffsetM &&
-          std::abs(offset.metres) > 3 * offset.standard_error) {
+      if (offAlongView(offset)) {
         SP_INFO(logger, "frame " << current_.id << ": relocalisation against keyframe " << kf->id
                                  << " refused: its inliers' depth puts the camera " << offset.metres
                                  << " m (+-" << offset.standard_error << ") along the view from the pose");
