@@ -288,6 +288,12 @@ TEST(DepthOffset, TellsAPoseOffAlongTheViewFromTheInliersDepth) {
   EXPECT_GT(back.standard_error, 0.0);
   EXPECT_LT(back.standard_error, 0.04);
   EXPECT_GT(std::abs(back.metres), 3 * back.standard_error);
+  EXPECT_FALSE(offAlongView(right));
+  EXPECT_TRUE(offAlongView(back));
+  // As far off, but too few with depth, or too noisy to tell.
+  EXPECT_FALSE(offAlongView({back.metres, back.standard_error, 9}));
+  EXPECT_FALSE(offAlongView({back.metres, std::abs(back.metres) / 2.5, back.samples}));
+  EXPECT_FALSE(offAlongView({0.045, 0.001, back.samples}));  // under 5 cm
   // Without the mover's features, the wall alone: its median within its noise.
   for (int i = 60; i < 80; ++i) f.outlier[i] = 1;
   f.T_c_w = SE3::Identity();
