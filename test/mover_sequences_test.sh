@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # daemon/scripts/mover-sequences.sh makes every sequence a config/synth file's
-# header names, with the flags that header gives: a person cut-out where it
-# says --cutout, turned to face the camera exactly where it says
-# --face-camera (a standee that turns would not stand still). Each sequence
-# is made 2 frames long.
+# header names, with the flags that header gives: a person cut-out of the
+# photo it names where it says --cutout, turned to face the camera exactly
+# where it says --face-camera (a standee that turns would not stand still).
+# Each sequence is made 2 frames long.
 #
 # usage: mover_sequences_test.sh SOURCE_DIR BIN_DIR DATA_DIR MODELS_DIR OUT_DIR
 # exit:  0 pass, 1 fail, 77 skipped (excerpt, COCO model or opencv-doc absent)
@@ -50,6 +50,12 @@ for config in "$source_dir"/config/synth/teddy_*.yaml; do
   [[ $frames -eq 2 ]] || { echo "FAIL: $name has $frames frames, expected 2"; fail=1; }
   grep -q "config/synth/$(basename "$config")" "$out_dir.log" ||
     { echo "FAIL: $name was not made from $(basename "$config")"; fail=1; }
+  # The cut-out of the photo the header names.
+  photo=$(grep -o '/tmp/cut/[a-z0-9]*_mask.png' <<<"$command" | sed 's|/tmp/cut/||; s|_mask.png||' || true)
+  if [[ -n $photo ]] && ! grep -q "/$name --camera fr3 .*--cutout [^ ]*/cut/${photo}_mask.png" "$out_dir.log"; then
+    echo "FAIL: $name was not cut out of the photo its header names ($photo)"
+    fail=1
+  fi
   for flag in cutout face_camera; do
     option=--${flag//_/-}
     said=0 made=0

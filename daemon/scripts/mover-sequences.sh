@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Makes the generated sequences of docs/results.md: movers composited into the
 # real excerpt (stillpoint-synth overlay), each from its preset or its file in
-# config/synth/, with the flags that file's header names. The people are the
-# astronaut photo cut out along the silhouette COCO finds in it; the real
-# walker and the graffiti poster come from Debian's opencv-doc.
+# config/synth/, with the flags that file's header names. The people are
+# photos cut out along the silhouette COCO finds in them: the astronaut of
+# the models' test data, and the basketball players and the footballer of
+# Debian's opencv-doc, which also gives the real walker and the graffiti
+# poster.
 #
 # usage: daemon/scripts/mover-sequences.sh OUT_DIR [NAME...]
 #        daemon/scripts/mover-sequences.sh --list
@@ -17,23 +19,26 @@
 set -euo pipefail
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 
-# name  source  cut-out person  turns to face the camera
+# name  source  photo of the cut-out person  turns to face the camera
 table="\
-poster-walk      preset:poster-walk                       -      -
-mix              preset:mix                               -      -
-person-near      teddy_person_near.yaml                   person face
-person-huge      teddy_person_huge.yaml                   person face
-person-walking   teddy_person_huge_walking.yaml           person face
-person-cover     teddy_person_cover.yaml                  person face
-behind-bear      teddy_person_behind_bear.yaml            person face
-two-people       teddy_two_people.yaml                    person face
-stand-walk       teddy_person_stand_walk.yaml             person -
-standee-walk     teddy_person_standee.yaml                person -
-poster-close     teddy_poster_close.yaml                  -      -
-poster-hold      teddy_poster_hold.yaml                   -      -
-video-near       teddy_video_walker.yaml                  -      face
-video-far        teddy_video_walker_far.yaml              -      face
-walker-mid       teddy_video_walker_mid.yaml              -      face"
+poster-walk      preset:poster-walk                       -           -
+mix              preset:mix                               -           -
+person-near      teddy_person_near.yaml                   astronaut   face
+person-huge      teddy_person_huge.yaml                   astronaut   face
+person-walking   teddy_person_huge_walking.yaml           astronaut   face
+person-cover     teddy_person_cover.yaml                  astronaut   face
+behind-bear      teddy_person_behind_bear.yaml            astronaut   face
+two-people       teddy_two_people.yaml                    astronaut   face
+stand-walk       teddy_person_stand_walk.yaml             astronaut   -
+standee-walk     teddy_person_standee.yaml                astronaut   -
+poster-close     teddy_poster_close.yaml                  -           -
+poster-hold      teddy_poster_hold.yaml                   -           -
+video-near       teddy_video_walker.yaml                  -           face
+video-far        teddy_video_walker_far.yaml              -           face
+walker-mid       teddy_video_walker_mid.yaml              -           face
+player-walk      teddy_player_walk.yaml                   basketball1 face
+player-near      teddy_player_near.yaml                   basketball1 face
+kicker           teddy_kicker.yaml                        messi5      face"
 
 if [[ ${1:-} == --list ]]; then
   awk '{print $1}' <<<"$table"
@@ -67,17 +72,28 @@ if [[ ! -d $data ]]; then
 fi
 mkdir -p "$out"
 
-cutout=$out/cut/astronaut_mask.png
-make_cutout() {
+# The cut-out of a photo (astronaut: the models' test data; the others:
+# opencv-doc), made once: OUT_DIR/cut/PHOTO_mask.png.
+cutout_of() {
+  local photo=$1 image
+  cutout=$out/cut/${photo}_mask.png
   [[ -f $cutout ]] && return 0
   if [[ ! -d $models ]]; then
     echo "$0: the models folder $models is absent (set MODELS): no person cut-out" >&2
     return 1
   fi
+  case $photo in
+    astronaut) image=$models/testdata/astronaut.png ;;
+    *) for image in "$opencv_data/$photo".*; do break; done ;;
+  esac
+  if [[ ! -f $image ]]; then
+    echo "$0: the photo '$photo' is absent (the models' test data, or Debian's opencv-doc)" >&2
+    return 1
+  fi
   if ! "$bin/stillpoint-segment" --card "$repo/models/coco_yolov5s_seg_320.yaml" --model-dir "$models" \
-    --out "$out/cut" "$models/testdata/astronaut.png" >/dev/null 2>"$out/cut.err" || [[ ! -f $cutout ]]; then
+    --out "$out/cut" "$image" >/dev/null 2>"$out/cut.err" || [[ ! -f $cutout ]]; then
     cat "$out/cut.err" >&2
-    echo "$0: no person cut-out" >&2
+    echo "$0: no person cut-out of $photo" >&2
     return 1
   fi
   rm -f "$out/cut.err"
@@ -91,7 +107,7 @@ for name in "${names[@]}"; do
     failed=1
     continue
   fi
-  read -r _ source person face <<<"$row"
+  read -r _ source photo face <<<"$row"
   args=(overlay "$data" "$out/$name" --camera fr3)
   if [[ $source == preset:* ]]; then
     args+=(--preset "${source#preset:}")
@@ -103,8 +119,8 @@ for name in "${names[@]}"; do
       continue
     fi
   fi
-  if [[ $person == person ]]; then
-    if ! make_cutout; then
+  if [[ $photo != - ]]; then
+    if ! cutout_of "$photo"; then
       failed=1
       continue
     fi

@@ -54,6 +54,19 @@ class Reader {
     return Status::success();
   }
 
+  template <std::size_t N>
+  Status readArray(const YAML::Node& map, const char* key, const std::string& field, std::array<double, N>* out) const {
+    const YAML::Node n = map[key];
+    if (!n) return Status::success();
+    if (!n.IsSequence() || n.size() != N) return Error{where(n, field) + " must be a list of " + std::to_string(N) + " numbers"};
+    try {
+      for (std::size_t i = 0; i < N; ++i) (*out)[i] = n[i].as<double>();
+    } catch (const YAML::Exception&) {
+      return Error{where(n, field) + " must hold numbers"};
+    }
+    return Status::success();
+  }
+
   Status readVec3(const YAML::Node& map, const char* key, const std::string& field, Vec3* out,
                   std::size_t min_size = 3) const {
     const YAML::Node n = map[key];
@@ -97,7 +110,7 @@ Result<MoverShape> parseShape(const std::string& s) {
 
 Result<MoverSpec> readMover(const Reader& r, const YAML::Node& n, const std::string& f) {
   MoverSpec m;
-  SP_TRY(r.checkKeys(n, f, {"name", "shape", "texture", "cutout", "video", "face_camera", "size", "yaw_deg", "yaw_rate_deg_s", "path"}));
+  SP_TRY(r.checkKeys(n, f, {"name", "shape", "texture", "cutout", "crop", "video", "face_camera", "size", "yaw_deg", "yaw_rate_deg_s", "path"}));
   SP_TRY(r.read(n, "name", f + ".name", &m.name));
   std::string shape = "poster";
   SP_TRY(r.read(n, "shape", f + ".shape", &shape));
@@ -107,6 +120,7 @@ Result<MoverSpec> readMover(const Reader& r, const YAML::Node& n, const std::str
   if (m.shape == MoverShape::kWalker) m.size = Vec3(0.45, 1.75, 0.25);
   SP_TRY(r.read(n, "texture", f + ".texture", &m.texture));
   SP_TRY(r.read(n, "cutout", f + ".cutout", &m.cutout));
+  SP_TRY(r.readArray(n, "crop", f + ".crop", &m.crop));
   SP_TRY(r.read(n, "video", f + ".video", &m.video));
   SP_TRY(r.read(n, "face_camera", f + ".face_camera", &m.face_camera));
   SP_TRY(r.readVec3(n, "size", f + ".size", &m.size, 2));
@@ -219,6 +233,12 @@ Status SynthConfig::validate() const {
     if (!m.cutout.empty() && m.shape != MoverShape::kPoster) return bad("cutout", "is for posters only");
     if (!m.video.empty() && m.shape != MoverShape::kPoster) return bad("video", "is for posters only");
     if (!m.video.empty() && !m.cutout.empty()) return bad("video", "cuts its own walker out: no cutout with it");
+    const auto& c = m.crop;
+    if (!(c[0] >= 0 && c[1] >= 0 && c[2] <= 1 && c[3] <= 1 && c[2] - c[0] >= 0.01 && c[3] - c[1] >= 0.01))
+      return bad("crop", "must be [left, top, right, bottom] in [0, 1], right > left, bottom > top");
+    const bool cropped = c[0] > 0 || c[1] > 0 || c[2] < 1 || c[3] < 1;
+    if (cropped && m.shape != MoverShape::kPoster) return bad("crop", "is for posters only");
+    if (cropped && !m.video.empty()) return bad("crop", "is for photos, not video");
     if (m.face_camera && m.shape != MoverShape::kPoster) return bad("face_camera", "is for posters only");
     if (!std::isfinite(m.yaw_deg)) return bad("yaw_deg", "must be finite");
     if (!std::isfinite(m.yaw_rate_deg_s)) return bad("yaw_rate_deg_s", "must be finite");

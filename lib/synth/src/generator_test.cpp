@@ -349,6 +349,58 @@ TEST(Movers, CutOutMaskErrorsNameTheFile) {
   EXPECT_NE(s.error().find("cutout"), std::string::npos) << s.error();
 }
 
+TEST(Movers, CropShowsOnePersonOfAPhotoOfSeveral) {
+  // A 100 x 50 photo: left half red, right half blue; its mask keeps a
+  // large blob in the left half, a small one that the crop cuts into, and
+  // one outside the crop.
+  const fs::path dir = tempDir("crop");
+  fs::create_directories(dir);
+  cv::Mat photo(50, 100, CV_8UC3, cv::Scalar(0, 0, 255));
+  photo.colRange(50, 100).setTo(cv::Scalar(255, 0, 0));
+  cv::Mat mask(50, 100, CV_8UC1, cv::Scalar(0));
+  mask(cv::Rect(10, 5, 20, 40)).setTo(255);  // the person
+  mask(cv::Rect(36, 5, 8, 8)).setTo(255);    // a piece of another, inside the crop
+  mask(cv::Rect(70, 5, 20, 40)).setTo(255);  // another, outside it
+  ASSERT_TRUE(cv::imwrite((dir / "photo.png").string(), photo));
+  ASSERT_TRUE(cv::imwrite((dir / "mask.png").string(), mask));
+  MoverSpec m;
+  m.name = "person";
+  m.texture = "photo.png";
+  m.cutout = "mask.png";
+  m.crop = {0.0, 0.0, 0.4, 1.0};
+  Result<MoverTextures> tx = makeMoverTextures(m, dir.string(), 1);
+  ASSERT_TRUE(tx.ok()) << tx.error();
+  const Texture& t = *tx->textures.front();
+  ASSERT_TRUE(t.cutout());
+  EXPECT_EQ(t.level(0).cols, 40);
+  EXPECT_EQ(t.level(0).rows, 50);
+  const cv::Mat& keep = t.keepLevel(0);
+  EXPECT_EQ(keep.at<std::uint8_t>(25, 20), 255);  // the person
+  EXPECT_EQ(keep.at<std::uint8_t>(8, 39), 0);     // the other's piece is dropped
+  EXPECT_EQ(keep.at<std::uint8_t>(25, 5), 0);
+  EXPECT_EQ(t.level(0).at<cv::Vec3b>(25, 20), cv::Vec3b(0, 0, 255));  // the left half's colour
+  // A crop holding none of the mask, and crops that are no rectangle.
+  m.crop = {0.45, 0.0, 0.65, 1.0};
+  tx = makeMoverTextures(m, dir.string(), 1);
+  ASSERT_FALSE(tx.ok());
+  EXPECT_NE(tx.error().find("nothing kept inside the crop"), std::string::npos) << tx.error();
+  SynthConfig config;
+  for (const std::array<double, 4> bad :
+       {std::array<double, 4>{0.5, 0.0, 0.4, 1.0}, {0.0, -0.1, 1.0, 1.0}, {0.0, 0.0, 1.0, 1.2}}) {
+    m.crop = bad;
+    config.movers = {m};
+    const Status st = config.validate();
+    ASSERT_FALSE(st);
+    EXPECT_NE(st.error().find("crop"), std::string::npos) << st.error();
+  }
+  m.crop = {0.0, 0.0, 0.5, 1.0};
+  m.shape = MoverShape::kBox;
+  m.cutout.clear();
+  config.movers = {m};
+  EXPECT_FALSE(config.validate());
+  fs::remove_all(dir);
+}
+
 TEST(Room, DeterministicBySeedWhateverTheThreads) {
   const fs::path a = tempDir("room_a"), b = tempDir("room_b"), c = tempDir("room_c");
   GenerateOptions one;

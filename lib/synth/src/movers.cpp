@@ -5,6 +5,9 @@
 #include <filesystem>
 #include <numbers>
 
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
 #include "stillpoint/synth/textures.hpp"
 #include "stillpoint/synth/video_walker.hpp"
 
@@ -210,14 +213,40 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
   } else {
     Result<TexturePtr> main = photoOrStyle(spec.texture, TextureStyle::kPaper, 512, 512, seed);
     if (!main.ok()) return Error{main.error()};
+    // The part of an image `crop` names (fractions of its size, the same
+    // place in the photo and in its mask whatever their sizes).
+    const auto part = [&spec](const cv::Mat& image) {
+      const auto& c = spec.crop;
+      const int x0 = static_cast<int>(std::lround(c[0] * image.cols));
+      const int y0 = static_cast<int>(std::lround(c[1] * image.rows));
+      const int x1 = std::max(x0 + 1, static_cast<int>(std::lround(c[2] * image.cols)));
+      const int y1 = std::max(y0 + 1, static_cast<int>(std::lround(c[3] * image.rows)));
+      return image(cv::Rect(x0, y0, std::min(x1, image.cols) - x0, std::min(y1, image.rows) - y0)).clone();
+    };
+    const bool cropped = spec.crop != std::array<double, 4>{0.0, 0.0, 1.0, 1.0};
     if (spec.cutout.empty()) {
-      out.textures.push_back(*main);
+      out.textures.push_back(cropped ? std::make_shared<const Texture>(part((*main)->level(0)), false) : *main);
     } else {
       std::filesystem::path p(spec.cutout);
       if (p.is_relative() && !base_dir.empty()) p = std::filesystem::path(base_dir) / p;
       Result<cv::Mat> keep = loadMask(p.string());
       if (!keep.ok()) return Error{"mover '" + spec.name + "': cutout: " + keep.error()};
-      out.textures.push_back(std::make_shared<const Texture>((*main)->level(0), false, *keep));
+      cv::Mat kept = cropped ? part(*keep) : *keep;
+      if (cropped) {
+        // One person of a photo of several: the largest part of the mask
+        // inside the crop, not the pieces of others it cuts into.
+        cv::Mat labels, stats, centroids;
+        const int n = cv::connectedComponentsWithStats(kept >= 128, labels, stats, centroids, 8, CV_32S);
+        if (n < 2) return Error{"mover '" + spec.name + "': cutout: nothing kept inside the crop"};
+        int largest = 1;
+        for (int k = 2; k < n; ++k)
+          if (stats.at<int>(k, cv::CC_STAT_AREA) > stats.at<int>(largest, cv::CC_STAT_AREA)) largest = k;
+        cv::Mat one;
+        cv::compare(labels, largest, one, cv::CMP_EQ);
+        kept = one;
+      }
+      out.textures.push_back(
+          std::make_shared<const Texture>(cropped ? part((*main)->level(0)) : (*main)->level(0), false, kept));
     }
   }
   return out;

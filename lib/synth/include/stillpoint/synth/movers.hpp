@@ -7,6 +7,7 @@
 // onto the floor, x = y cross z (to the right). TUM fr3 and the synthetic rooms
 // both have z up with the floor at z = 0.
 #include <cstdint>
+#include <array>
 #include <string>
 #include <vector>
 
@@ -62,6 +63,10 @@ struct MoverSpec {
   // elsewhere, in colour, depth and the ground-truth masks alike: e.g. a person
   // cut out of a photo (stillpoint-segment --out writes such masks). "" = none.
   std::string cutout;
+  // Poster only: the part of the texture image (and of the cutout mask, at
+  // the same place) the poster shows, as fractions of the image: left, top,
+  // right, bottom in [0, 1]. One person out of a photo of several.
+  std::array<double, 4> crop{0.0, 0.0, 1.0, 1.0};
   // Poster only: a video of people walking past a still camera. The poster
   // shows one walker cut out of it frame by frame (video_walker.hpp), played
   // at the video's rate and looped; `texture` and `cutout` are not used. The
