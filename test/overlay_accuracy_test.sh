@@ -16,13 +16,7 @@ if [[ $# -ne 10 ]]; then
 fi
 source_dir=$1 bin_dir=$2 data_dir=$3 models_dir=$4 out_dir=$5 name=$6 max_ate=$7 modules=$8 features=$9
 mask_delay=${10}
-excerpt=$data_dir/tum_fr3_teddy_200
-for needed in "$excerpt" "$models_dir/coco_yolov5s_seg_320.onnx" /usr/share/doc/opencv-doc/examples/data; do
-  if [[ ! -e $needed ]]; then
-    echo "SKIP: $needed is absent"
-    exit 77
-  fi
-done
+source "$(dirname "$0")/overlay_inputs.sh"
 
 rm -rf "$out_dir"
 mkdir -p "$out_dir"

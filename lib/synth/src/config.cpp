@@ -236,9 +236,8 @@ Status SynthConfig::validate() const {
     const auto& c = m.crop;
     if (!(c[0] >= 0 && c[1] >= 0 && c[2] <= 1 && c[3] <= 1 && c[2] - c[0] >= 0.01 && c[3] - c[1] >= 0.01))
       return bad("crop", "must be [left, top, right, bottom] in [0, 1], right > left, bottom > top");
-    const bool cropped = c[0] > 0 || c[1] > 0 || c[2] < 1 || c[3] < 1;
-    if (cropped && m.shape != MoverShape::kPoster) return bad("crop", "is for posters only");
-    if (cropped && !m.video.empty()) return bad("crop", "is for photos, not video");
+    if (m.cropped() && m.shape != MoverShape::kPoster) return bad("crop", "is for posters only");
+    if (m.cropped() && !m.video.empty()) return bad("crop", "is for photos, not video");
     if (m.face_camera && m.shape != MoverShape::kPoster) return bad("face_camera", "is for posters only");
     if (!std::isfinite(m.yaw_deg)) return bad("yaw_deg", "must be finite");
     if (!std::isfinite(m.yaw_rate_deg_s)) return bad("yaw_rate_deg_s", "must be finite");

@@ -197,7 +197,7 @@ Status writeMoversYaml(const fs::path& path, const std::string& mode, const std:
     e << YAML::Key << "shape" << YAML::Value << toString(m.shape);
     e << YAML::Key << "texture" << YAML::Value << m.texture;
     if (!m.cutout.empty()) e << YAML::Key << "cutout" << YAML::Value << m.cutout;
-    if (m.crop != std::array<double, 4>{0.0, 0.0, 1.0, 1.0}) {
+    if (m.cropped()) {
       e << YAML::Key << "crop" << YAML::Value << YAML::Flow << YAML::BeginSeq;
       for (double v : m.crop) e << v;
       e << YAML::EndSeq;

@@ -223,7 +223,7 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
       const int y1 = std::max(y0 + 1, static_cast<int>(std::lround(c[3] * image.rows)));
       return image(cv::Rect(x0, y0, std::min(x1, image.cols) - x0, std::min(y1, image.rows) - y0)).clone();
     };
-    const bool cropped = spec.crop != std::array<double, 4>{0.0, 0.0, 1.0, 1.0};
+    const bool cropped = spec.cropped();
     if (spec.cutout.empty()) {
       out.textures.push_back(cropped ? std::make_shared<const Texture>(part((*main)->level(0)), false) : *main);
     } else {
@@ -245,8 +245,8 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
         cv::compare(labels, largest, one, cv::CMP_EQ);
         kept = one;
       }
-      out.textures.push_back(
-          std::make_shared<const Texture>(cropped ? part((*main)->level(0)) : (*main)->level(0), false, kept));
+      out.textures.push_back(std::make_shared<const Texture>(cropped ? part((*main)->level(0)) : (*main)->level(0),
+                                                             false, kept));
     }
   }
   return out;

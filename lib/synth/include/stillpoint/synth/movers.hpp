@@ -67,6 +67,7 @@ struct MoverSpec {
   // the same place) the poster shows, as fractions of the image: left, top,
   // right, bottom in [0, 1]. One person out of a photo of several.
   std::array<double, 4> crop{0.0, 0.0, 1.0, 1.0};
+  bool cropped() const { return crop[0] > 0 || crop[1] > 0 || crop[2] < 1 || crop[3] < 1; }
   // Poster only: a video of people walking past a still camera. The poster
   // shows one walker cut out of it frame by frame (video_walker.hpp), played
   // at the video's rate and looped; `texture` and `cutout` are not used. The
