@@ -91,12 +91,13 @@ KeyFrame* Tracker::createKeyFrame() {
     if (kf->frame.depth[i] > 0 && !kf->frame.points[i] && !kf->frame.dynamic[i])
       by_depth.emplace_back(kf->frame.depth[i], i);
   std::sort(by_depth.begin(), by_depth.end());
-  int created = 0;
+  int created = 0, lately = 0;
+  const std::vector<char> masked_lately = detector_ ? recentlyMasked() : std::vector<char>();
   for (const auto& [z, i] : by_depth) {
     if (z > close_depth_ && created >= options_.keyframes.min_new_points) break;
     auto p = map_->createPoint(kf->frame.unprojectToWorld(i), kf);
     if (detector_) {
-      p->geometry.on_mover = detector_->onKnownMover(i);
+      p->geometry.on_mover = detector_->onKnownMover(i) || (!masked_lately.empty() && masked_lately[i]);
       p->geometry.probation =
           p->geometry.on_mover ? options_.geometry.mover_probation_frames : options_.geometry.probation_frames;
     }
@@ -105,7 +106,11 @@ KeyFrame* Tracker::createKeyFrame() {
     current_.points[i] = p;
     current_.outlier[i] = 0;
     ++created;
+    lately += p->geometry.on_mover && !masked_lately.empty() && masked_lately[i];
   }
+  if (lately > 0)
+    SP_DEBUG(logger, "frame " << current_.id << ": " << lately << " of " << created
+                              << " new points where masks ended serve a mover's probation");
   kf->updateConnections();
   if (detector_) kf->dynamic_suspects = detector_->takeSuspects();
   reference_ = kf;

@@ -190,6 +190,11 @@ class Tracker {
   // Keyframe policy (keyframe_policy.cpp).
   bool needNewKeyFrame(bool mapping_idle) const;
   KeyFrame* createKeyFrame();
+  // Keeps where the current frame's masks keep features out, if anywhere.
+  void noteMaskedPlaces();
+  // Per feature of the current frame: it lies where masks kept features out
+  // in the last geometry.mover_probation_frames frames (empty: nowhere).
+  std::vector<char> recentlyMasked() const;
   // Frees the keyframes local mapping culled, after dropping our own pointers
   // to them (map lock held exclusively).
   void releaseCulledKeyFrames();
@@ -286,6 +291,13 @@ class Tracker {
   // until its result is back; then the newest such frame, with its masks.
   std::optional<Frame> awaiting_masks_, masked_frame_;
   std::vector<char> awaiting_matched_;  // per feature of awaiting_masks_: a map-point inlier
+  // Where masks last kept features out (recentlyMasked()): the world
+  // positions of those with depth, the frame and its map.
+  struct MaskedPlaces {
+    std::vector<Vec3> points;
+    std::int64_t frame_id = -1;
+    std::uint32_t map_id = 0;
+  } last_masked_;
   std::atomic<int> frame_regions_known_static_{0};
   std::atomic<int> relocalisations_refused_{0};
   bool rejected_ = false;  // the frame's pose failed plausibleMotion(): no pose, tracking goes on
