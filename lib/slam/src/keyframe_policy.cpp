@@ -106,7 +106,7 @@ KeyFrame* Tracker::createKeyFrame() {
     current_.points[i] = p;
     current_.outlier[i] = 0;
     ++created;
-    lately += p->geometry.on_mover && !masked_lately.empty() && masked_lately[i];
+    lately += !masked_lately.empty() && masked_lately[i];
   }
   if (lately > 0)
     SP_DEBUG(logger, "frame " << current_.id << ": " << lately << " of " << created

@@ -252,10 +252,10 @@ struct SemanticOptions {
   // Last-frame features with two flagged ones within this radius at their
   // depth lend no temporary point: the unflagged rest of a masked object (0: off).
   float temp_exclusion_px = 24.0f;
-  // With the geometry module: points made within a 10 cm cell of where the
-  // last masks kept features out, in the geometry.mover_probation_frames
-  // frames after them, serve a mover's probation (the segmenter may stop
-  // finding a mover that is still there).
+  // With the geometry module: in the geometry.mover_probation_frames frames
+  // after the last masks, a frame no mask marks gives the points it makes in
+  // or next to the 10 cm cell of a feature those masks kept out a mover's
+  // probation (the segmenter may stop finding a mover that is still there).
   bool probation_after_masks = true;
   // Detector hysteresis (instance models): after a keyframe that kept a
   // movable instance, a detection overlapping it (IoU >= track_iou) at
