@@ -92,12 +92,14 @@ KeyFrame* Tracker::createKeyFrame() {
       by_depth.emplace_back(kf->frame.depth[i], i);
   std::sort(by_depth.begin(), by_depth.end());
   int created = 0, lately = 0;
-  const std::vector<char> masked_lately = detector_ ? recentlyMasked() : std::vector<char>();
+  const std::unordered_set<std::uint64_t> masked_lately =
+      detector_ ? recentlyMasked() : std::unordered_set<std::uint64_t>();
   for (const auto& [z, i] : by_depth) {
     if (z > close_depth_ && created >= options_.keyframes.min_new_points) break;
     auto p = map_->createPoint(kf->frame.unprojectToWorld(i), kf);
+    const bool where_masked = !masked_lately.empty() && masked_lately.count(placeKey(map_id_, placeCell(p->position)));
     if (detector_) {
-      p->geometry.on_mover = detector_->onKnownMover(i) || (!masked_lately.empty() && masked_lately[i]);
+      p->geometry.on_mover = detector_->onKnownMover(i) || where_masked;
       p->geometry.probation =
           p->geometry.on_mover ? options_.geometry.mover_probation_frames : options_.geometry.probation_frames;
     }
@@ -106,7 +108,7 @@ KeyFrame* Tracker::createKeyFrame() {
     current_.points[i] = p;
     current_.outlier[i] = 0;
     ++created;
-    lately += !masked_lately.empty() && masked_lately[i];
+    lately += where_masked;
   }
   if (lately > 0)
     SP_DEBUG(logger, "frame " << current_.id << ": " << lately << " of " << created

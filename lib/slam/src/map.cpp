@@ -10,14 +10,14 @@
 
 namespace stillpoint::slam {
 
-namespace {
-constexpr double kSightingCell = 0.1;  // m
+Eigen::Vector3i placeCell(const Vec3& p) { return (p / kPlaceCell).array().floor().cast<int>().matrix(); }
 
-std::uint64_t cellKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
+std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
   const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x3ffff; };  // 18 bits each
   return (static_cast<std::uint64_t>(map_id & 0xff) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
 }
 
+namespace {
 Eigen::Vector3i cellOf(std::uint64_t key) {
   const auto value = [key](int shift) {
     const int v = static_cast<int>((key >> shift) & 0x3ffff);
@@ -28,7 +28,7 @@ Eigen::Vector3i cellOf(std::uint64_t key) {
 }  // namespace
 
 std::uint64_t StaticSightings::key(std::uint32_t map_id, const Vec3& p) {
-  return cellKey(map_id, (p / kSightingCell).array().floor().cast<int>().matrix());
+  return placeKey(map_id, placeCell(p));
 }
 
 void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
@@ -40,10 +40,10 @@ void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vect
   const auto count = [&](const std::vector<Vec3>& points, int Cell::*kind) {
     std::unordered_set<std::uint64_t> seen;
     for (const Vec3& p : points) {
-      const Eigen::Vector3i base = (p / kSightingCell - Vec3::Constant(0.5)).array().floor().cast<int>().matrix();
+      const Eigen::Vector3i base = (p / kPlaceCell - Vec3::Constant(0.5)).array().floor().cast<int>().matrix();
       for (int corner = 0; corner < 8; ++corner) {
         const std::uint64_t k =
-            cellKey(map_id, base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
+            placeKey(map_id, base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
         if (!seen.insert(k).second) continue;
         Cell& c = cells_[k];
         ++(c.*kind);
@@ -77,7 +77,7 @@ void StaticSightings::moveMap(std::uint32_t from, std::uint32_t to, const SE3& T
     it = cells_.erase(it);
   }
   for (const auto& [k, cell] : moved) {
-    const Vec3 centre = (cellOf(k).cast<double>() + Vec3::Constant(0.5)) * kSightingCell;
+    const Vec3 centre = (cellOf(k).cast<double>() + Vec3::Constant(0.5)) * kPlaceCell;
     Cell& c = cells_[key(to, T_to_from * centre)];
     const bool had_static = c.on_static > 0;
     c.on_static += cell.on_static;

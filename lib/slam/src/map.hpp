@@ -176,6 +176,13 @@ class KeyFrame {
   std::shared_ptr<PoseAnchor> anchor_;
 };
 
+// Places in a map's world are kept by 10 cm cell (StaticSightings, where the
+// last masks were: Tracker::recentlyMasked): the cell holding p, and one key
+// per cell and map (the low 8 bits of the map id, 18 bits per coordinate).
+constexpr double kPlaceCell = 0.1;  // m
+Eigen::Vector3i placeCell(const Vec3& p);
+std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& cell);
+
 // Where the semantic module saw objects of static classes (a teddy bear, a
 // chair) and movers, per map and 10 cm cell of its world: how many segmented
 // keyframes had a feature there on a confident static instance

@@ -3,9 +3,8 @@
 // and how they follow their objects into the frames between keyframes
 // (tracking's thread, Tracker::markSemanticMovers).
 #include <algorithm>
-#include <array>
 #include <cmath>
-#include <set>
+#include <unordered_set>
 
 #include "local_mapping.hpp"
 #include "matcher.hpp"
@@ -421,37 +420,29 @@ void Tracker::noteMaskedPlaces() {
   last_masked_ = {std::move(points), current_.id, map_id_};
 }
 
-std::vector<char> Tracker::recentlyMasked() const {
+std::unordered_set<std::uint64_t> Tracker::recentlyMasked() const {
   // A mover's mask may end while it is still in view: the segmenter stops
   // finding it (COCO calls a person beside the teddy bear a second teddy
   // bear) and the masks followed from keyframes end with it. Where it then
   // stands still for a moment, the points a keyframe makes on it pass the
   // ordinary probation and hold the pose when it walks on. In a frame
-  // without marks, the features where the last masks kept features out (in
-  // the world: the 10 cm cell of one, or a cell next to it, as the mover
-  // turns) are not kept out themselves (that place holds static objects
-  // beside the mover too), but points made on them serve a mover's
-  // probation. While masks mark features, they are what keeps the mover out.
+  // without marks, the places where the last masks kept features out (the
+  // 10 cm cell of one, or a cell next to it, as the mover turns) are where
+  // points made serve a mover's probation; their features are not kept out
+  // (that place holds static objects beside the mover too). While masks mark
+  // features, they are what keeps the mover out.
   const MaskedPlaces& last = last_masked_;
   if (!options_.semantic.probation_after_masks || semantic_marked_ > 0 || last.points.empty() ||
       last.map_id != map_id_ || current_.id - last.frame_id > options_.geometry.mover_probation_frames)
     return {};
-  constexpr double kCell = 0.1;
-  const auto cellOf = [](const Vec3& x) {
-    return std::array<long, 3>{std::lround(std::floor(x.x() / kCell)), std::lround(std::floor(x.y() / kCell)),
-                               std::lround(std::floor(x.z() / kCell))};
-  };
-  std::set<std::array<long, 3>> cells;
+  std::unordered_set<std::uint64_t> places;
   for (const Vec3& x : last.points) {
-    const auto c = cellOf(x);
-    for (long dx = -1; dx <= 1; ++dx)
-      for (long dy = -1; dy <= 1; ++dy)
-        for (long dz = -1; dz <= 1; ++dz) cells.insert({c[0] + dx, c[1] + dy, c[2] + dz});
+    const Eigen::Vector3i c = placeCell(x);
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) places.insert(placeKey(map_id_, c + Eigen::Vector3i(dx, dy, dz)));
   }
-  std::vector<char> out(current_.size(), 0);
-  for (int i = 0; i < current_.size(); ++i)
-    if (current_.depth[i] > 0) out[i] = cells.count(cellOf(current_.unprojectToWorld(i))) > 0;
-  return out;
+  return places;
 }
 
 }  // namespace stillpoint::slam

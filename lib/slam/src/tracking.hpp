@@ -14,6 +14,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <unordered_set>
 #include <vector>
 
 #include "dynamic_detector.hpp"
@@ -192,9 +193,10 @@ class Tracker {
   KeyFrame* createKeyFrame();
   // Keeps where the current frame's masks keep features out, if anywhere.
   void noteMaskedPlaces();
-  // Per feature of the current frame: it lies where masks kept features out
-  // in the last geometry.mover_probation_frames frames (empty: nowhere).
-  std::vector<char> recentlyMasked() const;
+  // The places (placeKey) where masks kept features out in the last
+  // geometry.mover_probation_frames frames, for a frame without marks
+  // (empty: none such).
+  std::unordered_set<std::uint64_t> recentlyMasked() const;
   // Frees the keyframes local mapping culled, after dropping our own pointers
   // to them (map lock held exclusively).
   void releaseCulledKeyFrames();

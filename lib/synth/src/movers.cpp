@@ -224,8 +224,9 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
       return image(cv::Rect(x0, y0, std::min(x1, image.cols) - x0, std::min(y1, image.rows) - y0)).clone();
     };
     const bool cropped = spec.cropped();
+    const cv::Mat image = cropped ? part((*main)->level(0)) : (*main)->level(0);
     if (spec.cutout.empty()) {
-      out.textures.push_back(cropped ? std::make_shared<const Texture>(part((*main)->level(0)), false) : *main);
+      out.textures.push_back(cropped ? std::make_shared<const Texture>(image, false) : *main);
     } else {
       std::filesystem::path p(spec.cutout);
       if (p.is_relative() && !base_dir.empty()) p = std::filesystem::path(base_dir) / p;
@@ -245,8 +246,7 @@ Result<MoverTextures> makeMoverTextures(const MoverSpec& spec, const std::string
         cv::compare(labels, largest, one, cv::CMP_EQ);
         kept = one;
       }
-      out.textures.push_back(std::make_shared<const Texture>(cropped ? part((*main)->level(0)) : (*main)->level(0),
-                                                             false, kept));
+      out.textures.push_back(std::make_shared<const Texture>(image, false, kept));
     }
   }
   return out;
