@@ -57,4 +57,71 @@ ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, i
   return verdict;
 }
 
+ClusterSplit splitCluster(const std::vector<SplitFeature>& features, const ClusterVerdict& verdict,
+                          const DynamicClusterOptions& options, double protect_chi2) {
+  ClusterSplit out;
+  const std::size_t n = features.size();
+  out.released.assign(n, 0);
+  out.half.assign(n, 0);
+  if (static_cast<int>(n) < 4 * options.min_features) return out;
+  Vec3 mean = Vec3::Zero();
+  for (const SplitFeature& f : features) mean += f.position;
+  mean /= static_cast<double>(n);
+  const auto farthest = [&](const Vec3& from) {
+    std::size_t best = 0;
+    for (std::size_t k = 1; k < n; ++k)
+      if ((features[k].position - from).squaredNorm() > (features[best].position - from).squaredNorm()) best = k;
+    return features[best].position;
+  };
+  Vec3 centre[2];
+  centre[0] = farthest(mean);
+  centre[1] = farthest(centre[0]);
+  std::vector<std::uint8_t>& half = out.half;
+  for (int iteration = 0; iteration < 10; ++iteration) {
+    Vec3 sum[2] = {Vec3::Zero(), Vec3::Zero()};
+    int count[2] = {0, 0};
+    for (std::size_t k = 0; k < n; ++k) {
+      const Vec3& p = features[k].position;
+      half[k] = (p - centre[1]).squaredNorm() < (p - centre[0]).squaredNorm();
+      sum[half[k]] += p;
+      ++count[half[k]];
+    }
+    if (count[0] == 0 || count[1] == 0) return out;
+    centre[0] = sum[0] / count[0];
+    centre[1] = sum[1] / count[1];
+  }
+  double rho[2] = {0, 0}, anchored_rho[2] = {0, 0};
+  int judged[2] = {0, 0}, anchored[2] = {0, 0}, moving[2] = {0, 0};
+  for (std::size_t k = 0; k < n; ++k) {
+    const SplitFeature& f = features[k];
+    moving[half[k]] += f.moving;
+    if (f.chi2 < 0) continue;
+    const double r = truncatedRho(f.chi2, options.rho_cap);
+    rho[half[k]] += r;
+    ++judged[half[k]];
+    if (!f.anchored) continue;
+    anchored_rho[half[k]] += r;
+    ++anchored[half[k]];
+  }
+  for (int h = 0; h < 2; ++h)
+    if (anchored[h] >= options.min_features) {
+      rho[h] = anchored_rho[h];
+      judged[h] = anchored[h];
+    }
+  for (int h = 0; h < 2; ++h) {
+    const int o = 1 - h;
+    if (judged[h] < options.min_features || judged[o] < options.min_features) continue;
+    const double mean_h = rho[h] / judged[h], mean_o = rho[o] / judged[o];
+    if (mean_h > std::min(verdict.hold_threshold, options.absolute_floor) || mean_o <= verdict.threshold) continue;
+    if (moving[h] >= options.hold_fraction * judged[h]) continue;
+    out.static_half = h;
+    out.static_rho = mean_h;
+    out.moving_rho = mean_o;
+    for (std::size_t k = 0; k < n; ++k)
+      out.released[k] = half[k] == h && !features[k].moving && features[k].chi2 >= 0 && features[k].chi2 <= protect_chi2;
+    break;
+  }
+  return out;
+}
+
 }  // namespace stillpoint::geometry
