@@ -90,8 +90,8 @@ ClusterSplit splitCluster(const std::vector<SplitFeature>& features, const Clust
     centre[0] = sum[0] / count[0];
     centre[1] = sum[1] / count[1];
   }
-  double rho[2] = {0, 0}, anchored_rho[2] = {0, 0};
-  int judged[2] = {0, 0}, anchored[2] = {0, 0}, moving[2] = {0, 0};
+  double rho[2] = {0, 0};
+  int judged[2] = {0, 0}, moving[2] = {0, 0};
   for (std::size_t k = 0; k < n; ++k) {
     const SplitFeature& f = features[k];
     moving[half[k]] += f.moving;
@@ -99,15 +99,7 @@ ClusterSplit splitCluster(const std::vector<SplitFeature>& features, const Clust
     const double r = truncatedRho(f.chi2, options.rho_cap);
     rho[half[k]] += r;
     ++judged[half[k]];
-    if (!f.anchored) continue;
-    anchored_rho[half[k]] += r;
-    ++anchored[half[k]];
   }
-  for (int h = 0; h < 2; ++h)
-    if (anchored[h] >= options.min_features) {
-      rho[h] = anchored_rho[h];
-      judged[h] = anchored[h];
-    }
   for (int h = 0; h < 2; ++h) {
     const int o = 1 - h;
     if (judged[h] < options.min_features || judged[o] < options.min_features) continue;

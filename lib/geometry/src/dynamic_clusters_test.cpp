@@ -177,22 +177,6 @@ TEST(DynamicClusters, SplitGivesBackTheStaticHalf) {
   EXPECT_EQ(released_moving, 0);
 }
 
-TEST(DynamicClusters, SplitJudgesAHalfByItsAnchorMatchesWhenItHasThem) {
-  // A mover that has just started: its points made a frame ago still agree,
-  // its matches to the anchor frame do not. Judged by those, as a cluster
-  // is, the half is no static object.
-  std::mt19937 rng(7);
-  const ClusterVerdict verdict = frameVerdict();
-  std::vector<SplitFeature> f = twoObjects(20, 30, 5.0, &rng);
-  for (int k = 0; k < 5; ++k) {
-    f[k].chi2 = 40;
-    f[k].anchored = true;
-  }
-  EXPECT_EQ(splitCluster(f, verdict, {}, 7.815).static_half, -1);
-  for (int k = 0; k < 5; ++k) f[k].chi2 = 1;  // its anchor matches agree: static
-  EXPECT_GE(splitCluster(f, verdict, {}, 7.815).static_half, 0);
-}
-
 TEST(DynamicClusters, SplitKeepsAClusterThatMovesAsAWhole) {
   // Both halves move: one object, nothing given back.
   std::mt19937 rng(4);

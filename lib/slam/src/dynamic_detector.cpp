@@ -483,7 +483,9 @@ void DynamicDetector::splitByEvidence(FrameJudgement& j, const geometry::Cluster
   // A static object at a mover's depth shares its cluster (geometry::
   // splitCluster). Each feature's evidence is its judged one, else its
   // stage-1 map point's: a cluster judged by its anchor matches leaves the
-  // map-point matches of the static object beside the mover unjudged.
+  // map-point matches of the static object beside the mover unjudged. A
+  // point made on a known mover is none: made a frame or two ago on a mover
+  // that has just set off, it agrees with the pose as the static world does.
   if (!options_.evidence_split) return;
   const Frame& frame = j.frame;
   const int n_clusters = j.clusters->clusters;
@@ -500,11 +502,14 @@ void DynamicDetector::splitByEvidence(FrameJudgement& j, const geometry::Cluster
     const int c = frame.cluster[i];
     if (c < 0 || !verdict.clusters[c].dynamic || frame.depth[i] <= 0 || j.ev[i].released) continue;
     const auto& p = j.stage_one_points[i];
-    if (chi2[i] < 0 && p && !p->isTemporary() && !p->bad)
+    const bool mapped = p && !p->isTemporary() && !p->bad;
+    if (!anchored[i] && mapped && p->geometry.on_mover)
+      chi2[i] = -1;  // made on a known mover: its agreement shows no static surface
+    else if (chi2[i] < 0 && mapped)
       chi2[i] = evidenceError(frame, camera_, levels_, i, p->position, options_.evidence_depth_max_m).chi2;
     members[c].push_back(i);
     features[c].push_back({camera_.unproject(Vec2(frame.un[i].x, frame.un[i].y), frame.depth[i]), chi2[i],
-                           static_cast<bool>(anchored[i]), j.ev[i].inherited || j.ev[i].seen_moving});
+                           j.ev[i].inherited || j.ev[i].seen_moving});
   }
   for (int c = 0; c < n_clusters; ++c) {
     if (members[c].empty()) continue;

@@ -75,7 +75,6 @@ ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, i
 struct SplitFeature {
   Vec3 position = Vec3::Zero();  // camera frame, metres (from its depth)
   double chi2 = -1;              // its own evidence, as in FeatureResidual; < 0: none
-  bool anchored = false;         // that evidence is a match to the anchor frame (fixed baseline)
   bool moving = false;           // matched to a feature found moving before
 };
 
@@ -90,12 +89,12 @@ struct ClusterSplit {
 // touching a mover at its depth shares the mover's cluster and its verdict.
 // The cluster's features are cut in two halves in space (2-means on their
 // positions, seeded with the feature farthest from the centroid and the one
-// farthest from that), and each half is scored as a cluster is: on the
-// mean rho of its anchored features when it has min_features of them, else
-// of all its features with evidence (a map point made a frame ago has seen
-// a frame of a mover's motion, the anchor frame several). A half that scores
-// at most min(hold_threshold, absolute_floor) while the other scores above
-// the verdict's threshold, and
+// farthest from that), and each half is scored as a cluster is, on the
+// mean rho of its features with evidence. A half that scores at most
+// min(hold_threshold, absolute_floor) (the floor: in a noisy frame the hold
+// threshold reaches the threshold, and halves a little either side of it
+// are no two objects) while the other scores above the verdict's
+// threshold, and
 // fewer than hold_fraction of whose judged features were seen moving, is a
 // static object: its features not seen moving whose own evidence is at
 // most protect_chi2 are released. One without evidence keeps the cluster's
