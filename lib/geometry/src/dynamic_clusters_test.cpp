@@ -2,7 +2,6 @@
 
 #include <gtest/gtest.h>
 
-#include <algorithm>
 #include <random>
 
 namespace stillpoint::geometry {
@@ -127,90 +126,6 @@ TEST(DynamicClusters, RhoIsBoundedAndMonotonic) {
   DynamicClusterOptions o;
   o.relative_factor = 0.5;
   EXPECT_FALSE(o.validate());
-}
-
-// A cluster for splitCluster(): `n_static` features with static errors on a
-// 30 x 30 cm patch centred at x = -0.2 m, 1.2 m away, and `n_moving` displaced
-// by `pixels` on one at x = +0.2 m (a teddy bear beside the person who hides
-// it, at the same depth).
-std::vector<SplitFeature> twoObjects(int n_static, int n_moving, double pixels, std::mt19937* rng) {
-  std::vector<SplitFeature> out;
-  std::uniform_real_distribution<double> spread(-0.15, 0.15);
-  std::vector<FeatureResidual> r;
-  addStatic(&r, 0, n_static, rng);
-  addMoving(&r, 1, n_moving, pixels, rng);
-  for (const FeatureResidual& f : r) {
-    const double x = f.cluster == 0 ? -0.2 : 0.2;
-    out.push_back({Vec3(x + spread(*rng), spread(*rng), 1.2 + 0.2 * spread(*rng)), f.chi2, false});
-  }
-  return out;
-}
-
-// The verdict of a frame of static clusters (its threshold the ceiling, 5.9).
-ClusterVerdict frameVerdict() {
-  std::mt19937 rng(1);
-  std::vector<FeatureResidual> r;
-  for (int j = 0; j < 10; ++j) addStatic(&r, j, 30, &rng);
-  return classifyClusters(r, 10, {});
-}
-
-TEST(DynamicClusters, SplitGivesBackTheStaticHalf) {
-  std::mt19937 rng(3);
-  const ClusterVerdict verdict = frameVerdict();
-  std::vector<SplitFeature> f = twoObjects(20, 30, 5.0, &rng);
-  f[0].chi2 = -1;       // a static feature without evidence
-  f[1].moving = true;   // one matched to a feature seen moving
-  f[2].chi2 = 30;       // one whose own evidence disagrees
-  const ClusterSplit split = splitCluster(f, verdict, {}, 7.815);
-  ASSERT_GE(split.static_half, 0);
-  EXPECT_LE(split.static_rho, verdict.hold_threshold);
-  EXPECT_GT(split.moving_rho, verdict.threshold);
-  int released_static = 0, released_moving = 0;
-  for (std::size_t k = 0; k < f.size(); ++k) {
-    EXPECT_EQ(split.half[k] == split.static_half, k < 20) << "feature " << k;
-    (k < 20 ? released_static : released_moving) += split.released[k];
-  }
-  EXPECT_FALSE(split.released[0]);
-  EXPECT_FALSE(split.released[1]);
-  EXPECT_FALSE(split.released[2]);
-  EXPECT_GE(released_static, 15);
-  EXPECT_EQ(released_moving, 0);
-}
-
-TEST(DynamicClusters, SplitKeepsAClusterThatMovesAsAWhole) {
-  // Both halves move: one object, nothing given back.
-  std::mt19937 rng(4);
-  const ClusterVerdict verdict = frameVerdict();
-  std::vector<SplitFeature> f = twoObjects(0, 50, 5.0, &rng);
-  for (std::size_t k = 0; k < f.size(); k += 2) f[k].position.x() -= 0.4;
-  const ClusterSplit split = splitCluster(f, verdict, {}, 7.815);
-  EXPECT_EQ(split.static_half, -1);
-  EXPECT_EQ(std::count(split.released.begin(), split.released.end(), 1), 0);
-}
-
-TEST(DynamicClusters, SplitKeepsAHalfKnownToMove) {
-  // The still half was seen moving before (a person who stopped beside one
-  // who walks on): the cluster's memory holds it, as it holds a cluster.
-  std::mt19937 rng(5);
-  const ClusterVerdict verdict = frameVerdict();
-  std::vector<SplitFeature> f = twoObjects(20, 30, 5.0, &rng);
-  for (int k = 0; k < 12; ++k) f[k].moving = true;
-  EXPECT_EQ(splitCluster(f, verdict, {}, 7.815).static_half, -1);
-  for (int k = 0; k < 8; ++k) f[k].moving = false;  // 4 of 20: a minority
-  EXPECT_GE(splitCluster(f, verdict, {}, 7.815).static_half, 0);
-}
-
-TEST(DynamicClusters, SplitNeedsEvidenceOnBothHalves) {
-  std::mt19937 rng(6);
-  const ClusterVerdict verdict = frameVerdict();
-  std::vector<SplitFeature> f = twoObjects(20, 30, 5.0, &rng);
-  for (int k = 0; k < 17; ++k) f[k].chi2 = -1;  // 3 judged on the static half
-  EXPECT_EQ(splitCluster(f, verdict, {}, 7.815).static_half, -1);
-  const std::vector<SplitFeature> small = twoObjects(6, 9, 5.0, &rng);  // fewer than 4 x min_features
-  const ClusterSplit split = splitCluster(small, verdict, {}, 7.815);
-  EXPECT_EQ(split.static_half, -1);
-  EXPECT_EQ(split.released.size(), small.size());
-  EXPECT_TRUE(splitCluster({}, verdict, {}, 7.815).released.empty());
 }
 
 }  // namespace

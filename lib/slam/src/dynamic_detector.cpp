@@ -8,15 +8,12 @@
 
 #include "matcher.hpp"
 #include "optimizer.hpp"
-#include "stillpoint/core/log.hpp"
 #include "stillpoint/features/descriptor.hpp"
 #include "stillpoint/geometry/rules.hpp"
 
 namespace stillpoint::slam {
 
 namespace {
-
-log::Logger logger("geometry");
 
 // Squared error of feature i of `frame` against world point p_w under the
 // frame's pose, over its level sigma: image error plus the virtual-stereo
@@ -479,60 +476,11 @@ bool DynamicDetector::dropped(const FrameJudgement& j, int i, const geometry::Cl
   return c.dynamic || (lone_chi2 > 0 && !c.judged && e.inherited && e.carried_chi2 > lone_chi2);
 }
 
-void DynamicDetector::splitByEvidence(FrameJudgement& j, const geometry::ClusterVerdict& verdict) const {
-  // A static object at a mover's depth shares its cluster (geometry::
-  // splitCluster). Each feature's evidence is its judged one, else its
-  // stage-1 map point's: a cluster judged by its anchor matches leaves the
-  // map-point matches of the static object beside the mover unjudged. A
-  // point made on a known mover is none: made a frame or two ago on a mover
-  // that has just set off, it agrees with the pose as the static world does.
-  if (!options_.evidence_split) return;
-  const Frame& frame = j.frame;
-  const int n_clusters = j.clusters->clusters;
-  std::vector<double> chi2(frame.size(), -1.0);  // -1: no evidence
-  std::vector<char> anchored(frame.size(), 0);
-  for (std::size_t k = 0; k < j.judged.size(); ++k) {
-    chi2[j.judged[k].feature] = j.residuals[k].chi2;
-    anchored[j.judged[k].feature] = j.judged[k].kind == JudgedFeature::Evidence::kAnchor;
-  }
-  for (const ExplainedEvidence& x : j.explained) chi2[x.feature] = 0.0;  // a repeat the static world explains
-  std::vector<std::vector<int>> members(n_clusters);
-  std::vector<std::vector<geometry::SplitFeature>> features(n_clusters);
-  for (int i = 0; i < frame.size(); ++i) {
-    const int c = frame.cluster[i];
-    if (c < 0 || !verdict.clusters[c].dynamic || frame.depth[i] <= 0 || j.ev[i].released) continue;
-    const auto& p = j.stage_one_points[i];
-    const bool mapped = p && !p->isTemporary() && !p->bad;
-    if (!anchored[i] && mapped && p->geometry.on_mover)
-      chi2[i] = -1;  // made on a known mover: its agreement shows no static surface
-    else if (chi2[i] < 0 && mapped)
-      chi2[i] = evidenceError(frame, camera_, levels_, i, p->position, options_.evidence_depth_max_m).chi2;
-    members[c].push_back(i);
-    features[c].push_back({camera_.unproject(Vec2(frame.un[i].x, frame.un[i].y), frame.depth[i]), chi2[i],
-                           j.ev[i].inherited || j.ev[i].seen_moving});
-  }
-  for (int c = 0; c < n_clusters; ++c) {
-    if (members[c].empty()) continue;
-    const geometry::ClusterSplit split =
-        geometry::splitCluster(features[c], verdict, options_.verdict, options_.freespace_split_protect_chi2);
-    if (split.static_half < 0) continue;
-    int released = 0;
-    for (std::size_t k = 0; k < members[c].size(); ++k) {
-      if (!split.released[k]) continue;
-      j.ev[members[c][k]].released = true;
-      ++released;
-    }
-    SP_DEBUG(logger, "frame " << frame.id << ": cluster " << c << " split, " << released << " features of its static half back ("
-                              << split.static_rho << " against " << split.moving_rho << ")");
-  }
-}
-
 void DynamicDetector::dropDynamic(FrameJudgement& j, const PoseRefit& refit) const {
   // Drops the features of dynamic clusters from the pose and refits it.
   Frame& frame = j.frame;
   j.stage_one_points = frame.points;
   splitByMovedSurface(j, j.verdict);
-  splitByEvidence(j, j.verdict);
   int removed = 0;
   for (int i = 0; i < frame.size(); ++i) {
     if (!dropped(j, i, j.verdict)) continue;

@@ -130,7 +130,6 @@ class DynamicDetector {
   geometry::ClusterVerdict verdictUnderBestPose(FrameJudgement& j) const;
   void addFreeSpace(FrameJudgement& j, geometry::ClusterVerdict* verdict) const;
   void splitByMovedSurface(FrameJudgement& j, const geometry::ClusterVerdict& verdict) const;
-  void splitByEvidence(FrameJudgement& j, const geometry::ClusterVerdict& verdict) const;
   bool dropped(const FrameJudgement& j, int i, const geometry::ClusterVerdict& verdict) const;
   void dropDynamic(FrameJudgement& j, const PoseRefit& refit) const;
   void detectPhotometrically(FrameJudgement& j, const PoseRefit& refit) const;

@@ -32,7 +32,7 @@ struct FeatureEvidence {
   bool seen_moving = false;
   Vec3 residual = Vec3::Zero();  // of its last judgement, over the level sigma
   double carried_chi2 = 0;       // judged by carried evidence: its chi2 (lone_moving_chi2)
-  bool released = false;         // in a dynamic cluster but static (moved-surface and evidence splits, photometric test)
+  bool released = false;         // in a dynamic cluster but static (moved-surface split, photometric test)
 };
 
 // A feature that took part in the verdict.

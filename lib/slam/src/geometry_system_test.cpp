@@ -449,12 +449,10 @@ TEST(SlamSystemGeometry, PhotometricReleaseFreesTheWallBehindABoard) {
 // the room, far more of it than of the board, and the pose is better for it
 // (measured: max error 339 -> 211 mm, recall 0.74 -> 0.81; without the
 // fraction check the pose once followed the board again, 862 mm). The lone
-// features (geometry.lone_moving_chi2) and the evidence split are off in
-// both runs, so that the release is the only difference: with the lone
-// features on, the release-off run is already near the board's truth (recall
-// 0.948, rms 55 mm, max 116 mm), and the release lowers the rms to 32 mm but
-// not the max (126 mm); with the split on, it frees some of the room
-// without the release (max 102 mm, recall 0.85).
+// features (geometry.lone_moving_chi2) are off in both runs, so that the
+// release is the only difference: with them on, the release-off run is
+// already near the board's truth (recall 0.948, rms 55 mm, max 116 mm), and
+// the release lowers the rms to 32 mm but not the max (126 mm).
 TEST(SlamSystemGeometry, PhotometricReleaseHoldsUnderAVerdictThatFlagsTheRoom) {
   const MovingBoardSequence data = movingBoardSequence(45);
   BoardRun run[2];
@@ -464,7 +462,6 @@ TEST(SlamSystemGeometry, PhotometricReleaseHoldsUnderAVerdictThatFlagsTheRoom) {
     options.geometry.verdict.relative_factor = 1.0;
     options.geometry.anchor_frames = 0;
     options.geometry.lone_moving_chi2 = 0;
-    options.geometry.evidence_split = false;
     options.geometry.photo_release_ncc = photo ? 0.6 : 0.0;
     options.tracking.max_acceleration = 0;  // every frame keeps its pose: the runs compare the poses
     ASSERT_NO_FATAL_FAILURE(runBoard(data, options, &run[photo]));

@@ -3,10 +3,8 @@
 // scored by a robust penalty of their reprojection error under the frame's
 // initial pose; clusters scoring well above the frame's typical cluster are
 // dynamic.
-#include <cstdint>
 #include <vector>
 
-#include "stillpoint/core/geometry.hpp"
 #include "stillpoint/core/result.hpp"
 
 namespace stillpoint::geometry {
@@ -70,39 +68,5 @@ double truncatedRho(double chi2, double cap);
 
 ClusterVerdict classifyClusters(const std::vector<FeatureResidual>& residuals, int clusters,
                                 const DynamicClusterOptions& options);
-
-// One feature of a dynamic cluster, for splitCluster().
-struct SplitFeature {
-  Vec3 position = Vec3::Zero();  // camera frame, metres (from its depth)
-  double chi2 = -1;              // its own evidence, as in FeatureResidual; < 0: none
-  bool moving = false;           // matched to a feature found moving before
-};
-
-struct ClusterSplit {
-  std::vector<std::uint8_t> released;  // per feature: back in the pose
-  int static_half = -1;                // 0 or 1 when a half passes; -1: no split
-  std::vector<std::uint8_t> half;      // per feature: 0 or 1
-  double static_rho = 0, moving_rho = 0;  // the halves' mean rho (when split)
-};
-
-// A depth cluster is one object only as far as depth tells: a static object
-// touching a mover at its depth shares the mover's cluster and its verdict.
-// The cluster's features are cut in two halves in space (2-means on their
-// positions, seeded with the feature farthest from the centroid and the one
-// farthest from that), and each half is scored as a cluster is, on the
-// mean rho of its features with evidence. A half that scores at most
-// min(hold_threshold, absolute_floor) (the floor: in a noisy frame the hold
-// threshold reaches the threshold, and halves a little either side of it
-// are no two objects) while the other scores above the verdict's
-// threshold, and
-// fewer than hold_fraction of whose judged features were seen moving, is a
-// static object: its features not seen moving whose own evidence is at
-// most protect_chi2 are released. One without evidence keeps the cluster's
-// verdict, as in the moved-surface split: a mover's fresh features have
-// none (new to the anchor frame, and flagged before, so never mapped).
-// Clusters with fewer than 4 x min_features features, or halves with fewer
-// than min_features judged, are not split.
-ClusterSplit splitCluster(const std::vector<SplitFeature>& features, const ClusterVerdict& verdict,
-                          const DynamicClusterOptions& options, double protect_chi2);
 
 }  // namespace stillpoint::geometry

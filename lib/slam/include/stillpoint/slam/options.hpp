@@ -178,10 +178,6 @@ struct GeometryOptions {
   double freespace_split_radius_m = 0.1;   // a feature this near the grown surface is on it
   int freespace_split_min_samples = 4;     // isolated violations are depth noise
   double freespace_split_protect_chi2 = 7.815;  // a feature off the surface whose evidence exceeds this stays moving
-  // A dynamic cluster whose two halves in space disagree, one passing as
-  // static on its features' evidence, gives that half back (a static object
-  // at a mover's depth; not a YAML key).
-  bool evidence_split = true;
   // New map points stay out of pose fits until matched this many frames
   // consistently with a pose fitted without them, while probation_min_trusted
   // other matches remain: a mover mapped unflagged cannot drag the pose (0: off).
