@@ -17,6 +17,15 @@ std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
   return (static_cast<std::uint64_t>(map_id & 0xff) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
 }
 
+bool nearPlace(const std::unordered_set<std::uint64_t>& places, std::uint32_t map_id, const Vec3& p) {
+  const Eigen::Vector3i c = placeCell(p);
+  for (int dx = -1; dx <= 1; ++dx)
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dz = -1; dz <= 1; ++dz)
+        if (places.count(placeKey(map_id, c + Eigen::Vector3i(dx, dy, dz)))) return true;
+  return false;
+}
+
 namespace {
 Eigen::Vector3i cellOf(std::uint64_t key) {
   const auto value = [key](int shift) {

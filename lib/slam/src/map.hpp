@@ -26,6 +26,7 @@
 #include <shared_mutex>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "dense_cloud.hpp"
@@ -182,6 +183,8 @@ class KeyFrame {
 constexpr double kPlaceCell = 0.1;  // m
 Eigen::Vector3i placeCell(const Vec3& p);
 std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& cell);
+// Whether the cell of p, or one of its 26 neighbours, is among `places`.
+bool nearPlace(const std::unordered_set<std::uint64_t>& places, std::uint32_t map_id, const Vec3& p);
 
 // Where the semantic module saw objects of static classes (a teddy bear, a
 // chair) and movers, per map and 10 cm cell of its world: how many segmented

@@ -436,12 +436,7 @@ std::unordered_set<std::uint64_t> Tracker::recentlyMasked() const {
       last.map_id != map_id_ || current_.id - last.frame_id > options_.geometry.mover_probation_frames)
     return {};
   std::unordered_set<std::uint64_t> places;
-  for (const Vec3& x : last.points) {
-    const Eigen::Vector3i c = placeCell(x);
-    for (int dx = -1; dx <= 1; ++dx)
-      for (int dy = -1; dy <= 1; ++dy)
-        for (int dz = -1; dz <= 1; ++dz) places.insert(placeKey(map_id_, c + Eigen::Vector3i(dx, dy, dz)));
-  }
+  for (const Vec3& x : last.points) places.insert(placeKey(map_id_, placeCell(x)));
   return places;
 }
 

@@ -145,7 +145,7 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   }
   markMoverCells(ok);
   if (detector_) detector_->endFrame(current_, ok, placed);
-  if (ok) noteMaskedPlaces();
+  if (ok && detector_ && options_.semantic.probation_after_masks) noteMaskedPlaces();
   last_ = std::move(current_);
   has_last_ = true;
   return new_keyframe;
