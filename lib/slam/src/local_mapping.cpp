@@ -35,7 +35,8 @@ void LocalMapper::process(KeyFrame* kf) {
     ++ba_runs_;
     SP_DEBUG(logger, "keyframe " << kf->id << ": local BA over " << s.keyframes << "+" << s.fixed_keyframes
                                  << " keyframes, " << s.points << " points, cost " << s.initial_cost << " -> "
-                                 << s.final_cost << ", " << s.outliers_removed << " outliers");
+                                 << s.final_cost << ", " << s.outliers_removed << " outliers, "
+                                 << s.out_of_range_removed << " points out of range");
   }
   const std::int64_t id = kf->id;  // kf may be culled now
   {

@@ -459,6 +459,18 @@ int optimizeFramePose(Frame* frame, const SE3* prior, const Eigen::Matrix<double
 }
 
 namespace {
+// Whether a keyframe that sees `p` has it in front within the sensor's depth
+// range (with a margin for the refinement of a point measured near its end).
+bool withinDepthRange(const CameraModel& camera, const MapPoint& p) {
+  constexpr double kMargin = 1.25;
+  for (const auto& [kf, idx] : p.observations) {
+    if (kf->bad) continue;
+    const double z = (kf->T_c_w() * p.position).z();
+    if (z > 0 && z <= kMargin * camera.max_depth) return true;
+  }
+  return false;
+}
+
 // The bundle adjustment of the keyframes `select` picks (shared lock held)
 // and every point they see; other keyframes that see those points are held
 // fixed, and so are map origins. Snapshot, solve without the lock, write
@@ -590,6 +602,15 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
       const auto& p = points[pi];
       if (p->bad) continue;
       p->position = Vec3(positions[pi][0], positions[pi][1], positions[pi][2]);
+      // Every point was made from a depth measurement. One whose measured
+      // observations were all set aside is held by its image positions alone,
+      // and with little parallax those slide it along its ray, metres beyond
+      // what the sensor can see: such a point is no part of the scene.
+      if (!withinDepthRange(*camera, *p)) {
+        map->erasePoint(p);
+        ++stats.out_of_range_removed;
+        continue;
+      }
       p->updateFromObservations();
     }
   }

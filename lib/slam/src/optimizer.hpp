@@ -106,6 +106,7 @@ double reprojectionChi2(const CameraModel& camera, const SE3& T_c_w, const Vec3&
 
 struct LocalBaStats {
   int keyframes = 0, fixed_keyframes = 0, points = 0, observations = 0, outliers_removed = 0;
+  int out_of_range_removed = 0;  // points moved beyond every observer's depth range
   double initial_cost = 0, final_cost = 0;
 };
 

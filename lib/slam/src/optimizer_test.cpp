@@ -369,6 +369,73 @@ TEST(LocalBundleAdjustment, ReducesReprojectionErrorAndRecoversPoses) {
   }
 }
 
+// Every point comes from a depth measurement; one that keeps only image
+// observations (its measured ones set aside) can slide along its ray with
+// little parallax. Points BA moves beyond every observer's depth range leave
+// the map; points seen without depth but within range stay.
+TEST(LocalBundleAdjustment, RemovesPointsItMovesBeyondTheSensorsRange) {
+  std::mt19937 rng(5);
+  const CameraModel cam = testCamera();
+  const LevelInfo levels = testLevels();
+  std::vector<Vec3> truth = randomPoints(200, &rng);
+  const std::size_t measured = truth.size();
+  // Seen without depth: half at 20 m (beyond fr3's 6 m), half at 5 m.
+  std::vector<Vec3> start;
+  for (int i = 0; i < 20; ++i) {
+    const Vec3 ray(-0.3 + 0.03 * i, 0.1 * (i % 3) - 0.1, 1.0);
+    const double z = i % 2 ? 20.0 : 5.0;
+    truth.push_back(ray * z);
+    start.push_back(ray * (0.9 * z));  // a little in front: reprojects within the inlier bound
+  }
+  std::vector<SE3> poses;
+  for (int k = 0; k < 5; ++k) poses.push_back(pose(0.0, 0.01 * k, 0.0, -0.1 * k, 0.0, 0.0));
+
+  Map map;
+  std::vector<KeyFrame*> kfs;
+  for (int k = 0; k < 5; ++k) {
+    Frame f;
+    f.camera = &cam;
+    f.levels = &levels;
+    f.T_c_w = poses[k];
+    for (std::size_t i = 0; i < truth.size(); ++i) {
+      const Vec3 p_c = poses[k] * truth[i];
+      const Vec2 uv = cam.project(p_c);
+      cv::KeyPoint kp(static_cast<float>(uv.x()), static_cast<float>(uv.y()), 31);
+      kp.octave = 0;
+      f.keys.push_back(kp);
+      f.un.push_back(kp.pt);
+      const bool with_depth = i < measured;
+      f.depth.push_back(with_depth ? static_cast<float>(p_c.z()) : -1.0f);
+      f.u_right.push_back(with_depth ? static_cast<float>(kp.pt.x - cam.bf() / p_c.z()) : -1.0f);
+    }
+    f.descriptors = cv::Mat::zeros(static_cast<int>(truth.size()), 32, CV_8U);
+    f.grid.build(f.un, cam.width, cam.height);
+    f.clearMatches();
+    kfs.push_back(map.addKeyFrame(std::make_unique<KeyFrame>(k, f)));
+  }
+  std::vector<std::shared_ptr<MapPoint>> points;
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    auto p = map.createPoint(i < measured ? truth[i] : start[i - measured], kfs[0]);
+    for (KeyFrame* kf : kfs) kf->addObservation(p, static_cast<int>(i));
+    p->updateFromObservations();
+    points.push_back(p);
+  }
+  for (KeyFrame* kf : kfs) kf->updateConnections();
+
+  const LocalBaStats stats = localBundleAdjustment(&map, kfs[4], 10, 20);
+  for (std::size_t i = 0; i < measured; ++i) EXPECT_FALSE(points[i]->bad) << "measured point " << i;
+  for (std::size_t j = 0; j < start.size(); ++j) {
+    const auto& p = points[measured + j];
+    if (j % 2) {
+      EXPECT_TRUE(p->bad) << "point " << j << " at " << p->position.transpose();
+    } else {
+      ASSERT_FALSE(p->bad) << "point " << j;
+      EXPECT_NEAR(p->position.z(), truth[measured + j].z(), 0.2) << "point " << j;
+    }
+  }
+  EXPECT_EQ(stats.out_of_range_removed, 10);
+}
+
 // A camera path round a ring: odometry edges carry a small bias (drift),
 // one loop edge ties the last pose to the first as the truth has it. The
 // graph must spread the correction so the end meets the start again, and
