@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <functional>
 #include <random>
 
 namespace stillpoint::slam {
@@ -36,6 +37,34 @@ SE3 pose(double rx, double ry, double rz, double tx, double ty, double tz) {
   T.linear() = expSO3(Vec3(rx, ry, rz));
   T.translation() = Vec3(tx, ty, tz);
   return T;
+}
+
+// A keyframe at T_c_w seeing point i of `world` as its feature i, at level 0,
+// `noise()` added to each pixel coordinate; the first `measured` points with
+// their depth (and virtual right coordinate), the others without.
+KeyFrame* addKeyFrameSeeing(Map* map, std::int64_t id, const CameraModel& cam, const LevelInfo& levels,
+                            const SE3& T_c_w, const std::vector<Vec3>& world, const std::function<double()>& noise,
+                            std::size_t measured) {
+  Frame f;
+  f.camera = &cam;
+  f.levels = &levels;
+  f.T_c_w = T_c_w;
+  for (std::size_t i = 0; i < world.size(); ++i) {
+    const Vec3 p_c = T_c_w * world[i];
+    const Vec2 uv = cam.project(p_c);
+    const double du = noise();
+    cv::KeyPoint kp(static_cast<float>(uv.x() + du), static_cast<float>(uv.y() + noise()), 31);
+    kp.octave = 0;
+    f.keys.push_back(kp);
+    f.un.push_back(kp.pt);
+    const bool with_depth = i < measured;
+    f.depth.push_back(with_depth ? static_cast<float>(p_c.z()) : -1.0f);
+    f.u_right.push_back(with_depth ? static_cast<float>(kp.pt.x - cam.bf() / p_c.z() + noise()) : -1.0f);
+  }
+  f.descriptors = cv::Mat::zeros(static_cast<int>(world.size()), 32, CV_8U);
+  f.grid.build(f.un, cam.width, cam.height);
+  f.clearMatches();
+  return map->addKeyFrame(std::make_unique<KeyFrame>(id, f));
 }
 
 TEST(PoseOptimisation, RecoversKnownPoseWith30PercentOutliers) {
@@ -316,26 +345,9 @@ TEST(LocalBundleAdjustment, ReducesReprojectionErrorAndRecoversPoses) {
   Map map;
   std::normal_distribution<double> pixel_noise(0.0, 0.3), perturb(0.0, 0.01);
   std::vector<KeyFrame*> kfs;
-  for (int k = 0; k < 5; ++k) {
-    Frame f;
-    f.camera = &cam;
-    f.levels = &levels;
-    f.T_c_w = true_poses[k];
-    for (std::size_t i = 0; i < truth.size(); ++i) {
-      const Vec3 p_c = true_poses[k] * truth[i];
-      const Vec2 uv = cam.project(p_c);
-      cv::KeyPoint kp(static_cast<float>(uv.x() + pixel_noise(rng)), static_cast<float>(uv.y() + pixel_noise(rng)), 31);
-      kp.octave = 0;
-      f.keys.push_back(kp);
-      f.un.push_back(kp.pt);
-      f.depth.push_back(static_cast<float>(p_c.z()));
-      f.u_right.push_back(static_cast<float>(kp.pt.x - cam.bf() / p_c.z() + pixel_noise(rng)));
-    }
-    f.descriptors = cv::Mat::zeros(static_cast<int>(truth.size()), 32, CV_8U);
-    f.grid.build(f.un, cam.width, cam.height);
-    f.clearMatches();
-    kfs.push_back(map.addKeyFrame(std::make_unique<KeyFrame>(k, f)));
-  }
+  for (int k = 0; k < 5; ++k)
+    kfs.push_back(addKeyFrameSeeing(&map, k, cam, levels, true_poses[k], truth, [&] { return pixel_noise(rng); },
+                                    truth.size()));
   for (std::size_t i = 0; i < truth.size(); ++i) {
     auto p = map.createPoint(truth[i] + Vec3(perturb(rng), perturb(rng), perturb(rng)), kfs[0]);
     for (KeyFrame* kf : kfs) kf->addObservation(p, static_cast<int>(i));
@@ -392,27 +404,8 @@ TEST(LocalBundleAdjustment, RemovesPointsItMovesBeyondTheSensorsRange) {
 
   Map map;
   std::vector<KeyFrame*> kfs;
-  for (int k = 0; k < 5; ++k) {
-    Frame f;
-    f.camera = &cam;
-    f.levels = &levels;
-    f.T_c_w = poses[k];
-    for (std::size_t i = 0; i < truth.size(); ++i) {
-      const Vec3 p_c = poses[k] * truth[i];
-      const Vec2 uv = cam.project(p_c);
-      cv::KeyPoint kp(static_cast<float>(uv.x()), static_cast<float>(uv.y()), 31);
-      kp.octave = 0;
-      f.keys.push_back(kp);
-      f.un.push_back(kp.pt);
-      const bool with_depth = i < measured;
-      f.depth.push_back(with_depth ? static_cast<float>(p_c.z()) : -1.0f);
-      f.u_right.push_back(with_depth ? static_cast<float>(kp.pt.x - cam.bf() / p_c.z()) : -1.0f);
-    }
-    f.descriptors = cv::Mat::zeros(static_cast<int>(truth.size()), 32, CV_8U);
-    f.grid.build(f.un, cam.width, cam.height);
-    f.clearMatches();
-    kfs.push_back(map.addKeyFrame(std::make_unique<KeyFrame>(k, f)));
-  }
+  for (int k = 0; k < 5; ++k)
+    kfs.push_back(addKeyFrameSeeing(&map, k, cam, levels, poses[k], truth, [] { return 0.0; }, measured));
   std::vector<std::shared_ptr<MapPoint>> points;
   for (std::size_t i = 0; i < truth.size(); ++i) {
     auto p = map.createPoint(i < measured ? truth[i] : start[i - measured], kfs[0]);
