@@ -152,7 +152,7 @@ if [[ ${#budgets[@]} -eq 0 ]]; then
   replay_into "$out_dir" "${modules[@]}"
   exit
 fi
-if [[ $(( ${#budgets[@]} % 2 )) -ne 1 || ${#modules[@]} -ne 4 || ${path[9]} != 0 ]]; then
+if [[ $(( ${#budgets[@]} % 2 )) -ne 1 || -z $mask_delay || ${path[9]} != 0 ]]; then
   echo "BUDGETS needs an odd number of budgets, MASK_DELAY_FRAMES and a walk without its own budget" >&2
   exit 1
 fi
@@ -164,7 +164,7 @@ for budget in "${budgets[@]}"; do
   cp "$out_dir/slam.yaml" "$run/slam.yaml"
   printf 'orb:\n  num_features: %s\n' "$budget" >>"$run/slam.yaml"
   rc=0
-  MIN_POSED_PERCENT=$min_percent replay_into "$run" --modules "${modules[1]}" --config "$run/slam.yaml" \
+  MIN_POSED_PERCENT=$min_percent replay_into "$run" --modules "$with" --config "$run/slam.yaml" \
     >"$run/test.txt" 2>&1 || rc=$?
   measured=$(grep '^measured: ' "$run/test.txt" || true)
   ate=$(sed -n 's/^measured: ATE RMSE \([^ ]*\) m.*/\1/p' <<<"$measured")
