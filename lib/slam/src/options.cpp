@@ -126,6 +126,7 @@ Status SemanticOptions::validate() const {
   if (!(confirm_ratio >= 0 && confirm_ratio <= 1)) return Error{"semantic.confirm_ratio must be in [0, 1]"};
   if (!(max_removed_fraction >= 0 && max_removed_fraction <= 1))
     return Error{"semantic.max_removed_fraction must be in [0, 1]"};
+  if (min_kept_points < 0) return Error{"semantic.min_kept_points must be >= 0 (0: off)"};
   if (!(other_motion_share >= 0 && other_motion_share <= 1))
     return Error{"semantic.other_motion_share must be in [0, 1] (0: off)"};
   if (!(point_masked_ratio >= 0 && point_masked_ratio < 1))

@@ -37,8 +37,9 @@ bool staticMemoryOn(const SlamOptions& o) { return o.semantic.static_memory_sigh
 // keyframe and a segmented frame share. A region most of whose judged
 // features the geometry module found moving is confirmed and always kept out;
 // the others, best score first, may together take at most
-// semantic.max_removed_fraction of the view's features with a map point, and
-// none when the model needs confirmation.
+// semantic.max_removed_fraction of the view's features with a map point, or
+// more while semantic.min_kept_points of those stay outside them, and none
+// when the model needs confirmation.
 //
 // An unconfirmed region most of whose features with depth lie where the map
 // has seen a static object standing (`seen_standing` per feature: 1 yes, 0
@@ -53,7 +54,9 @@ bool staticMemoryOn(const SlamOptions& o) { return o.semantic.static_memory_sigh
 // static object are often half of it (it shares a depth cluster with the
 // person beside it), and there the memory is what keeps it in the pose.
 //
-// The cap keeps a false positive from emptying the map. It does not hold for
+// The cap keeps a false positive from emptying the map: a share alone would
+// also keep out the person who fills most of a keyframe near the camera,
+// whose mask leaves the room hundreds of points. It does not hold for
 // a region the geometry module took for the world: when it flags a larger
 // share of the judged features outside every region than of the region's own,
 // and at least semantic.other_motion_share of them, the pose follows the
@@ -103,7 +106,8 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
     judged[label - 1] += in_cluster;
   }
   const double outside_share = judged_outside > 0 ? static_cast<double>(flagged_outside) / judged_outside : 0.0;
-  const double budget = o.max_removed_fraction * c.with_point_total;
+  const double budget = std::max(o.max_removed_fraction * c.with_point_total,
+                                 o.min_kept_points > 0 ? static_cast<double>(c.with_point_total - o.min_kept_points) : 0.0);
   int removed = 0;
   for (int k = n_regions - 1; k >= 0; --k) {  // regions come in ascending score
     const bool confirmed = flagged[k] >= o.confirm_min_flagged && flagged[k] >= o.confirm_ratio * judged[k];

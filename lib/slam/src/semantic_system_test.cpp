@@ -736,6 +736,7 @@ TEST(SemanticModule, RemovalCapKeepsAHugeUnconfirmedMaskFromEmptyingTheMap) {
   const cv::Rect most(0, 0, 560, 480);  // 7/8 of the image
   SlamOptions options = semanticOptions();
   options.semantic.max_removed_fraction = 0.5;
+  options.semantic.min_kept_points = 0;  // the share alone
   const RunResult capped = runWith(options, std::make_unique<RectangleSegmenter>(most, false));
   EXPECT_EQ(capped.stats.semantic_features_removed, 0);
   EXPECT_GT(capped.stats.semantic_instances_capped, 0);
@@ -748,6 +749,38 @@ TEST(SemanticModule, RemovalCapKeepsAHugeUnconfirmedMaskFromEmptyingTheMap) {
   EXPECT_GT(uncapped.stats.semantic_features_removed, 0);
   EXPECT_EQ(uncapped.stats.semantic_instances_capped, 0);
   EXPECT_LT(uncapped.stats.points, capped.stats.points);
+}
+
+// A person near the camera fills most of the view: over the share the cap
+// allows, but the room outside the mask keeps enough points to track on.
+TEST(SemanticModule, AMaskOverTheShareIsAppliedWhileEnoughPointsStayOutsideIt) {
+  const cv::Rect three_quarters(0, 0, 480, 480);
+  SlamOptions options = semanticOptions();
+  options.semantic.max_removed_fraction = 0.5;
+  const RunResult kept = runWith(options, std::make_unique<RectangleSegmenter>(three_quarters, false));
+  EXPECT_EQ(kept.stats.semantic_instances_capped, 0);
+  EXPECT_GT(kept.stats.semantic_features_removed, 0);
+  ASSERT_FALSE(kept.keyframes.empty());
+  for (const KeyFrameView& kf : kept.keyframes) {
+    SCOPED_TRACE("keyframe " + std::to_string(kf.id));
+    EXPECT_TRUE(kf.segmented);
+    int in = 0, mapped_outside = 0;
+    for (const KeyFrameFeature& f : kf.features) {
+      if (inside(f, three_quarters, 0)) {
+        ++in;
+        EXPECT_FALSE(f.mapped) << "feature at " << f.u << "," << f.v;
+      } else {
+        mapped_outside += f.mapped;
+      }
+    }
+    EXPECT_GT(in, 20);
+    EXPECT_GE(mapped_outside, options.semantic.min_kept_points);
+  }
+  // Asked to keep more than the quarter outside holds, the share decides.
+  options.semantic.min_kept_points = 100000;
+  const RunResult capped = runWith(options, std::make_unique<RectangleSegmenter>(three_quarters, false));
+  EXPECT_GT(capped.stats.semantic_instances_capped, 0);
+  EXPECT_EQ(capped.stats.semantic_features_removed, 0);
 }
 
 TEST(StaticSightings, APlaceSeenStandingTwiceAndNeverMovingIsKnown) {

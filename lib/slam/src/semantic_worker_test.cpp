@@ -44,6 +44,7 @@ TEST(SemanticOptions, EachOutOfRangeValueNamesItsField) {
       {"semantic.confirm_min_flagged", [](SemanticOptions& o) { o.confirm_min_flagged = 0; }},
       {"semantic.confirm_ratio", [](SemanticOptions& o) { o.confirm_ratio = std::nan(""); }},
       {"semantic.max_removed_fraction", [](SemanticOptions& o) { o.max_removed_fraction = 1.5; }},
+      {"semantic.min_kept_points", [](SemanticOptions& o) { o.min_kept_points = -1; }},
       {"semantic.other_motion_share", [](SemanticOptions& o) { o.other_motion_share = -0.1; }},
       {"semantic.point_masked_ratio", [](SemanticOptions& o) { o.point_masked_ratio = 1; }},
       {"semantic.propagate_grow_px", [](SemanticOptions& o) { o.propagate_grow_px = -1; }},

@@ -233,8 +233,13 @@ struct SemanticOptions {
   int confirm_min_flagged = 3;
   double confirm_ratio = 0.7;
   // Share of a keyframe's map points unconfirmed masks may remove: a false
-  // positive must not empty the map.
+  // positive must not empty the map. They may remove more while at least
+  // min_kept_points of those points stay outside them (0: the share alone):
+  // a person filling most of the view near the camera leaves the rest of
+  // the view enough to track on, and a map start needs no more
+  // (tracking.new_map_min_static_matches).
   double max_removed_fraction = 0.5;
+  int min_kept_points = 100;
   // ...unless the geometry module took the region for the world: it flags at
   // least this share of the judged features outside every region, and a
   // larger one than of the region's own (0: the cap always holds).
