@@ -193,6 +193,7 @@ struct FrameRecord {
   double track_ms = 0, geometry_ms = 0;
   int features = 0, in_pose = 0, geometry_dynamic = 0, semantic_dynamic = 0;
   bool keyframe = false;
+  std::string health;  // empty in a log without the column
 };
 
 struct RunResult {
@@ -209,6 +210,7 @@ struct RunResult {
   std::vector<FrameRecord> log;
   eval::Trajectory gt, est;
   Result<eval::EvalResult> eval = Error{"not evaluated"};
+  std::vector<eval::LabelledDrift> drift;  // each pose's health and drift
 };
 
 double quantile(std::vector<double> v, double q) {
@@ -279,6 +281,7 @@ Result<std::vector<FrameRecord>> readFrameLog(const std::string& path) {
           r.geometry_dynamic >> r.semantic_dynamic >> keyframe))
       return Error{path + ":" + std::to_string(number) + ": malformed frame record"};
     r.keyframe = keyframe != 0;
+    fields >> r.health;
     log.push_back(r);
   }
   return log;
@@ -393,6 +396,10 @@ void runOnce(const Args& args, const std::string& replay, const SequenceArg& seq
   r->ate = r->eval->ate_rmse_m;
   r->rpe_trans = r->eval->rpe_trans_m_s;
   r->rpe_rot = r->eval->rpe_rot_deg_s;
+  std::vector<eval::StampedLabel> health;
+  for (const FrameRecord& f : r->log)
+    if (!f.health.empty()) health.push_back({Timestamp::fromSeconds(f.t), f.health});
+  if (auto drift = eval::driftPerPose(*r->eval, health); drift) r->drift = std::move(*drift);
 }
 
 // ---------------------------------------------------------------------------
@@ -637,6 +644,30 @@ bool writeReport(const Args& args, const std::string& command, const std::string
        << spread(rr, 3) << " | " << framesWithPose(g.runs) << " | " << statusOf(g.runs) << " |\n";
   }
   md << "<!-- bench-summary: end -->\n\n";
+
+  md << "## Pose health\n\n";
+  md << "How far off the poses of each health level were, over all sequences and runs of a module set: the "
+        "translation error of the motion over the last 1/3 s up to the pose (10 frames at 30 Hz; "
+        "`stillpoint-eval --frame-log`), which a consumer trusting the level would have taken in.\n\n";
+  md << "| Modules | Health | Poses | Median [m] | p90 [m] | Max [m] | Over 2 cm |\n";
+  md << "|---|---|---|---|---|---|---|\n";
+  {
+    std::vector<std::string> labels;
+    for (const Group& g : groups)
+      if (std::find(labels.begin(), labels.end(), g.label) == labels.end()) labels.push_back(g.label);
+    eval::DriftOptions drift_options;
+    drift_options.order = {"good", "degraded", "unreliable"};
+    for (const std::string& label : labels) {
+      std::vector<eval::LabelledDrift> pooled;
+      for (const Group& g : groups)
+        if (g.label == label)
+          for (const RunResult* r : g.runs) pooled.insert(pooled.end(), r->drift.begin(), r->drift.end());
+      for (const eval::LabelDrift& d : eval::summariseDrift(pooled, drift_options))
+        md << "| " << label << " | " << d.label << " | " << d.poses << " | " << fmt(d.median_m, 4) << " | "
+           << fmt(d.p90_m, 4) << " | " << fmt(d.max_m, 4) << " | " << fmt(100.0 * d.share_over_bound, 1) << " % |\n";
+    }
+  }
+  md << "\n";
 
   md << "## Runtime\n\n";
   md << "Per the paper's Table IV: the semantic part per segmented keyframe (its own thread), the geometry part "

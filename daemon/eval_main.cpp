@@ -18,6 +18,7 @@ constexpr int kExitUsage = 2;
 
 constexpr const char* kUsage =
     "usage: stillpoint-eval GROUNDTRUTH.txt TRAJ.txt [--plot OUT.png] [--max-dt S]\n"
+    "                       [--frame-log FRAMES.txt [--drift-window S]]\n"
     "\n"
     "Evaluates an estimated trajectory against ground truth (TUM format:\n"
     "'timestamp tx ty tz qx qy qz qw' per line) and prints one line:\n"
@@ -30,9 +31,21 @@ constexpr const char* kUsage =
     "  matched        estimate poses associated with a ground-truth pose\n"
     "RPE values are nan when the matched poses span less than 1 s.\n"
     "\n"
+    "With --frame-log (stillpoint-replay's), one more line per pose health\n"
+    "level, good, degraded, unreliable (then any other, '-' for poses with no\n"
+    "frame), saying how far its poses were off:\n"
+    "  health=<level> poses=<n> drift_median_m=<v> drift_p90_m=<v>\n"
+    "  drift_max_m=<v> over_2cm=<share>\n"
+    "  drift  translation error of the motion over the last --drift-window\n"
+    "         seconds (default 0.333, 10 frames at 30 Hz) up to the pose, in\n"
+    "         its map [m]; poses without a pose that far back in their map\n"
+    "         are not counted\n"
+    "\n"
     "options:\n"
     "  --plot OUT.png  also write a top view and ATE-over-time plot\n"
     "  --max-dt S      association window in seconds (default 0.02)\n"
+    "  --frame-log F   the replay's frame log: drift per pose health level\n"
+    "  --drift-window S  the drift's time window in seconds (default 0.333)\n"
     "  --help          show this text\n"
     "  --version       print the version and architecture\n"
     "\n"
@@ -60,8 +73,10 @@ int main(int argc, char** argv) {
   using namespace stillpoint::eval;
 
   std::vector<std::string> positional;
-  std::string plot_path;
+  std::string plot_path, frame_log;
   EvalOptions options;
+  DriftOptions drift_options;
+  drift_options.order = {"good", "degraded", "unreliable"};
   for (int k = 1; k < argc; ++k) {
     const std::string_view arg = argv[k];
     if (arg == "--help" || arg == "-h") {
@@ -72,11 +87,16 @@ int main(int argc, char** argv) {
       std::puts("stillpoint-eval " STILLPOINT_VERSION " (" STILLPOINT_ARCH ")");
       return 0;
     }
-    if (arg == "--plot" || arg == "--max-dt") {
+    if (arg == "--plot" || arg == "--max-dt" || arg == "--frame-log" || arg == "--drift-window") {
       if (k + 1 >= argc) return usageError(std::string(arg) + " needs a value");
       const std::string_view value = argv[++k];
       if (arg == "--plot") {
         plot_path = value;
+      } else if (arg == "--frame-log") {
+        frame_log = value;
+      } else if (arg == "--drift-window") {
+        if (!parseSeconds(value, &drift_options.window_s) || drift_options.window_s <= 0.0)
+          return usageError("--drift-window needs a number of seconds > 0, got '" + std::string(value) + "'");
       } else if (!parseSeconds(value, &options.max_dt_s) || options.max_dt_s < 0.0) {
         return usageError("--max-dt needs a number of seconds >= 0, got '" + std::string(value) +
                           "'");
@@ -100,6 +120,15 @@ int main(int argc, char** argv) {
 
   const auto result = evaluate(*gt, *est, options);
   if (!result) return inputError(result.error());
+  std::vector<LabelDrift> drift;
+  if (!frame_log.empty()) {
+    const auto health = readLabelColumn(frame_log, "health");
+    if (!health) return inputError(health.error());
+    drift_options.max_dt_s = options.max_dt_s;
+    auto by_level = driftByLabel(*result, *health, drift_options);
+    if (!by_level) return inputError(by_level.error());
+    drift = std::move(*by_level);
+  }
 
   if (!plot_path.empty()) {
     std::vector<double> errors;
@@ -118,5 +147,9 @@ int main(int argc, char** argv) {
 
   std::printf("ate_rmse_m=%.6f rpe_trans_m_s=%.6f rpe_rot_deg_s=%.6f matched=%zu\n",
               result->ate_rmse_m, result->rpe_trans_m_s, result->rpe_rot_deg_s, result->matched);
+  for (const LabelDrift& d : drift) {
+    std::printf("health=%s poses=%zu drift_median_m=%.6f drift_p90_m=%.6f drift_max_m=%.6f over_2cm=%.4f\n",
+                d.label.c_str(), d.poses, d.median_m, d.p90_m, d.max_m, d.share_over_bound);
+  }
   return 0;
 }

@@ -22,13 +22,21 @@ report=$out/report.md csv=$out/results.csv
 for f in "$report" "$csv"; do [[ -s $f ]] || fail "$f missing or empty"; done
 grep -qx '<!-- bench-summary: begin -->' "$report" && grep -qx '<!-- bench-summary: end -->' "$report" \
   || fail "report without the summary markers"
-for section in '## Accuracy' '## Runtime' '## Published figures' '## Plots'; do
+for section in '## Accuracy' '## Pose health' '## Runtime' '## Published figures' '## Plots'; do
   grep -qx "$section.*" "$report" || fail "report without '$section'"
 done
 grep -Eq '^\| host speed: ORB extraction[^|]*\| at start [0-9]+\.[0-9] ms; at end [0-9]+\.[0-9] ms \|$' "$report" \
   || fail "report without the host speed measured at start and end"
 rows=$(awk '/<!-- bench-summary: begin -->/{f=1;next} /<!-- bench-summary: end -->/{f=0} f && /^\| `/' "$report" | wc -l)
 [[ $rows -eq 12 ]] || fail "accuracy table has $rows rows, expected 12 (3 sequences x 4 module sets)"
+# Every pose has a health level (good, degraded, unreliable: a '-' would be a
+# pose the frame log does not have), and every module set has a row.
+health_rows=$(awk '/^## Pose health/{f=1;next} /^## /{f=0} f && /^\| [a-z+]+ \| /' "$report")
+for m in none geometry semantic geometry+semantic; do
+  grep -q "^| $m | " <<< "$health_rows" || fail "pose health table without a row for $m"
+done
+odd=$(grep -Ev '^\| [a-z+]+ \| (good|degraded|unreliable) \| [0-9]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ % \|$' <<< "$health_rows")
+[[ -z $odd ]] || fail "pose health rows not of a level with its numbers: $odd"
 header=$(head -n 1 "$csv")
 for col in sequence modules run ate_rmse_m rpe_trans_m_s rpe_rot_deg_s frames frames_with_pose \
            track_ms_median track_ms_p95 trajectory; do

@@ -29,13 +29,14 @@ std::string describe(const RunResult& r) {
 }
 
 // A planar loop with yaw, 20 Hz for 3 s, in TUM format. `yaw0`, `x0`, `y0`
-// move the whole trajectory rigidly (about and along the world axes).
-std::string trajectoryText(double yaw0, double x0, double y0) {
+// move the whole trajectory rigidly (about and along the world axes); the
+// poses from `jump_from` on are 5 cm higher.
+std::string trajectoryText(double yaw0, double x0, double y0, int jump_from = 60) {
   std::string text = "# timestamp tx ty tz qx qy qz qw\n";
   for (int k = 0; k < 60; ++k) {
     const double t = 1000.0 + 0.05 * k;
     const double px = 0.5 * std::cos(0.6 * k * 0.05), py = 0.3 * std::sin(0.6 * k * 0.05);
-    const double pz = 0.1 * k * 0.05, yaw = 0.4 * k * 0.05;
+    const double pz = 0.1 * k * 0.05 + (k >= jump_from ? 0.05 : 0.0), yaw = 0.4 * k * 0.05;
     const double x = std::cos(yaw0) * px - std::sin(yaw0) * py + x0;
     const double y = std::sin(yaw0) * px + std::cos(yaw0) * py + y0;
     char line[200];
@@ -111,6 +112,50 @@ TEST_F(EvalCli, DisplacedEstimateGivesMatchingError) {
   std::smatch m;
   ASSERT_TRUE(std::regex_search(r.out, m, std::regex("^ate_rmse_m=([0-9.]+) "))) << describe(r);
   EXPECT_NEAR(std::stod(m[1]), 0.01, 0.002) << r.out;
+}
+
+TEST_F(EvalCli, FrameLogGivesTheDriftOfEachHealthLevel) {
+  // The pose jumps 5 cm at frame 30, and frames 30-36 (those whose 0.35 s
+  // window spans the jump) say `unreliable`; frame 59 is not in the log.
+  writeFile(est_, trajectoryText(0.7, 1.5, -2.0, 30));
+  std::string log = "# index timestamp state health\n";
+  for (int k = 0; k < 59; ++k) {
+    char line[100];
+    std::snprintf(line, sizeof(line), "%d %.6f ok %s\n", k, 1000.0 + 0.05 * k, k >= 30 && k <= 36 ? "unreliable" : "good");
+    log += line;
+  }
+  const std::string frames = (scratch_ / "frames.txt").string();
+  writeFile(frames, log);
+  const RunResult r = eval({gt_, est_, "--frame-log", frames});
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  std::smatch m;
+  const std::string number = "([0-9.]+)";
+  const auto level = [&](const std::string& name) {
+    return std::regex("\nhealth=" + name + " poses=([0-9]+) drift_median_m=" + number + " drift_p90_m=" + number +
+                      " drift_max_m=" + number + " over_2cm=" + number + "\n");
+  };
+  ASSERT_TRUE(std::regex_search(r.out, m, level("good"))) << describe(r);
+  EXPECT_EQ(m[1], "45");  // frames 7-58 with a pose 7 frames back, less the 7 unreliable ones
+  EXPECT_LT(std::stod(m[4]), 1e-5) << r.out;
+  ASSERT_TRUE(std::regex_search(r.out, m, level("unreliable"))) << describe(r);
+  EXPECT_EQ(m[1], "7");
+  EXPECT_NEAR(std::stod(m[2]), 0.05, 1e-5) << r.out;
+  EXPECT_EQ(std::stod(m[5]), 1.0) << r.out;
+  ASSERT_TRUE(std::regex_search(r.out, m, level("-"))) << describe(r);
+  EXPECT_EQ(m[1], "1");
+  EXPECT_EQ(r.out.find("health=degraded"), std::string::npos) << r.out;
+  // The levels come good, unreliable, then the poses without a frame.
+  EXPECT_LT(r.out.find("health=good"), r.out.find("health=unreliable"));
+  EXPECT_LT(r.out.find("health=unreliable"), r.out.find("health=-"));
+
+  writeFile(frames, "# index timestamp state\n0 1000.0 ok\n");
+  const RunResult no_health = eval({gt_, est_, "--frame-log", frames});
+  EXPECT_EQ(no_health.exit_code, 1) << describe(no_health);
+  EXPECT_TRUE(contains(no_health.err, frames + ":1: the header names no column 'health'"));
+  EXPECT_TRUE(no_health.out.empty()) << describe(no_health);
+  const RunResult bad_window = eval({gt_, est_, "--frame-log", frames, "--drift-window", "0"});
+  EXPECT_EQ(bad_window.exit_code, 2) << describe(bad_window);
+  EXPECT_TRUE(contains(bad_window.err, "--drift-window"));
 }
 
 TEST_F(EvalCli, MissingGroundTruthFileIsNamed) {

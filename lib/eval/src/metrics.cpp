@@ -288,4 +288,86 @@ Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
   return result;
 }
 
+Status DriftOptions::validate() const {
+  if (!std::isfinite(window_s) || window_s <= 0.0) return Error{"DriftOptions.window_s must be a finite value > 0"};
+  if (!std::isfinite(bound_m) || bound_m < 0.0) return Error{"DriftOptions.bound_m must be a finite value >= 0"};
+  if (!std::isfinite(max_dt_s) || max_dt_s < 0.0) return Error{"DriftOptions.max_dt_s must be a finite value >= 0"};
+  return Status::success();
+}
+
+Result<std::vector<LabelledDrift>> driftPerPose(const EvalResult& result, const std::vector<StampedLabel>& labels,
+                                                const DriftOptions& options) {
+  if (Status status = options.validate(); !status) return Error{status.error()};
+  std::vector<StampedLabel> sorted = labels;
+  std::sort(sorted.begin(), sorted.end(),
+            [](const StampedLabel& a, const StampedLabel& b) { return a.stamp < b.stamp; });
+  const std::int64_t max_dt_ns = secondsToNs(options.max_dt_s);
+  const auto labelAt = [&](Timestamp t) -> std::string {
+    const auto it = std::lower_bound(sorted.begin(), sorted.end(), t,
+                                     [](const StampedLabel& l, Timestamp s) { return l.stamp < s; });
+    std::int64_t best = max_dt_ns + 1;
+    std::string label = "-";
+    for (auto c : {it, it == sorted.begin() ? it : it - 1}) {
+      if (c == sorted.end()) continue;
+      const std::int64_t d = std::abs(c->stamp.nanoseconds() - t.nanoseconds());
+      if (d < best) best = d, label = c->label;
+    }
+    return label;
+  };
+
+  const Trajectory& est = result.est_aligned;
+  const Trajectory& gt = result.gt_matched;
+  const std::int64_t window_ns = secondsToNs(options.window_s);
+  std::vector<LabelledDrift> poses;
+  for (std::size_t j = 0; j < est.size() && j < gt.size(); ++j) {
+    // The newest pose of the same map at least a window back (less the
+    // association slack), if within two windows: a gap makes no pair.
+    const std::int64_t latest = est[j].stamp.nanoseconds() - window_ns + max_dt_ns;
+    std::size_t from = j;
+    for (std::size_t i = j; i-- > 0 && est[i].stamp.nanoseconds() >= est[j].stamp.nanoseconds() - 2 * window_ns;) {
+      if (est[i].map_id != est[j].map_id || est[i].stamp.nanoseconds() > latest) continue;
+      from = i;
+      break;
+    }
+    if (from == j) continue;
+    const SE3 error = (gt[from].T_w_c.inverse() * gt[j].T_w_c).inverse() * (est[from].T_w_c.inverse() * est[j].T_w_c);
+    poses.push_back({labelAt(est[j].stamp), error.translation().norm()});
+  }
+  return poses;
+}
+
+std::vector<LabelDrift> summariseDrift(const std::vector<LabelledDrift>& poses, const DriftOptions& options) {
+  std::map<std::string, std::vector<double>> drift;
+  for (const LabelledDrift& p : poses) drift[p.label].push_back(p.drift_m);
+
+  std::vector<std::string> names;
+  for (const std::string& name : options.order)
+    if (drift.count(name) && std::find(names.begin(), names.end(), name) == names.end()) names.push_back(name);
+  for (const auto& [name, values] : drift)
+    if (std::find(names.begin(), names.end(), name) == names.end()) names.push_back(name);
+
+  std::vector<LabelDrift> out;
+  for (const std::string& name : names) {
+    std::vector<double> v = drift[name];
+    std::sort(v.begin(), v.end());
+    LabelDrift d;
+    d.label = name;
+    d.poses = v.size();
+    d.median_m = median(v);
+    d.p90_m = v[std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(0.9 * static_cast<double>(v.size()))) - 1)];
+    d.max_m = v.back();
+    d.share_over_bound = static_cast<double>(std::count_if(v.begin(), v.end(), [&](double x) { return x > options.bound_m; })) /
+                         static_cast<double>(v.size());
+    out.push_back(d);
+  }
+  return out;
+}
+
+Result<std::vector<LabelDrift>> driftByLabel(const EvalResult& result, const std::vector<StampedLabel>& labels,
+                                             const DriftOptions& options) {
+  auto poses = driftPerPose(result, labels, options);
+  if (!poses) return Error{poses.error()};
+  return summariseDrift(*poses, options);
+}
+
 }  // namespace stillpoint::eval

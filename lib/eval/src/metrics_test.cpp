@@ -286,5 +286,66 @@ TEST(Evaluate, RejectsBadOptions) {
   EXPECT_TRUE(EvalOptions{}.validate().ok());
 }
 
+// The estimate is the ground truth but for a 5 cm jump at frame 40 that it
+// keeps (a pose following a mover for a moment); frames 40-49 are labelled
+// "unreliable", the rest "good", and the second half is a new map.
+TEST(DriftByLabel, GivesEachLabelTheErrorItsPosesAdded) {
+  std::mt19937 rng(13);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 4.0);
+  Trajectory est = gt;
+  for (std::size_t k = 40; k < est.size(); ++k) est[k].T_w_c.translation() += Vec3(0.05, 0, 0);
+  for (std::size_t k = est.size() / 2; k < est.size(); ++k) {
+    est[k].T_w_c = knownTransform() * est[k].T_w_c;
+    est[k].map_id = 1;
+  }
+  std::vector<StampedLabel> labels;
+  for (std::size_t k = 0; k < gt.size(); ++k)
+    labels.push_back({gt[k].stamp, k >= 40 && k < 50 ? "unreliable" : "good"});
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+
+  DriftOptions options;
+  options.order = {"good", "degraded", "unreliable"};
+  const auto drift = driftByLabel(*result, labels, options);
+  ASSERT_TRUE(drift.ok()) << drift.error();
+  ASSERT_EQ(drift->size(), 2u);
+  const LabelDrift& good = (*drift)[0];
+  const LabelDrift& unreliable = (*drift)[1];
+  EXPECT_EQ(good.label, "good");
+  EXPECT_EQ(unreliable.label, "unreliable");
+  // 10 frames back: frames 10..119 have a pose that far back in their map,
+  // but the new map's first 10 (60..69) do not.
+  EXPECT_EQ(good.poses + unreliable.poses, gt.size() - 10 - 10);
+  EXPECT_EQ(unreliable.poses, 10u);
+  // Every unreliable frame spans the jump; the good frames after it carry it
+  // until their window starts past it (frames 50-59: 10 frames back is 40-49).
+  EXPECT_NEAR(unreliable.median_m, 0.05, 1e-9);
+  EXPECT_NEAR(unreliable.max_m, 0.05, 1e-9);
+  EXPECT_DOUBLE_EQ(unreliable.share_over_bound, 1.0);
+  EXPECT_NEAR(good.median_m, 0.0, 1e-9);
+  EXPECT_NEAR(good.max_m, 0.0, 1e-9);  // frames 50-59 start their window at 40-49, past the jump
+  EXPECT_DOUBLE_EQ(good.share_over_bound, 0.0);
+}
+
+TEST(DriftByLabel, PosesWithoutALabelNearbyAreCountedApart) {
+  std::mt19937 rng(14);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 2.0);
+  const auto result = evaluate(gt, gt);
+  ASSERT_TRUE(result.ok()) << result.error();
+  std::vector<StampedLabel> labels;
+  for (std::size_t k = 0; k < 30; ++k) labels.push_back({gt[k].stamp, "good"});
+  const auto drift = driftByLabel(*result, labels);
+  ASSERT_TRUE(drift.ok()) << drift.error();
+  ASSERT_EQ(drift->size(), 2u);
+  EXPECT_EQ((*drift)[0].label, "-");
+  EXPECT_EQ((*drift)[0].poses, 30u);
+  EXPECT_EQ((*drift)[1].label, "good");
+  EXPECT_EQ((*drift)[1].poses, 20u);
+
+  DriftOptions bad;
+  bad.window_s = 0.0;
+  EXPECT_NE(driftByLabel(*result, labels, bad).error().find("window_s"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace stillpoint::eval

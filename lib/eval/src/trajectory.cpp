@@ -1,5 +1,6 @@
 #include "stillpoint/eval/trajectory.hpp"
 
+#include <algorithm>
 #include <array>
 #include <charconv>
 #include <cmath>
@@ -122,6 +123,45 @@ Result<Trajectory> readTumTrajectory(const std::string& path) {
   }
   if (in.bad()) return Error{path + ": read error after line " + std::to_string(line_number)};
   return trajectory;
+}
+
+Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const std::string& column) {
+  std::ifstream in(path);
+  if (!in) return Error{path + ": cannot open"};
+  std::string line;
+  std::size_t line_number = 0;
+  std::size_t stamp_at = 0, label_at = 0, needed = 0;
+  bool header = false;
+  std::vector<StampedLabel> labels;
+  while (std::getline(in, line)) {
+    ++line_number;
+    if (isBlankOrComment(line)) {
+      if (header) continue;
+      auto names = splitFields(std::string_view(line).substr(line.find('#') + 1));
+      const auto find = [&names](std::string_view name) {
+        return static_cast<std::size_t>(std::find(names.begin(), names.end(), name) - names.begin());
+      };
+      stamp_at = find("timestamp");
+      label_at = find(column);
+      if (stamp_at == names.size()) return lineError(path, line_number, "the header names no column 'timestamp'");
+      if (label_at == names.size()) return lineError(path, line_number, "the header names no column '" + column + "'");
+      needed = std::max(stamp_at, label_at) + 1;
+      header = true;
+      continue;
+    }
+    if (!header) return lineError(path, line_number, "a row before the header comment that names the columns");
+    const auto fields = splitFields(line);
+    if (fields.size() < needed) {
+      return lineError(path, line_number, "expected at least " + std::to_string(needed) + " fields, found " +
+                                              std::to_string(fields.size()));
+    }
+    const auto stamp = parseStamp(fields[stamp_at]);
+    if (!stamp) return lineError(path, line_number, "bad timestamp '" + std::string(fields[stamp_at]) + "'");
+    labels.push_back({*stamp, std::string(fields[label_at])});
+  }
+  if (in.bad()) return Error{path + ": read error after line " + std::to_string(line_number)};
+  if (!header) return Error{path + ": no header comment naming the columns"};
+  return labels;
 }
 
 Status writeTumTrajectory(const std::string& path, const Trajectory& trajectory) {

@@ -153,6 +153,44 @@ TEST_F(TrajectoryIoTest, BadContentNamesFileAndLine) {
   expectLineError(good + "0.5 0 0 0 0 0 0 1\n", 3, "not after the previous");
 }
 
+TEST_F(TrajectoryIoTest, ReadsTheNamedColumnOfAFrameLog) {
+  const std::string path = writeFile("frames.txt",
+                                     "# index timestamp state health share\n"
+                                     "0 1.000000 ok good 0.1\n"
+                                     "\n"
+                                     "1 1.033333 lost lost 0\n"
+                                     "2 1.066667 ok unreliable 0.7\n");
+  const auto health = readLabelColumn(path, "health");
+  ASSERT_TRUE(health.ok()) << health.error();
+  ASSERT_EQ(health->size(), 3u);
+  EXPECT_EQ((*health)[0].label, "good");
+  EXPECT_EQ((*health)[2].label, "unreliable");
+  EXPECT_EQ((*health)[1].stamp, *Timestamp::parseSeconds("1.033333"));
+  const auto state = readLabelColumn(path, "state");
+  ASSERT_TRUE(state.ok()) << state.error();
+  EXPECT_EQ((*state)[1].label, "lost");
+}
+
+TEST_F(TrajectoryIoTest, LabelTableErrorsNameFileAndLine) {
+  const std::string header = "# index timestamp health\n";
+  const auto expect = [&](const std::string& content, const std::string& where, const std::string& what) {
+    const std::string path = writeFile("labels.txt", content);
+    const auto result = readLabelColumn(path, "health");
+    ASSERT_FALSE(result.ok()) << content;
+    EXPECT_NE(result.error().find(path + where), std::string::npos) << result.error();
+    EXPECT_NE(result.error().find(what), std::string::npos) << result.error();
+  };
+  expect("# index timestamp state\n0 1.0 ok\n", ":1:", "no column 'health'");
+  expect("# index stamp health\n", ":1:", "no column 'timestamp'");
+  expect("0 1.0 good\n", ":1:", "before the header");
+  expect(header + "0 1.0\n", ":2:", "expected at least 3 fields");
+  expect(header + "0 x1.0 good\n", ":2:", "bad timestamp");
+  expect("", ":", "no header");
+  const auto missing = readLabelColumn((dir_ / "none.txt").string(), "health");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().find("none.txt"), std::string::npos);
+}
+
 TEST_F(TrajectoryIoTest, WriteToBadPathFails) {
   const std::string path = (dir_ / "no_such_dir" / "t.txt").string();
   const Status status = writeTumTrajectory(path, {});

@@ -116,4 +116,48 @@ RpeSummary computeRpe(const Trajectory& est, const Trajectory& gt, double delta_
 Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
                             const EvalOptions& options = {});
 
+// How far off the poses of each label were (a label per pose: its pose health,
+// or any other class): for every matched pose j of an evaluation, the
+// translation error [m] of the motion over the last `window_s`, from the
+// newest matched pose i of the same map with t_i <= t_j - window_s + max_dt_s
+// (none when that is more than two windows back):
+// |t((Q_i^-1 Q_j)^-1 (P_i^-1 P_j))|.
+// That is the error a pose added over a moment, which a consumer trusting
+// the label would take in; unlike the ATE it does not depend on how the whole
+// trajectory aligns. A pose takes the label nearest in time within
+// max_dt_s ("-" when none).
+struct LabelDrift {
+  std::string label;
+  std::size_t poses = 0;  // poses of the label with a pose window_s before them
+  double median_m = 0.0;
+  double p90_m = 0.0;
+  double max_m = 0.0;
+  double share_over_bound = 0.0;  // share of those poses whose error exceeds the bound
+};
+
+struct DriftOptions {
+  double window_s = 1.0 / 3.0;  // 10 frames at 30 Hz
+  double bound_m = 0.02;
+  double max_dt_s = 0.02;
+  // Labels reported first, in this order (each only if some pose has it);
+  // the others follow in alphabetical order.
+  std::vector<std::string> order;
+
+  // Names the first bad field, or succeeds.
+  Status validate() const;
+};
+
+Result<std::vector<LabelDrift>> driftByLabel(const EvalResult& result, const std::vector<StampedLabel>& labels,
+                                             const DriftOptions& options = {});
+
+// The same in two steps, to pool poses of several runs: each pose's label
+// and drift, and their summary per label.
+struct LabelledDrift {
+  std::string label;
+  double drift_m = 0.0;
+};
+Result<std::vector<LabelledDrift>> driftPerPose(const EvalResult& result, const std::vector<StampedLabel>& labels,
+                                                const DriftOptions& options = {});
+std::vector<LabelDrift> summariseDrift(const std::vector<LabelledDrift>& poses, const DriftOptions& options = {});
+
 }  // namespace stillpoint::eval

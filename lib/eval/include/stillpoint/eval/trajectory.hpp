@@ -30,6 +30,19 @@ using Trajectory = std::vector<StampedPose>;
 // ("path:12: ...").
 Result<Trajectory> readTumTrajectory(const std::string& path);
 
+// One text label per timestamp.
+struct StampedLabel {
+  Timestamp stamp;
+  std::string label;
+};
+
+// Reads one column of a whitespace-separated table whose first comment line
+// names its columns, as the replay's frame log does ("# index timestamp state
+// ... health ..."): for every row, its `timestamp` and its field in `column`.
+// Rows in any time order. Errors name the file (and the line): no header, no
+// such column, a short row, a bad timestamp.
+Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const std::string& column);
+
 // Writes a TUM trajectory: timestamps with Timestamp::toSecondsString()
 // (microseconds), numbers with 9 significant digits, quaternion sign chosen so
 // that qw >= 0.
