@@ -7,6 +7,7 @@
 
 #include <filesystem>
 #include <regex>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -96,6 +97,40 @@ TEST_F(ReplayCli, GoodSequenceWritesTrajectoryAndMachineReadableLastLine) {
       "frames=10 tracked=[0-9]+ lost=[0-9]+ keyframes=[0-9]+ track_ms_median=[0-9.]+ track_ms_p95=[0-9.]+ "
       "geometry_ms_median=[0-9.]+ segment_ms_median=[0-9.]+ segmentations_dropped=[0-9]+");
   EXPECT_TRUE(std::regex_match(test::lastLine(r.out), last)) << describe(r);
+}
+
+TEST_F(ReplayCli, GroundTruthGivesTheDriftOfEachHealthLevel) {
+  // 20 frames: the last 10 have a pose 1/3 s back, and a textured plane
+  // slid along is tracked to the millimetre.
+  dataset::testing::SyntheticDatasetOptions options;
+  options.n_frames = 20;
+  options.width = 320;
+  options.height = 240;
+  auto longer = dataset::testing::writeSyntheticTumDataset((scratch_ / "seq20").string(), options);
+  ASSERT_TRUE(longer.ok()) << longer.error();
+  const RunResult r = replay({longer->directory, "--camera", camera_, "--output", output_, "--sequential"});
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  ASSERT_TRUE(contains(r.out, "tracked=20 ")) << describe(r);
+  const std::regex level("(good|degraded|unreliable) ([0-9]+) poses: drift over 1/3 s median ([0-9.]+) m, p90 [0-9.]+ m, "
+                         "max ([0-9.]+) m, ([0-9.]+) % over 2 cm");
+  int poses = 0, lines = 0;
+  std::istringstream out(r.out);
+  bool in_health = false;
+  for (std::string line; std::getline(out, line);) {
+    if (line.rfind("health:", 0) == 0) in_health = true;
+    else if (!in_health || line.rfind("              ", 0) != 0) {
+      in_health = false;
+      continue;
+    }
+    std::smatch m;
+    const std::string rest = line.substr(14);
+    ASSERT_TRUE(std::regex_match(rest, m, level)) << line;
+    poses += std::stoi(m[2]);
+    ++lines;
+    EXPECT_LT(std::stod(m[4]), 0.01) << line;
+  }
+  EXPECT_GE(lines, 1) << describe(r);
+  EXPECT_EQ(poses, 10) << describe(r);
 }
 
 TEST_F(ReplayCli, HelpPrintsUsageAndExitsZero) {
