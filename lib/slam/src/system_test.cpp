@@ -286,12 +286,18 @@ TEST(SlamSystemTracking, RoomSequenceFollowsTheTrueMotion) {
 // That frame has no pose, and the next ones are tracked from the one before
 // it, in the same map. Without the check the frame is tracked where its view
 // is, 10 cm from where the camera can be.
+// Three frames on (7 cm) is as far: more than 1 g for 67 ms on top of the
+// noise allowance, which the prediction from two frames back (the one that
+// forgives a slightly wrong last pose) must not take for a camera's motion.
 TEST(SlamSystemTracking, AFrameThatJumpsFurtherThanACameraMovesHasNoPose) {
-  constexpr int kJump = 30, kAhead = 6;
+  constexpr int kJump = 30;
   const Sequence seq = roomSequence(50);
-  ASSERT_GT((seq.T_w_c[kJump + kAhead].translation() - seq.T_w_c[kJump].translation()).norm(), 0.08);
+  for (const int kAhead : {6, 3})
   for (const bool check : {true, false}) {
-    SCOPED_TRACE(check ? "motion check on" : "motion check off");
+    SCOPED_TRACE(std::string(check ? "motion check on" : "motion check off") + ", " + std::to_string(kAhead) +
+                 " frames ahead");
+    const double jump = (seq.T_w_c[kJump + kAhead].translation() - seq.T_w_c[kJump].translation()).norm();
+    ASSERT_GT(jump, kAhead == 6 ? 0.08 : 0.06);
     SlamOptions options = sequentialOptions();
     if (!check) options.tracking.max_acceleration = 0;
     auto system = makeSystem(seq.camera, options);
@@ -307,7 +313,7 @@ TEST(SlamSystemTracking, AFrameThatJumpsFurtherThanACameraMovesHasNoPose) {
           EXPECT_EQ(out->state, TrackingState::kLost);
         } else {
           ASSERT_EQ(out->state, TrackingState::kOk);
-          EXPECT_GT((out->T_w_c.translation() - seq.T_w_c[kJump].translation()).norm(), 0.08);
+          EXPECT_GT((out->T_w_c.translation() - seq.T_w_c[kJump].translation()).norm(), 0.75 * jump);
         }
         continue;
       }
@@ -319,7 +325,8 @@ TEST(SlamSystemTracking, AFrameThatJumpsFurtherThanACameraMovesHasNoPose) {
     if (check) {
       EXPECT_LT(worst_after, 0.015);
     }
-    std::printf("%s: worst online error after the jump %.1f mm\n", check ? "check on" : "check off", worst_after * 1e3);
+    std::printf("%s, a %.1f mm jump: worst online error after it %.1f mm\n", check ? "check on" : "check off", jump * 1e3,
+                worst_after * 1e3);
   }
 }
 

@@ -48,11 +48,13 @@ struct TrackingOptions {
   // max_jump_m + max_acceleration dt^2 / 2 (m/s^2) in position, or
   // max_jump_deg + max_angular_acceleration dt^2 / 2 (deg/s^2) in rotation,
   // dt since the frame predicted from, has no pose: no camera moves so
-  // (30 m/s^2 is 3 g), the pose rests on wrong matches. Tracking goes on from
-  // the last frame, as after a blind one (0: no check; docs/pose-health.md).
-  // The jumps cover the noise of a velocity taken from two poses (at most
-  // 1.1 cm and 1.3 degrees at 30 Hz on the excerpt).
-  double max_acceleration = 30.0;
+  // (10 m/s^2 is 1 g, a hand-held camera's true departure from its motion
+  // carried on is at most 1 cm a frame on the excerpt), the pose rests on
+  // wrong matches. Tracking goes on from the last frame, as after a blind
+  // one (0: no check; docs/pose-health.md). The jumps cover the noise of a
+  // velocity taken from two poses (at most 1.1 cm and 1.3 degrees at 30 Hz
+  // on the excerpt).
+  double max_acceleration = 10.0;
   double max_angular_acceleration = 3000.0;
   double max_jump_m = 0.03;
   double max_jump_deg = 3.0;
