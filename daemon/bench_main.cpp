@@ -655,8 +655,7 @@ bool writeReport(const Args& args, const std::string& command, const std::string
     std::vector<std::string> labels;
     for (const Group& g : groups)
       if (std::find(labels.begin(), labels.end(), g.label) == labels.end()) labels.push_back(g.label);
-    eval::DriftOptions drift_options;
-    drift_options.order = {"good", "degraded", "unreliable"};
+    const eval::DriftOptions drift_options = eval::poseHealthDriftOptions();
     for (const std::string& label : labels) {
       std::vector<eval::LabelledDrift> pooled;
       for (const Group& g : groups)

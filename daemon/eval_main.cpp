@@ -75,8 +75,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> positional;
   std::string plot_path, frame_log;
   EvalOptions options;
-  DriftOptions drift_options;
-  drift_options.order = {"good", "degraded", "unreliable"};
+  DriftOptions drift_options = poseHealthDriftOptions();
   for (int k = 1; k < argc; ++k) {
     const std::string_view arg = argv[k];
     if (arg == "--help" || arg == "-h") {

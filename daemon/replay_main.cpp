@@ -697,9 +697,7 @@ int main(int argc, char** argv) {
         std::printf("              over %zu maps, each aligned on its own (%zu poses of maps too short to align left "
                     "out)\n",
                     ev->maps, ev->unaligned);
-      eval::DriftOptions drift_options;
-      drift_options.order = {"good", "degraded", "unreliable"};
-      if (auto drift = eval::driftByLabel(*ev, health, drift_options); drift) {
+      if (auto drift = eval::driftByLabel(*ev, health, eval::poseHealthDriftOptions()); drift) {
         const char* lead = "health:       ";
         for (const eval::LabelDrift& d : *drift) {
           std::printf("%s%s %zu poses: drift over 1/3 s median %.4f m, p90 %.4f m, max %.4f m, %.1f %% over 2 cm\n", lead,

@@ -295,6 +295,12 @@ Status DriftOptions::validate() const {
   return Status::success();
 }
 
+DriftOptions poseHealthDriftOptions() {
+  DriftOptions options;
+  options.order = {"good", "degraded", "unreliable"};
+  return options;
+}
+
 Result<std::vector<LabelledDrift>> driftPerPose(const EvalResult& result, const std::vector<StampedLabel>& labels,
                                                 const DriftOptions& options) {
   if (Status status = options.validate(); !status) return Error{status.error()};

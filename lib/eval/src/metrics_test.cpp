@@ -304,9 +304,7 @@ TEST(DriftByLabel, GivesEachLabelTheErrorItsPosesAdded) {
   const auto result = evaluate(gt, est);
   ASSERT_TRUE(result.ok()) << result.error();
 
-  DriftOptions options;
-  options.order = {"good", "degraded", "unreliable"};
-  const auto drift = driftByLabel(*result, labels, options);
+  const auto drift = driftByLabel(*result, labels, poseHealthDriftOptions());
   ASSERT_TRUE(drift.ok()) << drift.error();
   ASSERT_EQ(drift->size(), 2u);
   const LabelDrift& good = (*drift)[0];

@@ -147,6 +147,10 @@ struct DriftOptions {
   Status validate() const;
 };
 
+// The options for stillpoint's pose health (the frame log's `health`): its
+// levels reported best first, good, degraded, unreliable.
+DriftOptions poseHealthDriftOptions();
+
 Result<std::vector<LabelDrift>> driftByLabel(const EvalResult& result, const std::vector<StampedLabel>& labels,
                                              const DriftOptions& options = {});
 
