@@ -24,6 +24,22 @@ constexpr std::int64_t kSteadyVelocityFrames = 5;
 // In localisation mode, the map points a frame must match before the last
 // frame's temporary depth points are left out of its pose fit.
 constexpr int kMapMatchesWithoutTemporary = 50;
+
+// `motion` (a camera-frame step T_c_w' = motion T_c_w) s times over.
+SE3 scaledMotion(const SE3& motion, double s) {
+  SE3 v = SE3::Identity();
+  v.linear() = expSO3(s * logSO3(motion.linear()));
+  v.translation() = s * motion.translation();
+  return v;
+}
+
+// The pose at `stamp` if the camera kept the motion from `before` to `from`.
+SE3 extrapolate(const Tracker::StampedPose& before, const Tracker::StampedPose& from, Timestamp stamp) {
+  const double dt = secondsBetween(from.stamp, before.stamp);
+  const double s = dt > 0 ? secondsBetween(stamp, from.stamp) / dt : 1.0;
+  return renormalized(scaledMotion(renormalized(from.T_c_w * before.T_c_w.inverse()), s) * from.T_c_w);
+}
+
 }  // namespace
 
 Tracker::Tracker(const CameraModel& camera, const SlamOptions& options, const LevelInfo& levels, Map* map,
@@ -105,14 +121,26 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
       updateVelocity();
       // The poses the motion check extrapolates: tracked in a row on full evidence.
       if (state_ != TrackingState::kOk || starved_) steady_poses_.clear();
-      steady_poses_.push_back({current_.stamp, current_.T_c_w});
-      if (steady_poses_.size() > 3) steady_poses_.pop_front();
+      if (last_pose_departed_ && !steady_poses_.empty()) {
+        // The motion since the frame before the off pose, per frame.
+        steady_poses_.pop_back();
+        followMapUnderSteadyPoses();
+        const StampedPose& before = steady_poses_.back();
+        const double span = secondsBetween(current_.stamp, before.stamp);
+        if (has_velocity_ && span > 0) {
+          velocity_ = scaledMotion(renormalized(current_.T_c_w * before.T_c_w.inverse()), velocity_dt_ / span);
+          if (!starved_) steady_velocity_ = velocity_;
+        }
+      }
+      last_pose_departed_ = false;
       // Temporary odometry points never outlive the frame they helped track.
       for (int i = 0; i < current_.size(); ++i)
         if (current_.points[i] && (current_.points[i]->isTemporary() || current_.outlier[i]))
           current_.points[i] = nullptr;
       catchUpWithWorld();
       T_last_reference_ = renormalized(current_.T_c_w * reference_->T_c_w().inverse());
+      steady_poses_.push_back({current_.stamp, current_.T_c_w, reference_->anchor(), T_last_reference_});
+      if (steady_poses_.size() > 3) steady_poses_.pop_front();
       seen_epoch_ = map_->epoch();
       placed = {reference_->anchor(), T_last_reference_, seen_epoch_};
       trajectory_.record({current_.stamp, reference_->anchor(), T_last_reference_, map_id_});
@@ -874,25 +902,6 @@ int Tracker::timedOptimizePose(const SE3* prior) {
   return inliers;
 }
 
-namespace {
-
-// `motion` (a camera-frame step T_c_w' = motion T_c_w) s times over.
-SE3 scaledMotion(const SE3& motion, double s) {
-  SE3 v = SE3::Identity();
-  v.linear() = expSO3(s * logSO3(motion.linear()));
-  v.translation() = s * motion.translation();
-  return v;
-}
-
-// The pose at `stamp` if the camera kept the motion from `before` to `from`.
-SE3 extrapolate(const Tracker::StampedPose& before, const Tracker::StampedPose& from, Timestamp stamp) {
-  const double dt = secondsBetween(from.stamp, before.stamp);
-  const double s = dt > 0 ? secondsBetween(stamp, from.stamp) / dt : 1.0;
-  return renormalized(scaledMotion(renormalized(from.T_c_w * before.T_c_w.inverse()), s) * from.T_c_w);
-}
-
-}  // namespace
-
 bool Tracker::plausibleMotion() {
   // The pose is compared with the last steady frame's motion carried on,
   // and with the motion of the frame before carried on from there: a pose
@@ -903,7 +912,9 @@ bool Tracker::plausibleMotion() {
   // movers, may carry a pose error into it.
   constexpr int kTrustedFrames = 3;
   const TrackingOptions& t = options_.tracking;
+  followMapUnderSteadyPoses();
   const auto& h = steady_poses_;
+  last_pose_departed_ = false;
   if (t.max_acceleration <= 0 || state_ != TrackingState::kOk || h.size() < 3 || h.back().stamp != last_.stamp) {
     predicted_frames_ = 0;
     return true;
@@ -919,6 +930,14 @@ bool Tracker::plausibleMotion() {
     plausible = moved <= t.max_jump_m + 0.5 * t.max_acceleration * dt * dt &&
                 turned <= t.max_jump_deg + 0.5 * t.max_angular_acceleration * dt * dt;
     if (from == 1) worst_m = moved, worst_deg = turned;
+    // Right by the frame before the last only, and the last frame's pose
+    // departs further from that motion than this one: the last pose was the
+    // one off, and predicting from it would reject the next right pose.
+    if (plausible && from == 2) {
+      const SE3 last_predicted = extrapolate(h[h.size() - 3], f, h.back().stamp);
+      last_pose_departed_ =
+          (h.back().T_c_w.inverse().translation() - last_predicted.inverse().translation()).norm() > moved;
+    }
   }
   if (plausible || predicted_frames_ < kTrustedFrames) {
     predicted_frames_ = plausible ? predicted_frames_ + 1 : 0;
@@ -927,6 +946,13 @@ bool Tracker::plausibleMotion() {
   SP_DEBUG(logger, "frame " << current_.id << ": the pose departs from the motion model's by " << worst_m << " m and "
                             << worst_deg << " degrees: implausible, no pose");
   return false;
+}
+
+void Tracker::followMapUnderSteadyPoses() {
+  // Local BA moves keyframes by centimetres between frames: a pose kept in
+  // the world as it was would depart from the motion by as much.
+  for (StampedPose& p : steady_poses_)
+    if (p.reference) p.T_c_w = renormalized(p.T_c_ref * p.reference->T_c_w());
 }
 
 SE3 Tracker::predictedPose(const SE3& last) const {

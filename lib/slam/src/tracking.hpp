@@ -34,6 +34,9 @@ class Tracker {
   struct StampedPose {
     Timestamp stamp;
     SE3 T_c_w;
+    // The keyframe the pose hangs on, which local BA may move (map lock).
+    std::shared_ptr<const PoseAnchor> reference;
+    SE3 T_c_ref = SE3::Identity();
   };
 
   // `clustering` (may be null: geometry module off) delivers the depth
@@ -158,6 +161,8 @@ class Tracker {
   // Whether the frame's pose moves as a camera can from the motion model's
   // prediction (tracking.max_acceleration).
   bool plausibleMotion();
+  // The steady poses where their keyframes are now (a map lock held).
+  void followMapUnderSteadyPoses();
   void updateVelocity();
   void updateProbation();
   void markMoverCells(bool tracked);
@@ -305,6 +310,7 @@ class Tracker {
   bool rejected_ = false;  // the frame's pose failed plausibleMotion(): no pose, tracking goes on
   int predicted_frames_ = 0;  // frames in a row the motion predicted within plausibleMotion()'s bounds
   std::deque<StampedPose> steady_poses_;  // the last steady frames' poses (plausibleMotion())
+  bool last_pose_departed_ = false;  // plausibleMotion() found the last steady pose off: it predicts no more
   bool starved_ = false;  // the pose stands on keepPoseOnStaticEvidence()
   // Stage-1 matches to the last frame's moving features (evidence only).
   std::vector<std::shared_ptr<MapPoint>> carried_;
