@@ -281,6 +281,38 @@ TEST(SlamSystemTracking, RoomSequenceFollowsTheTrueMotion) {
   EXPECT_LT(degrees(a.frame_to_frame.max_rotation), 0.15);
 }
 
+// `seq` tracked with frame `jump` showing the view from `ahead` frames on at
+// its own stamp.
+struct JumpRun {
+  std::vector<TrackOutput> out;  // one per frame tracked
+  std::size_t maps = 0;
+  std::string unposed_after;  // frames after the jump without a pose
+  double worst_after = 0;     // the largest error of a pose after the jump
+};
+
+JumpRun trackWithJump(const Sequence& seq, const SlamOptions& options, int jump, int ahead) {
+  JumpRun run;
+  auto system = makeSystem(seq.camera, options);
+  EXPECT_TRUE(system);
+  if (!system) return run;
+  for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) {
+    RgbdInput input = seq.frames[k == jump ? jump + ahead : k];
+    input.stamp = seq.frames[k].stamp;
+    const auto out = system->track(input);
+    EXPECT_TRUE(out.ok()) << out.error();
+    if (!out) return run;
+    run.out.push_back(*out);
+    if (k <= jump) continue;
+    if (out->state != TrackingState::kOk)
+      run.unposed_after += " " + std::to_string(k);
+    else
+      run.worst_after = std::max(run.worst_after, (out->T_w_c.translation() - seq.T_w_c[k].translation()).norm());
+  }
+  system->finish();
+  run.maps = system->mapStats().maps;
+  return run;
+}
+
 // One frame shows the view from 6 frames on (10 cm further) at its own
 // stamp: a pose no camera reaches in 33 ms, as when wrong matches hold it.
 // That frame has no pose, and the next ones are tracked from the one before
@@ -300,33 +332,23 @@ TEST(SlamSystemTracking, AFrameThatJumpsFurtherThanACameraMovesHasNoPose) {
     ASSERT_GT(jump, kAhead == 6 ? 0.08 : 0.06);
     SlamOptions options = sequentialOptions();
     if (!check) options.tracking.max_acceleration = 0;
-    auto system = makeSystem(seq.camera, options);
-    ASSERT_TRUE(system);
-    double worst_after = 0;
-    for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) {
-      RgbdInput input = seq.frames[k == kJump ? kJump + kAhead : k];
-      input.stamp = seq.frames[k].stamp;
-      const auto out = system->track(input);
-      ASSERT_TRUE(out.ok()) << out.error();
-      if (k == kJump) {
-        if (check) {
-          EXPECT_EQ(out->state, TrackingState::kLost);
-        } else {
-          ASSERT_EQ(out->state, TrackingState::kOk);
-          EXPECT_GT((out->T_w_c.translation() - seq.T_w_c[kJump].translation()).norm(), 0.75 * jump);
-        }
-        continue;
-      }
-      ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << k;
-      if (k > kJump) worst_after = std::max(worst_after, (out->T_w_c.translation() - seq.T_w_c[k].translation()).norm());
-    }
-    system->finish();
-    EXPECT_EQ(system->mapStats().maps, 1u);
+    const JumpRun run = trackWithJump(seq, options, kJump, kAhead);
+    ASSERT_EQ(run.out.size(), seq.frames.size());
+    for (int k = 0; k < kJump; ++k) EXPECT_EQ(run.out[k].state, TrackingState::kOk) << "frame " << k;
+    const TrackOutput& jumped = run.out[kJump];
     if (check) {
-      EXPECT_LT(worst_after, 0.015);
+      EXPECT_EQ(jumped.state, TrackingState::kLost);
+    } else {
+      ASSERT_EQ(jumped.state, TrackingState::kOk);
+      EXPECT_GT((jumped.T_w_c.translation() - seq.T_w_c[kJump].translation()).norm(), 0.75 * jump);
+    }
+    EXPECT_EQ(run.unposed_after, "") << "frames after the jump without a pose";
+    EXPECT_EQ(run.maps, 1u);
+    if (check) {
+      EXPECT_LT(run.worst_after, 0.015);
     }
     std::printf("%s, a %.1f mm jump: worst online error after it %.1f mm\n", check ? "check on" : "check off", jump * 1e3,
-                worst_after * 1e3);
+                run.worst_after * 1e3);
   }
 }
 
@@ -338,27 +360,17 @@ TEST(SlamSystemTracking, AFrameThatJumpsFurtherThanACameraMovesHasNoPose) {
 TEST(SlamSystemTracking, ARightPoseAfterAnOffOneKeepsItsPose) {
   constexpr int kJump = 30, kAhead = 2;
   const Sequence seq = roomSequence(45);
-  const double jump = (seq.T_w_c[kJump + kAhead].translation() - seq.T_w_c[kJump].translation()).norm();
-  auto system = makeSystem(seq.camera, sequentialOptions());
-  ASSERT_TRUE(system);
-  double worst_after = 0;
-  for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) {
-    RgbdInput input = seq.frames[k == kJump ? kJump + kAhead : k];
-    input.stamp = seq.frames[k].stamp;
-    const auto out = system->track(input);
-    ASSERT_TRUE(out.ok()) << out.error();
-    if (k == kJump) {
-      // The premise: the off pose is within the bounds and is reported.
-      ASSERT_EQ(out->state, TrackingState::kOk);
-      EXPECT_GT((out->T_w_c.translation() - seq.T_w_c[kJump].translation()).norm(), 0.03);
-      continue;
-    }
-    ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << k;
-    if (k > kJump) worst_after = std::max(worst_after, (out->T_w_c.translation() - seq.T_w_c[k].translation()).norm());
-  }
-  system->finish();
-  EXPECT_LT(worst_after, 0.015);
-  std::printf("a %.1f mm jump: worst online error after it %.1f mm\n", jump * 1e3, worst_after * 1e3);
+  const JumpRun run = trackWithJump(seq, sequentialOptions(), kJump, kAhead);
+  ASSERT_EQ(run.out.size(), seq.frames.size());
+  for (int k = 0; k < kJump; ++k) EXPECT_EQ(run.out[k].state, TrackingState::kOk) << "frame " << k;
+  // The premise: the off pose is within the bounds and is reported.
+  const TrackOutput& jumped = run.out[kJump];
+  ASSERT_EQ(jumped.state, TrackingState::kOk);
+  const double off = (jumped.T_w_c.translation() - seq.T_w_c[kJump].translation()).norm();
+  EXPECT_GT(off, 0.03);
+  EXPECT_EQ(run.unposed_after, "") << "frames after the off pose without a pose";
+  EXPECT_LT(run.worst_after, 0.015);
+  std::printf("a pose %.1f mm off: worst online error after it %.1f mm\n", off * 1e3, run.worst_after * 1e3);
 }
 
 // The camera goes on at the same pace into a place the map has never seen
