@@ -127,10 +127,9 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
         followMapUnderSteadyPoses();
         const StampedPose& before = steady_poses_.back();
         const double span = secondsBetween(current_.stamp, before.stamp);
-        if (has_velocity_ && span > 0) {
-          velocity_ = scaledMotion(renormalized(current_.T_c_w * before.T_c_w.inverse()), velocity_dt_ / span);
-          if (!starved_) steady_velocity_ = velocity_;
-        }
+        if (has_velocity_ && span > 0)
+          steady_velocity_ = velocity_ =
+              scaledMotion(renormalized(current_.T_c_w * before.T_c_w.inverse()), velocity_dt_ / span);
       }
       last_pose_departed_ = false;
       // Temporary odometry points never outlive the frame they helped track.
@@ -194,7 +193,6 @@ void Tracker::catchUpWithWorld() {
   const SE3 D = renormalized(reference_at_pose_.inverse() * reference_->anchor()->T_c_w());
   current_.T_c_w = renormalized(current_.T_c_w * D);
   if (has_last_) last_.T_c_w = renormalized(last_.T_c_w * D);
-  for (StampedPose& p : steady_poses_) p.T_c_w = renormalized(p.T_c_w * D);
   notePoseWorld();
 }
 
