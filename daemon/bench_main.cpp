@@ -37,6 +37,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using namespace stillpoint;
+using eval::quantile;
 
 constexpr const char* kUsage =
     "usage: stillpoint-bench --sequence DIR:CAMERA [--sequence DIR:CAMERA ...] --out DIR\n"
@@ -212,14 +213,6 @@ struct RunResult {
   Result<eval::EvalResult> eval = Error{"not evaluated"};
   std::vector<eval::LabelledDrift> drift;  // each pose's health and drift
 };
-
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return NAN;
-  std::sort(v.begin(), v.end());
-  if (q == 0.5) return v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
-  const std::size_t k = static_cast<std::size_t>(std::ceil(q * v.size()));
-  return v[std::min(v.size() - 1, k == 0 ? 0 : k - 1)];
-}
 
 // Runs argv with stdout and stderr into files; returns the wait status, or -1.
 int spawnAndWait(const std::vector<std::string>& argv, const std::string& out_path, const std::string& err_path,

@@ -32,12 +32,6 @@ double rms(const std::vector<double>& values) {
   return std::sqrt(sum_sq / static_cast<double>(values.size()));
 }
 
-double median(std::vector<double> values) {
-  const std::size_t n = values.size();
-  std::sort(values.begin(), values.end());
-  return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
-
 // Index among the first n poses whose stamp is closest to target (the earlier
 // one on a tie).
 std::size_t closestIndex(const Trajectory& trajectory, std::size_t n, Timestamp target) {
@@ -280,12 +274,21 @@ Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
   double sum = 0.0;
   for (double e : errors) sum += e;
   result.ate_mean = sum / static_cast<double>(errors.size());
-  result.ate_median = median(errors);
+  result.ate_median = quantile(errors, 0.5);
   result.ate_max = *std::max_element(errors.begin(), errors.end());
   result.rpe_pairs = trans_rates.size();
   result.rpe_trans_m_s = trans_rates.empty() ? std::numeric_limits<double>::quiet_NaN() : rms(trans_rates);
   result.rpe_rot_deg_s = rot_rates.empty() ? std::numeric_limits<double>::quiet_NaN() : rms(rot_rates);
   return result;
+}
+
+double quantile(std::vector<double> values, double q) {
+  const std::size_t n = values.size();
+  if (n == 0) return std::numeric_limits<double>::quiet_NaN();
+  std::sort(values.begin(), values.end());
+  if (q == 0.5) return n % 2 == 1 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+  const auto rank = static_cast<std::size_t>(std::ceil(q * static_cast<double>(n)));
+  return values[std::min(n - 1, rank == 0 ? 0 : rank - 1)];
 }
 
 Status DriftOptions::validate() const {
@@ -354,14 +357,13 @@ std::vector<LabelDrift> summariseDrift(const std::vector<LabelledDrift>& poses, 
 
   std::vector<LabelDrift> out;
   for (const std::string& name : names) {
-    std::vector<double> v = drift[name];
-    std::sort(v.begin(), v.end());
+    const std::vector<double>& v = drift[name];
     LabelDrift d;
     d.label = name;
     d.poses = v.size();
-    d.median_m = median(v);
-    d.p90_m = v[std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(0.9 * static_cast<double>(v.size()))) - 1)];
-    d.max_m = v.back();
+    d.median_m = quantile(v, 0.5);
+    d.p90_m = quantile(v, 0.9);
+    d.max_m = *std::max_element(v.begin(), v.end());
     d.share_over_bound = static_cast<double>(std::count_if(v.begin(), v.end(), [&](double x) { return x > options.bound_m; })) /
                          static_cast<double>(v.size());
     out.push_back(d);

@@ -286,6 +286,16 @@ TEST(Evaluate, RejectsBadOptions) {
   EXPECT_TRUE(EvalOptions{}.validate().ok());
 }
 
+TEST(Quantile, NearestRankAndTheMedianOfAnEvenCount) {
+  const std::vector<double> v = {10, 3, 7, 1, 9, 2, 8, 4, 6, 5};
+  EXPECT_DOUBLE_EQ(quantile(v, 0.5), 5.5);
+  EXPECT_DOUBLE_EQ(quantile(v, 0.9), 9.0);
+  EXPECT_DOUBLE_EQ(quantile(v, 0.95), 10.0);
+  EXPECT_DOUBLE_EQ(quantile(v, 1.0), 10.0);
+  EXPECT_DOUBLE_EQ(quantile({4, 1, 3}, 0.5), 3.0);
+  EXPECT_TRUE(std::isnan(quantile({}, 0.5)));
+}
+
 // The estimate is the ground truth but for a 5 cm jump at frame 40 that it
 // keeps (a pose following a mover for a moment); frames 40-49 are labelled
 // "unreliable", the rest "good", and the second half is a new map.

@@ -116,6 +116,11 @@ RpeSummary computeRpe(const Trajectory& est, const Trajectory& gt, double delta_
 Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
                             const EvalOptions& options = {});
 
+// The q-quantile (0 < q <= 1) of `values` by nearest rank, the smallest value
+// with at least a share q of them at or below it; for q = 0.5 the median (the
+// mean of the middle two of an even count). NaN when there are none.
+double quantile(std::vector<double> values, double q);
+
 // How far off the poses of each label were (a label per pose: its pose health,
 // or any other class): for every matched pose j of an evaluation, the
 // translation error [m] of the motion over the last `window_s`, from the
