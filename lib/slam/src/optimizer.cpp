@@ -471,13 +471,54 @@ bool withinDepthRange(const CameraModel& camera, const MapPoint& p) {
   return false;
 }
 
+// A keyframe's pose held near where tracking put it: rotation error (angle
+// axis of R R_prior^T) over sigma_rad, camera centre error over sigma_m.
+struct PosePriorCost {
+  PosePriorCost(const SE3& prior, double sigma_rad, double sigma_m) : sigma_rad(sigma_rad), sigma_m(sigma_m) {
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) R_prior[3 * c + r] = prior.linear()(r, c);  // column major
+    const Vec3 centre = -prior.linear().transpose() * prior.translation();
+    for (int k = 0; k < 3; ++k) centre_prior[k] = centre[k];
+  }
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const {
+    T R[9];
+    ceres::AngleAxisToRotationMatrix(pose, R);  // column major
+    T E[9];
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) {
+        E[3 * c + r] = T(0);
+        for (int k = 0; k < 3; ++k) E[3 * c + r] += R[3 * k + r] * T(R_prior[3 * k + c]);
+      }
+    ceres::RotationMatrixToAngleAxis(E, residual);
+    for (int k = 0; k < 3; ++k) {
+      residual[k] /= T(sigma_rad);
+      T centre = T(0);  // -R^T t
+      for (int j = 0; j < 3; ++j) centre -= R[3 * k + j] * pose[3 + j];
+      residual[3 + k] = (centre - T(centre_prior[k])) / T(sigma_m);
+    }
+    return true;
+  }
+  double R_prior[9], centre_prior[3], sigma_rad, sigma_m;
+};
+
+// The newest keyframe's pose is tracking's, which the motion model held
+// where the frame's own evidence leaves a direction nearly free (far points
+// only: a sideways slide with a turn reprojects them alike). A two-view BA
+// (a map's second keyframe, the first fixed) keeps it near that pose with
+// these sigmas; where its points pin it, they outweigh the prior by far. In
+// larger windows the other views pin the points.
+constexpr double kHeldSigmaM = 0.01;
+constexpr double kHeldSigmaDeg = 0.5;
+
 // The bundle adjustment of the keyframes `select` picks (shared lock held)
 // and every point they see; other keyframes that see those points are held
 // fixed, and so are map origins. Snapshot, solve without the lock, write
-// back unless the world moved meanwhile (Map::epoch).
+// back unless the world moved meanwhile (Map::epoch). `held`, when one of
+// the free keyframes, keeps a prior at its pose as it was.
 LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
                           const std::function<std::vector<KeyFrame*>()>& select, int iterations,
-                          const std::atomic<bool>* abort) {
+                          const std::atomic<bool>* abort, const KeyFrame* held = nullptr) {
   LocalBaStats stats;
   struct Obs {
     int camera;  // index into poses
@@ -493,6 +534,8 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
   std::vector<std::array<double, 3>> positions;
   std::vector<Obs> observations;
   std::uint64_t epoch = 0;
+  int held_camera = -1;
+  SE3 held_prior = SE3::Identity();
 
   {  // Snapshot under a shared lock.
     std::shared_lock lock(map->mutex());
@@ -528,6 +571,11 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
     }
     poses.resize(cameras.size());
     for (std::size_t c = 0; c < cameras.size(); ++c) toParameters(cameras[c]->T_c_w(), poses[c].data());
+    // Two views only (a map's second keyframe): the points have no third view
+    // to pin them.
+    if (cameras.size() == 2)
+      for (std::size_t c = 0; c < cameras.size(); ++c)
+        if (cameras[c] == held && !fixed[c]) held_camera = static_cast<int>(c), held_prior = held->T_c_w();
   }
   stats.points = static_cast<int>(points.size());
   stats.observations = static_cast<int>(observations.size());
@@ -553,6 +601,10 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
     }
     for (std::size_t c = 0; c < cameras.size(); ++c)
       if (fixed[c] && problem.HasParameterBlock(poses[c].data())) problem.SetParameterBlockConstant(poses[c].data());
+    if (held_camera >= 0 && problem.HasParameterBlock(poses[held_camera].data()))
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<PosePriorCost, 6, 6>(
+                                   new PosePriorCost(held_prior, kHeldSigmaDeg * M_PI / 180.0, kHeldSigmaM)),
+                               nullptr, poses[held_camera].data());
     ceres::Solver::Options options;
     // Local windows have few cameras: a dense reduced camera system is the
     // fastest (Debian's Ceres has no fixed-size Schur specialisations). A
@@ -628,7 +680,7 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
         for (KeyFrame* n : kf->bestNeighbours(max_keyframes - 1)) local.push_back(n);
         return local;
       },
-      iterations, abort);
+      iterations, abort, kf);
 }
 
 LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id, int iterations,
