@@ -112,7 +112,9 @@ struct LocalBaStats {
 
 // Local BA around `kf`: it and its best covisible keyframes are optimised
 // together with every point they see; other keyframes seeing those points are
-// held fixed. Runs without the map lock between a snapshot and a write-back.
+// held fixed. In a window of two views (a map's second keyframe) `kf` keeps a
+// prior at its tracked pose: far points leave a slide with a turn nearly free
+// there. Runs without the map lock between a snapshot and a write-back.
 LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
                                    const std::atomic<bool>* abort = nullptr);
 
