@@ -681,10 +681,10 @@ int main(int argc, char** argv) {
   if (map.vocabulary.empty())
     std::printf("places:       no vocabulary: no loop closing\n");
   else
-    std::printf("places:       %s; %d loops closed (%d candidates, %d failed the geometric check), %d global BAs "
-                "(%d dropped)\n",
-                map.vocabulary.c_str(), map.loops_closed, map.loops_detected, map.loops_rejected, map.global_ba_runs,
-                map.global_ba_dropped);
+    std::printf("places:       %s; %d loops closed (%d candidates, %d failed the geometric check; %d of %d frames "
+                "that came back to an older place), %d global BAs (%d dropped)\n",
+                map.vocabulary.c_str(), map.loops_closed, map.loops_detected, map.loops_rejected,
+                map.loops_crossings_closed, map.loops_crossings_checked, map.global_ba_runs, map.global_ba_dropped);
   std::printf("trajectory:   %zu poses -> %s\n", trajectory.size(), args.output.c_str());
   if (data->hasGroundTruth()) {
     auto gt = eval::readTumTrajectory(data->groundTruthPath());

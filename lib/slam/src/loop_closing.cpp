@@ -29,6 +29,11 @@ constexpr int kStrongCovisibility = 100;  // covisibility edges of the essential
 constexpr int kGlobalBaIterations = 10;
 constexpr std::size_t kVerifiedPerKeyFrame = 3;
 constexpr float kFuseRadiusPx = 4.0f;  // the group's search for the older side's points
+// A frame crossing into an older place is checked at most this often: the
+// check matches its features against a side's points by descriptor alone.
+constexpr double kCrossingEverySeconds = 0.5;
+constexpr float kCrossingRatio = 0.8f;  // best to second-best descriptor distance
+constexpr std::size_t kCrossingCandidates = 2;  // the newer side's keyframes tried besides the newest
 
 // The rigid motion (no scale) taking `from` onto `to` (least squares).
 SE3 rigidFit(const std::vector<Vec3>& from, const std::vector<Vec3>& to) {
@@ -37,6 +42,45 @@ SE3 rigidFit(const std::vector<Vec3>& from, const std::vector<Vec3>& to) {
   SE3 T = SE3::Identity();
   T.matrix() = Eigen::umeyama(a, b, false);
   return T;
+}
+
+// The rigid motion taking the `from` side of most pairs onto their `to`
+// side, by RANSAC over three-point fits and two refits on the inliers;
+// `agrees(T, k)` tells whether pair k agrees with T. The inliers, empty when
+// fewer than `min_inliers`.
+template <typename Agrees>
+std::vector<std::size_t> rigidConsensus(const std::vector<Vec3>& from, const std::vector<Vec3>& to,
+                                        std::size_t min_inliers, std::uint32_t seed, Agrees agrees, SE3* T) {
+  auto inliersOf = [&](const SE3& T_to_from) {
+    std::vector<std::size_t> out;
+    for (std::size_t k = 0; k < from.size(); ++k)
+      if (agrees(T_to_from, k)) out.push_back(k);
+    return out;
+  };
+  if (from.size() < min_inliers || from.size() < 3) return {};
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<std::size_t> pick(0, from.size() - 1);
+  std::vector<std::size_t> best;
+  for (int it = 0; it < kRansacIterations; ++it) {
+    const std::size_t s0 = pick(rng), s1 = pick(rng), s2 = pick(rng);
+    if (s0 == s1 || s1 == s2 || s0 == s2) continue;
+    // Three points spread out, not on a line: a well-posed motion.
+    const Vec3 u = from[s1] - from[s0], v = from[s2] - from[s0];
+    if (u.norm() < 0.05 || v.norm() < 0.05 || u.cross(v).norm() < 0.05 * u.norm() * v.norm()) continue;
+    std::vector<std::size_t> inliers = inliersOf(rigidFit({from[s0], from[s1], from[s2]}, {to[s0], to[s1], to[s2]}));
+    if (inliers.size() > best.size()) best = std::move(inliers);
+  }
+  if (best.size() < min_inliers) return {};
+  // Refit on the inliers (twice: the set may grow).
+  for (int round = 0; round < 2; ++round) {
+    std::vector<Vec3> a, b;
+    for (std::size_t k : best) a.push_back(from[k]), b.push_back(to[k]);
+    *T = renormalized(rigidFit(a, b));
+    std::vector<std::size_t> refit = inliersOf(*T);
+    if (refit.size() < min_inliers) return {};
+    best = std::move(refit);
+  }
+  return best;
 }
 
 }  // namespace
@@ -77,31 +121,43 @@ void LoopCloser::finish() {
 void LoopCloser::run(std::stop_token stop) {
   for (;;) {
     std::int64_t id = -1;
+    std::optional<Crossing> crossing;
     {
       std::unique_lock lock(mutex_);
-      cv_.wait(lock, stop, [this] { return !queue_.empty() || closed_; });
-      if (queue_.empty()) return;  // closed (or stopped) and drained
-      id = queue_.front();
-      queue_.pop_front();
+      cv_.wait(lock, stop, [this] { return !queue_.empty() || crossing_ || closed_; });
+      if (!queue_.empty()) {
+        id = queue_.front();
+        queue_.pop_front();
+      } else if (crossing_) {
+        crossing.swap(crossing_);
+      } else {
+        return;  // closed (or stopped) and drained
+      }
     }
-    process(id);
+    if (crossing)
+      processCrossing(crossing->frame, crossing->words, crossing->reference, crossing->newest, crossing->epoch);
+    else
+      process(id);
   }
 }
 
 void LoopCloser::process(std::int64_t keyframe_id) {
   Loop loop;
-  if (!detect(keyframe_id, &loop)) return;
+  if (detect(keyframe_id, &loop)) close(loop);
+}
+
+bool LoopCloser::close(const Loop& loop) {
   const auto t0 = std::chrono::steady_clock::now();
-  correct(loop);
+  if (!correct(loop)) return false;
   const double correct_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   SP_INFO(logger, "keyframe " << loop.keyframe << ": loop with keyframe " << loop.candidate << " closed in "
                               << correct_ms << " ms");
-  if (!options_.place.global_ba) return;
+  if (!options_.place.global_ba) return true;
   std::uint32_t map_id = 0;
   {
     std::shared_lock lock(map_->mutex());
     const KeyFrame* kf = map_->keyFrame(loop.keyframe);
-    if (!kf) return;
+    if (!kf) return true;
     map_id = kf->map_id;
   }
   const auto t1 = std::chrono::steady_clock::now();
@@ -123,13 +179,15 @@ void LoopCloser::process(std::int64_t keyframe_id) {
   const double ba_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
   SP_INFO(logger, "global BA over " << s.keyframes << " keyframes and " << s.points << " points in " << ba_ms
                                     << " ms" << (applied ? "" : " (dropped: the map moved meanwhile)"));
+  return true;
 }
 
 bool LoopCloser::detect(std::int64_t keyframe_id, Loop* loop) {
   std::shared_lock lock(map_->mutex());
   KeyFrame* kf = map_->keyFrame(keyframe_id);
   if (!kf || kf->bad || kf->bow.empty()) return false;
-  if ((last_loop_keyframe_ >= 0 && keyframe_id < last_loop_keyframe_ + kKeyFramesBetween) ||
+  const std::int64_t last_loop = last_loop_keyframe_.load();
+  if ((last_loop >= 0 && keyframe_id < last_loop + kKeyFramesBetween) ||
       map_->goodKeyFrameCount(kf->map_id) < static_cast<std::size_t>(kMinKeyFrames)) {
     groups_.clear();
     return false;
@@ -186,12 +244,12 @@ bool LoopCloser::detect(std::int64_t keyframe_id, Loop* loop) {
   return false;
 }
 
-std::vector<std::shared_ptr<MapPoint>> LoopCloser::olderPoints(const KeyFrame& candidate) const {
-  std::vector<const KeyFrame*> older{&candidate};
-  for (const KeyFrame* n : candidate.bestNeighbours(kCandidateNeighbours)) older.push_back(n);
+std::vector<std::shared_ptr<MapPoint>> LoopCloser::groupPoints(const KeyFrame& kf) const {
+  std::vector<const KeyFrame*> group{&kf};
+  for (const KeyFrame* n : kf.bestNeighbours(kCandidateNeighbours)) group.push_back(n);
   std::vector<std::shared_ptr<MapPoint>> out;
   std::unordered_set<const MapPoint*> seen;
-  for (const KeyFrame* k : older)
+  for (const KeyFrame* k : group)
     for (const auto& p : k->frame.points)
       if (p && !p->bad && !p->isTemporary() && p->geometry.dynamic_score.load() <= 0.5f && seen.insert(p.get()).second)
         out.push_back(p);
@@ -234,73 +292,24 @@ bool LoopCloser::verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loo
   if (pairs.size() < min_inliers) return false;
   // A pair agrees with T_a_b when each side reprojects into the other's
   // image (with its depth as the virtual right coordinate) under the gate.
-  auto agrees = [&](const SE3& T_a_b, const SE3& T_b_a, std::size_t k) {
+  auto agrees = [&](const SE3& T_a_b, std::size_t k) {
     bool behind_a = false, behind_b = false;
     const double ca = reprojectionChi2(camera_, T_a_b, in_b[k], observationOf(a, pairs[k].first), &behind_a);
-    const double cb = reprojectionChi2(camera_, T_b_a, in_a[k], observationOf(b, pairs[k].second), &behind_b);
+    const double cb = reprojectionChi2(camera_, T_a_b.inverse(), in_a[k], observationOf(b, pairs[k].second), &behind_b);
     return !behind_a && !behind_b && ca < kChi2Stereo && cb < kChi2Stereo;
   };
-  auto inliersOf = [&](const SE3& T_a_b) {
-    const SE3 T_b_a = T_a_b.inverse();
-    std::vector<std::size_t> out;
-    for (std::size_t k = 0; k < pairs.size(); ++k)
-      if (agrees(T_a_b, T_b_a, k)) out.push_back(k);
-    return out;
-  };
-  std::mt19937 rng(static_cast<std::uint32_t>(kf.id * 7919 + candidate.id));
-  std::uniform_int_distribution<std::size_t> pick(0, pairs.size() - 1);
-  std::vector<std::size_t> best;
-  for (int it = 0; it < kRansacIterations; ++it) {
-    const std::size_t s0 = pick(rng), s1 = pick(rng), s2 = pick(rng);
-    if (s0 == s1 || s1 == s2 || s0 == s2) continue;
-    // Three points spread out, not on a line: a well-posed motion.
-    const Vec3 u = in_b[s1] - in_b[s0], v = in_b[s2] - in_b[s0];
-    if (u.norm() < 0.05 || v.norm() < 0.05 || u.cross(v).norm() < 0.05 * u.norm() * v.norm()) continue;
-    const SE3 T = rigidFit({in_b[s0], in_b[s1], in_b[s2]}, {in_a[s0], in_a[s1], in_a[s2]});
-    std::vector<std::size_t> inliers = inliersOf(T);
-    if (inliers.size() > best.size()) best = std::move(inliers);
-  }
-  if (best.size() < min_inliers) return false;
-  // Refit on the inliers (twice: the set may grow).
   SE3 T_a_b = SE3::Identity();
-  for (int round = 0; round < 2; ++round) {
-    std::vector<Vec3> from, to;
-    for (std::size_t k : best) from.push_back(in_b[k]), to.push_back(in_a[k]);
-    T_a_b = renormalized(rigidFit(from, to));
-    std::vector<std::size_t> refit = inliersOf(T_a_b);
-    if (refit.size() < min_inliers) return false;
-    best = std::move(refit);
-  }
+  const std::vector<std::size_t> best = rigidConsensus(in_b, in_a, min_inliers,
+                                                       static_cast<std::uint32_t>(kf.id * 7919 + candidate.id), agrees, &T_a_b);
+  if (best.empty()) return false;
   // The older place's map points, projected into the keyframe where the
   // loop puts it, must be found there by descriptor: a wrong loop that a
   // repetitive texture let through finds few. The keyframe's pose is then
   // refitted on them by reprojection (the 3D-3D fit carries the depth
   // noise of both sides), and searched and refitted once more.
-  const std::vector<std::shared_ptr<MapPoint>> older_points = olderPoints(candidate);
   SE3 T_a_w = T_a_b * b.T_c_w;
   std::vector<std::shared_ptr<MapPoint>> found;
-  auto search = [&](float radius) { found = seenAt(a, T_a_w, older_points, radius); };
-  auto refit = [&]() {
-    PoseProblem problem;
-    problem.camera = &camera_;
-    std::vector<int> features;
-    for (int i = 0; i < a.size(); ++i) {
-      if (!found[i]) continue;
-      problem.points_w.push_back(found[i]->position);
-      problem.observations.push_back(observationOf(a, i));
-      features.push_back(i);
-    }
-    if (problem.points_w.size() < min_inliers) return 0;
-    const PoseResult r = optimizePose(problem, T_a_w);
-    for (std::size_t k = 0; k < features.size(); ++k)
-      if (!r.inlier[k]) found[features[k]] = nullptr;
-    T_a_w = r.T_c_w;
-    return r.inliers;
-  };
-  search(8.0f);
-  if (static_cast<std::size_t>(refit()) < min_inliers) return false;
-  search(4.0f);
-  if (static_cast<std::size_t>(refit()) < min_inliers) return false;
+  if (placeOn(a, groupPoints(candidate), &T_a_w, &found) == 0) return false;
   loop->fused.clear();
   for (int i = 0; i < a.size(); ++i)
     if (found[i]) loop->fused.emplace_back(i, found[i]);
@@ -313,11 +322,180 @@ bool LoopCloser::verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loo
   return true;
 }
 
-void LoopCloser::correct(const Loop& loop) {
+int LoopCloser::placeOn(const Frame& a, const std::vector<std::shared_ptr<MapPoint>>& points, SE3* T_a_w,
+                        std::vector<std::shared_ptr<MapPoint>>* found_out) const {
+  const auto min_inliers = static_cast<std::size_t>(options_.place.loop_min_inliers);
+  std::vector<std::shared_ptr<MapPoint>> found;
+  int inliers = 0;
+  for (const float radius : {8.0f, 4.0f}) {
+    found = seenAt(a, *T_a_w, points, radius);
+    PoseProblem problem;
+    problem.camera = &camera_;
+    std::vector<int> features;
+    for (int i = 0; i < a.size(); ++i) {
+      if (!found[i]) continue;
+      problem.points_w.push_back(found[i]->position);
+      problem.observations.push_back(observationOf(a, i));
+      features.push_back(i);
+    }
+    if (problem.points_w.size() < min_inliers) return 0;
+    const PoseResult r = optimizePose(problem, *T_a_w);
+    for (std::size_t k = 0; k < features.size(); ++k)
+      if (!r.inlier[k]) found[features[k]] = nullptr;
+    *T_a_w = r.T_c_w;
+    inliers = r.inliers;
+    if (static_cast<std::size_t>(inliers) < min_inliers) return 0;
+  }
+  if (found_out) *found_out = std::move(found);
+  return inliers;
+}
+
+std::int64_t LoopCloser::crossingDue(const KeyFrame& reference, Timestamp stamp) {
+  if (crossing_checked_ && secondsBetween(stamp, last_crossing_) < kCrossingEverySeconds) return -1;
+  const KeyFrame* newest = nullptr;
+  const auto& keyframes = map_->keyframes();
+  for (auto it = keyframes.rbegin(); it != keyframes.rend() && !newest; ++it)
+    if (!(*it)->bad && (*it)->map_id == reference.map_id) newest = it->get();
+  if (!newest || newest == &reference || newest->id == last_loop_keyframe_.load() ||
+      map_->goodKeyFrameCount(reference.map_id) < static_cast<std::size_t>(kMinKeyFrames) ||
+      secondsBetween(newest->frame.stamp, reference.frame.stamp) < kMinLoopSeconds ||
+      newest->connections.count(const_cast<KeyFrame*>(&reference)))
+    return -1;
+  crossing_checked_ = true;
+  last_crossing_ = stamp;
+  return newest->id;
+}
+
+void LoopCloser::enqueueCrossing(Frame frame, features::BowVector words, std::int64_t reference,
+                                 std::int64_t newest, std::uint64_t epoch) {
+  {
+    std::lock_guard lock(mutex_);
+    if (closed_) return;
+    crossing_ = Crossing{std::move(frame), std::move(words), reference, newest, epoch};
+  }
+  cv_.notify_all();
+}
+
+void LoopCloser::processCrossing(const Frame& frame, const features::BowVector& words, std::int64_t reference,
+                                 std::int64_t newest, std::uint64_t epoch) {
+  // A loop closed by a crossing links the two places: the frames after it
+  // cross again until the map around them has settled.
+  if (newest == last_loop_keyframe_.load() ||
+      (crossing_closed_ && secondsBetween(frame.stamp, last_crossing_loop_) < kMinLoopSeconds))
+    return;
+  Loop loop;
+  bool placed = false;
+  {
+    std::shared_lock lock(map_->mutex());
+    const KeyFrame* older = map_->keyFrame(reference);
+    const KeyFrame* newer = map_->keyFrame(newest);
+    // The frame's pose is in the world it was tracked in.
+    if (map_->epoch() != epoch || !older || !newer || older->bad || newer->bad || older->map_id != newer->map_id)
+      return;
+    // The newer side: the newest keyframe, else the keyframes made since
+    // the older side that look most like the frame (the newest may face
+    // elsewhere when the camera came back through a relocalisation).
+    std::vector<const KeyFrame*> newer_candidates{newer};
+    if (!words.empty()) {
+      std::unordered_set<const KeyFrame*> older_side{older};
+      for (const KeyFrame* n : older->bestNeighbours(kCandidateNeighbours)) older_side.insert(n);
+      for (const Map::PlaceMatch& m : map_->similarKeyFrames(
+               words,
+               [&](const KeyFrame* k) {
+                 return k != newer && k->map_id == older->map_id && !older_side.count(k) &&
+                        secondsBetween(k->frame.stamp, older->frame.stamp) >= kMinLoopSeconds;
+               },
+               0.0, kCrossingCandidates))
+        newer_candidates.push_back(m.keyframe);
+    }
+    for (const KeyFrame* n : newer_candidates)
+      if ((placed = placeCrossing(frame, *older, *n, &loop))) break;
+  }
+  const bool closed = placed && close(loop);
+  std::lock_guard lock(mutex_);
+  ++stats_.crossings_checked;
+  if (closed) {
+    ++stats_.crossings_closed;
+    crossing_closed_ = true;
+    last_crossing_loop_ = frame.stamp;
+  }
+}
+
+bool LoopCloser::placeCrossing(const Frame& frame, const KeyFrame& older, const KeyFrame& newer, Loop* loop) const {
+  const auto min_inliers = static_cast<std::size_t>(options_.place.loop_min_inliers);
+  // The two sides, each keyframe with its best neighbours: one keyframe in
+  // both, and they are one place of the map already.
+  std::unordered_set<const KeyFrame*> newer_side{&newer};
+  for (const KeyFrame* n : newer.bestNeighbours(kCandidateNeighbours)) newer_side.insert(n);
+  bool apart = !newer_side.count(&older);
+  for (const KeyFrame* n : older.bestNeighbours(kCandidateNeighbours)) apart = apart && !newer_side.count(n);
+  if (!apart) {
+    SP_DEBUG(logger, "frame " << frame.id << ": keyframes " << older.id << " and " << newer.id << " are one place");
+    return false;
+  }
+  // The older side, where tracking put the frame: refitted on its points alone.
+  SE3 T_older = frame.T_c_w;
+  const std::vector<std::shared_ptr<MapPoint>> older_points = groupPoints(older);
+  const int on_older = placeOn(frame, older_points, &T_older);
+  if (on_older == 0) {
+    SP_DEBUG(logger, "frame " << frame.id << " in keyframe " << older.id << ": too few of its points found");
+    return false;
+  }
+  // The newer side, wherever its drift puts it: the frame's static features
+  // with depth matched to its points by descriptor, 3D-3D.
+  const std::vector<std::shared_ptr<MapPoint>> newer_points = groupPoints(newer);
+  std::vector<int> features;
+  std::vector<Vec3> in_w, in_c;
+  for (int i = 0; i < frame.size(); ++i) {
+    if (frame.dynamic[i] || frame.depth[i] <= 0) continue;
+    int best = features::kDescriptorBytes * 8 + 1, second = best;
+    const MapPoint* match = nullptr;
+    for (const auto& p : newer_points) {
+      const int d = features::hammingDistance(frame.descriptor(i), p->descriptor.data());
+      if (d < best) second = best, best = d, match = p.get();
+      else if (d < second) second = d;
+    }
+    if (!match || best >= kMatchThresholdLow || best > kCrossingRatio * second) continue;
+    features.push_back(i);
+    in_w.push_back(match->position);
+    in_c.push_back(camera_.unproject(Vec2(frame.un[i].x, frame.un[i].y), frame.depth[i]));
+  }
+  auto agrees = [&](const SE3& T_c_w, std::size_t k) {
+    bool behind = false;
+    return reprojectionChi2(camera_, T_c_w, in_w[k], observationOf(frame, features[k]), &behind) < kChi2Stereo &&
+           !behind;
+  };
+  SE3 T_newer = SE3::Identity();
+  const std::vector<std::size_t> consensus = rigidConsensus(
+      in_w, in_c, min_inliers, static_cast<std::uint32_t>(newer.id * 7919 + older.id), agrees, &T_newer);
+  const int on_newer = consensus.empty() ? 0 : placeOn(frame, newer_points, &T_newer);
+  if (on_newer == 0) {
+    SP_DEBUG(logger, "frame " << frame.id << " crossed from keyframe " << newer.id << " into keyframe " << older.id
+                              << ": not placed on the newer side (" << consensus.size() << " of " << in_w.size()
+                              << " descriptor pairs agree)");
+    return false;
+  }
+  // The newer keyframe where the older side puts the frame.
+  const SE3 T_kf_w = renormalized(newer.T_c_w() * T_newer.inverse() * T_older);
+  loop->keyframe = newer.id;
+  loop->candidate = older.id;
+  loop->T_kf_candidate = renormalized(T_kf_w * older.T_c_w().inverse());
+  loop->fused.clear();
+  const std::vector<std::shared_ptr<MapPoint>> seen = seenAt(newer.frame, T_kf_w, older_points, kFuseRadiusPx);
+  for (int i = 0; i < newer.frame.size(); ++i)
+    if (seen[i]) loop->fused.emplace_back(i, seen[i]);
+  SP_DEBUG(logger, "frame " << frame.id << " crossed from keyframe " << newer.id << " into keyframe " << older.id
+                            << ": " << on_older << " inliers on the older side, " << on_newer << " on the newer ("
+                            << consensus.size() << " of " << in_w.size() << " descriptor pairs), "
+                            << loop->fused.size() << " of the older points seen by the newer keyframe");
+  return true;
+}
+
+bool LoopCloser::correct(const Loop& loop) {
   std::unique_lock lock(map_->mutex());
   KeyFrame* kf = map_->keyFrame(loop.keyframe);
   KeyFrame* candidate = map_->keyFrame(loop.candidate);
-  if (!kf || kf->bad || !candidate || candidate->bad || kf->map_id != candidate->map_id) return;
+  if (!kf || kf->bad || !candidate || candidate->bad || kf->map_id != candidate->map_id) return false;
   const std::uint32_t map_id = kf->map_id;
   const SE3 T_kf_w_corrected = renormalized(loop.T_kf_candidate * candidate->T_c_w());
   const double moved_m = (T_kf_w_corrected.inverse().translation() - kf->frame.cameraCentre()).norm();
@@ -404,7 +582,7 @@ void LoopCloser::correct(const Loop& loop) {
     }
   };
   for (const auto& [i, older] : loop.fused) fuse(kf, i, older);
-  const std::vector<std::shared_ptr<MapPoint>> older_points = olderPoints(*candidate);
+  const std::vector<std::shared_ptr<MapPoint>> older_points = groupPoints(*candidate);
   for (KeyFrame* g : group) {
     if (g == kf) continue;
     const std::vector<std::shared_ptr<MapPoint>> seen = seenAt(g->frame, g->T_c_w(), older_points, kFuseRadiusPx);
@@ -450,6 +628,7 @@ void LoopCloser::correct(const Loop& loop) {
                               << (rotation.angle() * rotation.axis()).transpose() << ": "
                               << group.size() << " keyframes corrected, " << fused << " points fused, " << edges.size()
                               << " graph edges over " << ks.size() << " keyframes (solved in " << graph_ms << " ms)");
+  return true;
 }
 
 }  // namespace stillpoint::slam

@@ -21,12 +21,19 @@
 //      last pose, bundle adjustments in flight drop their results.
 //   5. A global bundle adjustment of the map (place.global_ba), without the
 //      lock, written back unless the world moved meanwhile.
+// A camera can also come back to an older place without a keyframe there:
+// a place the map holds makes none, and a relocalisation lands in it. With
+// place.global_ba on, a tracked frame whose reference keyframe is older
+// than, and unconnected to, the map's newest keyframe (a crossing) is
+// placed on both sides by each side's map points, and the loop between the
+// newer side's keyframe and that reference is closed as in 4 and 5.
 // Features flagged dynamic take no part (nor do their words).
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <thread>
 #include <vector>
@@ -40,6 +47,8 @@ struct LoopStats {
   int detected = 0;  // candidates that passed the consistency check
   int rejected = 0;  // of those, failed the geometric check
   int closed = 0;
+  int crossings_checked = 0;  // frames that crossed into an older place
+  int crossings_closed = 0;   // of those, closed a loop (counted in `closed` too)
   int global_ba_runs = 0, global_ba_dropped = 0;
   double last_correction_m = 0;  // how far the loop moved its keyframe
 };
@@ -60,6 +69,24 @@ class LoopCloser {
   void enqueue(std::int64_t keyframe_id);
   void finish();  // drains the queue (and a global BA under way), joins
 
+  // Whether a frame tracked on `reference` (the keyframe most of its matches
+  // hang on) at `stamp` is a crossing worth a check: `reference` is not the
+  // map's newest keyframe nor covisible with it, was made 5 s or more
+  // before it, and no crossing was checked in the last 0.5 s. Returns the
+  // newest keyframe's id, else -1. A map lock held; the tracking thread.
+  std::int64_t crossingDue(const KeyFrame& reference, Timestamp stamp);
+  // Checks a crossing (`frame` with its tracked pose) and closes its loop,
+  // on the calling thread; enqueueCrossing() hands it to the worker instead
+  // (a crossing waiting there is replaced). `words`: the frame's static
+  // words (Tracker::staticWords), which find the newer keyframes that see
+  // its place when the newest does not. `epoch`: the map's when the frame
+  // was tracked (a frame tracked in a world that moved since is not
+  // checked).
+  void processCrossing(const Frame& frame, const features::BowVector& words, std::int64_t reference,
+                       std::int64_t newest, std::uint64_t epoch);
+  void enqueueCrossing(Frame frame, features::BowVector words, std::int64_t reference, std::int64_t newest,
+                       std::uint64_t epoch);
+
   LoopStats stats() const;
 
  private:
@@ -72,9 +99,21 @@ class LoopCloser {
   };
   bool detect(std::int64_t keyframe_id, Loop* loop);  // shared lock inside
   bool verify(const KeyFrame& kf, const KeyFrame& candidate, Loop* loop) const;
-  void correct(const Loop& loop);  // exclusive lock inside
-  // The candidate's and its best neighbours' static points (a map lock held).
-  std::vector<std::shared_ptr<MapPoint>> olderPoints(const KeyFrame& candidate) const;
+  // The crossing's loop: the frame's pose on the points of `older` and its
+  // best neighbours, and on those of `newer` and its, and where that puts
+  // `newer` (a shared map lock held).
+  bool placeCrossing(const Frame& frame, const KeyFrame& older, const KeyFrame& newer, Loop* loop) const;
+  // Refits `*T_a_w` on the points among `points` that frame `a` sees from
+  // there, searched twice (8 px, then 4 px); the number of inliers, 0 when
+  // under place.loop_min_inliers. `found` (optional) gets them per feature.
+  int placeOn(const Frame& a, const std::vector<std::shared_ptr<MapPoint>>& points, SE3* T_a_w,
+              std::vector<std::shared_ptr<MapPoint>>* found = nullptr) const;
+  // Corrects the map by a verified loop, then the global bundle adjustment.
+  bool close(const Loop& loop);
+  bool correct(const Loop& loop);  // exclusive lock inside; false: its keyframes went
+  // A keyframe's and its best neighbours' static points (a map lock held): a
+  // loop's older side, a crossing's either side.
+  std::vector<std::shared_ptr<MapPoint>> groupPoints(const KeyFrame& kf) const;
   // Per feature of `a` at pose T_a_w: the point among `points` that projects
   // within `radius` px and matches its descriptor best (null: none).
   std::vector<std::shared_ptr<MapPoint>> seenAt(const Frame& a, const SE3& T_a_w,
@@ -93,7 +132,18 @@ class LoopCloser {
     int count = 0;
   };
   std::vector<Group> groups_;
-  std::int64_t last_loop_keyframe_ = -1;
+  std::atomic<std::int64_t> last_loop_keyframe_{-1};
+  Timestamp last_crossing_;  // the tracking thread's (crossingDue)
+  bool crossing_checked_ = false;
+  Timestamp last_crossing_loop_;  // the frame's that closed the last crossing loop
+  bool crossing_closed_ = false;
+  struct Crossing {
+    Frame frame;
+    features::BowVector words;
+    std::int64_t reference = -1, newest = -1;
+    std::uint64_t epoch = 0;
+  };
+  std::optional<Crossing> crossing_;  // guarded by mutex_
 
   static constexpr std::size_t kQueueCapacity = 16;
   mutable std::mutex mutex_;

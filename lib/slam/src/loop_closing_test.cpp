@@ -2,6 +2,11 @@
 // drifted as they were tracked, each sharing 120 points with the next, and a
 // loop from the last back to the first. The loop's keyframe must end where
 // the loop puts it relative to the first, the drift spread over the ring.
+//
+// A crossing on a hand-built map: one wall mapped twice, by an older group of
+// keyframes and, seconds later, a newer one whose world drifted; a frame
+// tracked on the older group must close the loop that puts the newer group
+// back on the older one, and a frame the newer group does not see must not.
 #include "loop_closing.hpp"
 #include "map.hpp"
 #include "test_helpers.hpp"
@@ -10,26 +15,21 @@
 
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <random>
 #include <utility>
 #include <vector>
 
 namespace stillpoint::slam {
-
 class LoopCorrection : public ::testing::Test {
  protected:
   static constexpr int kKeyFrames = 12;
   static constexpr int kShared = 120;  // points a keyframe shares with the next (a strong link)
 
   void SetUp() override {
-    camera_.width = 640;
-    camera_.height = 480;
-    camera_.fx = camera_.fy = 500;
-    camera_.cx = 320;
-    camera_.cy = 240;
-    camera_.baseline = 0.08;
     for (int i = 0; i < kKeyFrames; ++i) {
       // On a circle of 2 m, looking outwards; the estimate drifts 1 cm and
       // 0.2 degrees more with every keyframe.
@@ -80,7 +80,7 @@ class LoopCorrection : public ::testing::Test {
     closed_ = closer.stats().closed;
   }
 
-  CameraModel camera_;
+  CameraModel camera_ = testing::vgaCamera();
   Map map_;
   std::vector<KeyFrame*> kfs_;
   std::vector<SE3> truth_;  // T_c_w
@@ -107,6 +107,170 @@ TEST_F(LoopCorrection, TheLoopsKeyFrameEndsWhereTheLoopPutsIt) {
   EXPECT_LT(after_m, 0.25 * drift_m) << "drift " << drift_m << " m, after the loop " << after_m << " m";
   // The first keyframe (the map's origin) stays.
   EXPECT_LT(translationError(kfs_.front()->T_c_w(), truth_.front()), 1e-9);
+}
+
+// The wall: 400 points 3-5 m in front of the origin, each with its own
+// random descriptor (so each is matched to itself alone).
+class Crossing : public ::testing::Test {
+ protected:
+  static constexpr int kPoints = 400;
+  static constexpr int kPerSide = 5;
+
+  void SetUp() override {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> x(-2.5, 2.5), y(-1.8, 1.8), z(3, 5);
+    std::uniform_int_distribution<int> byte(0, 255);
+    descriptors_ = cv::Mat(kPoints, 32, CV_8U);
+    for (int i = 0; i < kPoints; ++i) {
+      wall_.emplace_back(x(rng), y(rng), z(rng));
+      for (int b = 0; b < 32; ++b) descriptors_.at<std::uint8_t>(i, b) = static_cast<std::uint8_t>(byte(rng));
+    }
+    // The newer group's world: 6 cm and 2 degrees off.
+    drift_.linear() = Eigen::AngleAxisd(2 * M_PI / 180, Vec3::UnitY()).toRotationMatrix();
+    drift_.translation() = Vec3(0.05, -0.02, 0.03);
+    for (int k = 0; k < kPerSide; ++k) older_.push_back(addKeyFrame(k, 0.1 * k, cameraAt(-0.2 + 0.1 * k, 0), SE3::Identity()));
+    for (int k = 0; k < kPerSide; ++k)
+      newer_.push_back(addKeyFrame(kPerSide + k, 10 + 0.1 * k, cameraAt(-0.15 + 0.1 * k, 0.05), drift_));
+    older_[0]->origin = true;
+    // One spanning tree: the newer group hangs on the older through the way
+    // between them, whose drift the link holds.
+    for (int k = 1; k < 2 * kPerSide; ++k) {
+      KeyFrame* kf = k < kPerSide ? older_[k] : newer_[k - kPerSide];
+      KeyFrame* parent = k < kPerSide ? older_[k - 1] : (k == kPerSide ? older_.back() : newer_[k - kPerSide - 1]);
+      kf->parent = parent;
+      parent->children.push_back(kf);
+    }
+    for (KeyFrame* kf : older_) kf->updateConnections();
+    for (KeyFrame* kf : newer_) kf->updateConnections();
+  }
+
+  static SE3 cameraAt(double x, double y) {
+    SE3 T_w_c = SE3::Identity();
+    T_w_c.translation() = Vec3(x, y, 0);
+    return T_w_c.inverse();
+  }
+
+  // A frame at true pose T_c_w that sees the wall points in `which` (all when
+  // empty), in a world `world` (a point p of the wall is at world * p there).
+  Frame frameAt(std::int64_t id, double t, const SE3& T_c_w, const SE3& world, std::vector<int>* seen,
+                const std::vector<int>& which = {}) const {
+    Frame f;
+    f.id = id;
+    f.stamp = Timestamp::fromSeconds(1000 + t);
+    f.camera = &camera_;
+    f.levels = &testing::oneLevel();
+    f.T_c_w = renormalized(T_c_w * world.inverse());
+    std::vector<int> ids;
+    for (int i = 0; i < kPoints; ++i) {
+      if (!which.empty() && !std::binary_search(which.begin(), which.end(), i)) continue;
+      const Vec3 pc = T_c_w * wall_[i];
+      const Vec2 uv = camera_.project(pc);
+      if (uv.x() < 10 || uv.y() < 10 || uv.x() > camera_.width - 10 || uv.y() > camera_.height - 10) continue;
+      ids.push_back(i);
+      cv::KeyPoint key(static_cast<float>(uv.x()), static_cast<float>(uv.y()), 31);
+      f.keys.push_back(key);
+      f.un.push_back(key.pt);
+      f.depth.push_back(static_cast<float>(pc.z()));
+      f.u_right.push_back(static_cast<float>(uv.x() - camera_.bf() / pc.z()));
+    }
+    f.descriptors = cv::Mat(static_cast<int>(ids.size()), 32, CV_8U);
+    for (std::size_t k = 0; k < ids.size(); ++k) descriptors_.row(ids[k]).copyTo(f.descriptors.row(static_cast<int>(k)));
+    f.grid.build(f.un, camera_.width, camera_.height);
+    f.clearMatches();
+    f.dynamic.assign(ids.size(), kNotDynamic);
+    f.cluster.assign(ids.size(), -1);
+    if (seen) *seen = ids;
+    return f;
+  }
+
+  // A keyframe of one group: its points are the group's own (made by its
+  // first keyframe that sees them), in the group's world.
+  KeyFrame* addKeyFrame(std::int64_t id, double t, const SE3& T_c_w, const SE3& world) {
+    std::vector<int> seen;
+    KeyFrame* kf = map_.addKeyFrame(std::make_unique<KeyFrame>(id, frameAt(id, t, T_c_w, world, &seen)));
+    truth_[id] = T_c_w;
+    auto& points = world.isApprox(SE3::Identity()) ? older_points_ : newer_points_;
+    for (std::size_t k = 0; k < seen.size(); ++k) {
+      std::shared_ptr<MapPoint>& p = points[seen[k]];
+      if (!p) {
+        p = map_.createPoint(world * wall_[seen[k]], kf);
+        descriptors_.row(seen[k]).copyTo(cv::Mat(1, 32, CV_8U, p->descriptor.data()));
+      }
+      kf->addObservation(p, static_cast<int>(k));
+    }
+    for (auto& [i, p] : points) p->updateFromObservations();
+    return kf;
+  }
+
+  double newestError() const {
+    const SE3 T = newer_.back()->T_c_w() * truth_.at(newer_.back()->id).inverse();
+    return T.translation().norm();
+  }
+
+  CameraModel camera_ = testing::vgaCamera();
+  Map map_;
+  std::vector<Vec3> wall_;
+  cv::Mat descriptors_;
+  SE3 drift_ = SE3::Identity();
+  std::vector<KeyFrame*> older_, newer_;
+  std::map<int, std::shared_ptr<MapPoint>> older_points_, newer_points_;
+  std::map<std::int64_t, SE3> truth_;
+};
+
+TEST_F(Crossing, AFrameTrackedOnTheOlderGroupPutsTheNewerBackOnIt) {
+  const double before_m = newestError();
+  ASSERT_GT(before_m, 0.04);
+  // Tracking is on the older group (its world is the truth here), seconds
+  // after the newest keyframe was made.
+  const Frame frame = frameAt(100, 12, cameraAt(0.02, 0.02), SE3::Identity(), nullptr);
+  SlamOptions options;
+  LoopCloser closer(options, camera_, &map_);
+  std::int64_t newest = -1;
+  {
+    std::shared_lock lock(map_.mutex());
+    newest = closer.crossingDue(*older_[2], frame.stamp);
+  }
+  ASSERT_EQ(newest, newer_.back()->id);
+  closer.processCrossing(frame, {}, older_[2]->id, newest, map_.epoch());
+  const LoopStats stats = closer.stats();
+  EXPECT_EQ(stats.crossings_checked, 1);
+  ASSERT_EQ(stats.crossings_closed, 1);
+  EXPECT_EQ(stats.closed, 1);
+  const double after_m = newestError();
+  std::printf("newest keyframe off the truth: %.4f m before the crossing, %.4f m after\n", before_m, after_m);
+  EXPECT_LT(after_m, 0.25 * before_m);
+  // The newer group's points were fused into the older group's.
+  EXPECT_GT(newer_.back()->connections.count(older_[2]) + newer_.back()->connections.count(older_[3]), 0u);
+  // The origin stays.
+  EXPECT_LT((older_[0]->T_c_w() * truth_.at(0).inverse()).translation().norm(), 1e-9);
+}
+
+TEST_F(Crossing, AFrameTheNewerGroupDoesNotSeeClosesNothing) {
+  // The newer group mapped another wall: none of its points looks like the
+  // frame's features.
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<int> byte(0, 255);
+  for (auto& [i, p] : newer_points_)
+    for (auto& b : p->descriptor) b = static_cast<std::uint8_t>(byte(rng));
+  const Frame frame = frameAt(100, 12, cameraAt(0.02, 0.02), SE3::Identity(), nullptr);
+  const SE3 newest_before = newer_.back()->T_c_w();
+  SlamOptions options;
+  LoopCloser closer(options, camera_, &map_);
+  closer.processCrossing(frame, {}, older_[2]->id, newer_.back()->id, map_.epoch());
+  EXPECT_EQ(closer.stats().crossings_checked, 1);
+  EXPECT_EQ(closer.stats().crossings_closed, 0);
+  EXPECT_EQ(closer.stats().closed, 0);
+  EXPECT_TRUE(newer_.back()->T_c_w().isApprox(newest_before));
+}
+
+TEST_F(Crossing, IsNotDueWhereTheReferenceIsCovisibleWithTheNewestKeyFrame) {
+  std::shared_lock lock(map_.mutex());
+  LoopCloser closer(SlamOptions{}, camera_, &map_);
+  // Within the newer group itself: no crossing.
+  EXPECT_EQ(closer.crossingDue(*newer_[3], Timestamp::fromSeconds(1012)), -1);
+  // Into the older group: due, then not again within half a second.
+  EXPECT_EQ(closer.crossingDue(*older_[1], Timestamp::fromSeconds(1012)), newer_.back()->id);
+  EXPECT_EQ(closer.crossingDue(*older_[1], Timestamp::fromSeconds(1012.2)), -1);
 }
 
 }  // namespace

@@ -18,15 +18,7 @@ namespace stillpoint::slam {
 namespace {
 
 const CameraModel& camera() {
-  static const CameraModel c = [] {
-    CameraModel m;
-    m.width = 640;
-    m.height = 480;
-    m.fx = m.fy = 500;
-    m.cx = 320;
-    m.cy = 240;
-    return m;
-  }();
+  static const CameraModel c = testing::vgaCamera();
   return c;
 }
 

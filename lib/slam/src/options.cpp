@@ -212,7 +212,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
     "card, always or never: whether masks need the geometry module's agreement (card: as the model card says)");
   v("place", "vocabulary", o.place.vocabulary, "vocabulary file (stillpoint-vocab train); empty: the one shipped in models/");
   v("place", "loop_closing", o.place.loop_closing, "detect and close loops in their own thread (needs a vocabulary)");
-  v("place", "global_ba", o.place.global_ba, "after a loop, a full bundle adjustment in the background (off: the essential graph only)");
+  v("place", "global_ba", o.place.global_ba, "after a loop, a full bundle adjustment in the background (off: the essential graph only); on, tracked frames that come back to an older place without a keyframe there also close loops");
   v("", "sequential", o.sequential, "one thread, deterministic (tests, evaluation)");
   v("", "localisation", o.localisation, "track against a loaded map only: no new keyframes, points or maps");
 }

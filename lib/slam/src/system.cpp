@@ -194,6 +194,30 @@ struct SlamSystem::Impl {
     map_start_masks = std::move(r);
     return flagged;
   }
+  // A frame that made no keyframe but came back to an older place of the
+  // map than the newest keyframe, unconnected to it, is a loop no keyframe's
+  // check would see (LoopCloser::crossingDue).
+  void checkCrossing() {
+    Frame frame;
+    std::int64_t reference = -1, newest = -1;
+    std::uint64_t epoch = 0;
+    {
+      std::shared_lock lock(map.mutex());
+      const KeyFrame* r = tracker.referenceKeyFrame();
+      if (!r || r->bad) return;
+      newest = loops->crossingDue(*r, tracker.lastFrame().stamp);
+      if (newest < 0) return;
+      reference = r->id;
+      epoch = map.epoch();
+      frame = tracker.lastFrame();
+    }
+    frame.clearMatches();  // the check finds its own; the copy holds no map point
+    features::BowVector words = tracker.staticWords(frame);
+    if (options.sequential)
+      loops->processCrossing(frame, words, reference, newest, epoch);
+    else
+      loops->enqueueCrossing(std::move(frame), std::move(words), reference, newest, epoch);
+  }
   // A sequential run that does not model the segmentation's delay segments
   // each keyframe as it is made, before the next frame.
   bool segmentsInline() const { return options.sequential && options.semantic.sequential_latency_frames <= 0; }
@@ -472,6 +496,8 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
     } else {
       s.mapper.enqueue(kf);
     }
+  } else if (s.loops && s.options.place.global_ba && hasPose(out.state)) {
+    s.checkCrossing();
   }
   {
     std::shared_lock lock(s.map.mutex());
@@ -628,6 +654,8 @@ MapStats SlamSystem::mapStats() const {
     stats.loops_detected = l.detected;
     stats.loops_rejected = l.rejected;
     stats.loops_closed = l.closed;
+    stats.loops_crossings_checked = l.crossings_checked;
+    stats.loops_crossings_closed = l.crossings_closed;
     stats.global_ba_runs = l.global_ba_runs;
     stats.global_ba_dropped = l.global_ba_dropped;
   }

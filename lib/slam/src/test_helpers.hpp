@@ -30,6 +30,18 @@ inline const LevelInfo& oneLevel() {
   return lv;
 }
 
+// 640x480, focal length 500 px, the principal point at the centre, no
+// distortion (the default 8 cm virtual baseline).
+inline CameraModel vgaCamera() {
+  CameraModel camera;
+  camera.width = 640;
+  camera.height = 480;
+  camera.fx = camera.fy = 500;
+  camera.cx = 320;
+  camera.cy = 240;
+  return camera;
+}
+
 // A keyframe with `n` features, 1 m deep, whose image positions and
 // descriptors are never looked at (hand-built maps).
 inline std::unique_ptr<KeyFrame> handMadeKeyFrame(std::int64_t id, int n, const SE3& T_c_w,

@@ -94,6 +94,11 @@ class Tracker {
   // Regions of such frames left alone: the map had seen their place standing
   // (StaticSightings). Any thread.
   int frameRegionsKnownStatic() const { return frame_regions_known_static_.load(); }
+  // The last frame tracked, its pose and matches, and the keyframe most of
+  // those matches hang on (null before a map): where the camera is, for a
+  // loop check (LoopCloser::crossingDue). A map lock held for the keyframe.
+  const Frame& lastFrame() const { return last_; }
+  const KeyFrame* referenceKeyFrame() const { return reference_; }
   // Relocalised poses refused because their inliers' depth disagreed
   // (relocalise()). Any thread.
   int relocalisationsRefused() const { return relocalisations_refused_.load(); }

@@ -304,7 +304,10 @@ struct PlaceOptions {
   // YAML: a full bundle adjustment in the background after each loop. Off
   // by default: on the real excerpt played there and back it raised the ATE
   // (0.0040 -> 0.0060 m) where the essential graph alone kept it; it helps
-  // on generated rooms with exact depth (docs/place-recognition.md).
+  // on generated rooms with exact depth (docs/place-recognition.md). On,
+  // tracked frames that come back to an older place without a keyframe
+  // there close loops too (crossings): with the essential graph alone their
+  // correction did not pay.
   bool global_ba = false;
   // Tuned (not in YAML): a loop candidate must be confirmed by this many
   // consecutive keyframes (covisibility consistency), and its rigid motion

@@ -201,6 +201,10 @@ struct MapStats {
   int loops_detected = 0;                 // consistent candidates
   int loops_rejected = 0;                 // of those, failed the geometric check
   int loops_closed = 0;
+  // Frames that came back to an older place without a keyframe there, checked
+  // for a loop, and of those the loops closed (in loops_closed too).
+  int loops_crossings_checked = 0;
+  int loops_crossings_closed = 0;
   int global_ba_runs = 0, global_ba_dropped = 0;
   std::int64_t geometry_deadline_misses = 0;
   // Semantic module (all 0 when it is off).
