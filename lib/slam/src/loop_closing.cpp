@@ -24,7 +24,7 @@ constexpr int kKeyFramesBetween = 10;  // after a loop, before the next
 // business (a missing covisibility link is no drift to correct).
 constexpr double kMinLoopSeconds = 5.0;
 constexpr int kRansacIterations = 300;
-constexpr int kCandidateNeighbours = 10;  // the older side's keyframes whose points check a loop
+constexpr int kCandidateNeighbours = 10;  // best neighbours whose points join a loop side's keyframe's
 constexpr int kStrongCovisibility = 100;  // covisibility edges of the essential graph
 constexpr int kGlobalBaIterations = 10;
 constexpr std::size_t kVerifiedPerKeyFrame = 3;
