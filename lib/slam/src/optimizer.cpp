@@ -79,10 +79,14 @@ Mat3 leftJacobianSO3(const Vec3& w) {
 // Bundle-adjustment residual with analytic Jacobians. Always three rows (the
 // depth row is zero for keypoints without depth) so that Ceres uses its
 // fixed-size Schur eliminator for 3-row residuals, 6-D poses and 3-D points.
+// The depth row is the virtual right coordinate's error, or, with a
+// `disparity_weight` > 0, the disparity's alone (bf / z), that many times
+// the keypoint's weight: the right coordinate carries the keypoint's own
+// position error, which dilutes what the depth says.
 class BundleAdjustmentCost final : public ceres::SizedCostFunction<3, 6, 3> {
  public:
-  BundleAdjustmentCost(const CameraModel& cam, const Observation& o)
-      : fx_(cam.fx), fy_(cam.fy), cx_(cam.cx), cy_(cam.cy), bf_(cam.bf()), obs_(o) {}
+  BundleAdjustmentCost(const CameraModel& cam, const Observation& o, double disparity_weight)
+      : fx_(cam.fx), fy_(cam.fy), cx_(cam.cx), cy_(cam.cy), bf_(cam.bf()), obs_(o), disparity_weight_(disparity_weight) {}
 
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override {
     const double* pose = parameters[0];
@@ -98,14 +102,23 @@ class BundleAdjustmentCost final : public ceres::SizedCostFunction<3, 6, 3> {
     const double s = obs_.inv_sigma;
     residuals[0] = (u - obs_.u) * s;
     residuals[1] = (fy_ * p.y() * inv_z + cy_ - obs_.v) * s;
-    residuals[2] = stereo ? (u - bf_ * inv_z - obs_.u_right) * s : 0.0;
+    const bool disparity = disparity_weight_ > 0;
+    if (!stereo)
+      residuals[2] = 0.0;
+    else if (disparity)
+      residuals[2] = (bf_ * inv_z - (obs_.u - obs_.u_right)) * s * disparity_weight_;
+    else
+      residuals[2] = (u - bf_ * inv_z - obs_.u_right) * s;
     if (!jacobians) return true;
     const double inv_z2 = inv_z * inv_z;
     Eigen::Matrix3d J_p;
     J_p << fx_ * inv_z, 0, -fx_ * p.x() * inv_z2,  //
         0, fy_ * inv_z, -fy_ * p.y() * inv_z2,     //
         fx_ * inv_z, 0, -(fx_ * p.x() - bf_) * inv_z2;
-    if (!stereo) J_p.row(2).setZero();
+    if (!stereo)
+      J_p.row(2).setZero();
+    else if (disparity)
+      J_p.row(2) << 0, 0, -bf_ * inv_z2 * disparity_weight_;
     J_p *= s;
     if (jacobians[0]) {
       Eigen::Map<Eigen::Matrix<double, 3, 6, Eigen::RowMajor>> J(jacobians[0]);
@@ -124,6 +137,7 @@ class BundleAdjustmentCost final : public ceres::SizedCostFunction<3, 6, 3> {
  private:
   double fx_, fy_, cx_, cy_, bf_;
   Observation obs_;
+  double disparity_weight_;
 };
 
 }  // namespace
@@ -511,6 +525,15 @@ struct PosePriorCost {
 constexpr double kHeldSigmaM = 0.01;
 constexpr double kHeldSigmaDeg = 0.5;
 
+// The global BA's depth row: the disparity, three times a keypoint's weight
+// (a third of a pixel at the finest level, where an RGB-D sensor's
+// disparity is good to a fraction of one). With every keyframe free, the
+// map's scale rests on the depth alone; weighed as the virtual right
+// coordinate, whose error holds the keypoint's too, it let the scale slide
+// 0.6 % on the real excerpt (docs/place-recognition.md). Local windows keep
+// the right coordinate: their fixed neighbours hold the scale.
+constexpr double kGlobalDisparityWeight = 3.0;
+
 // The bundle adjustment of the keyframes `select` picks (shared lock held)
 // and every point they see; other keyframes that see those points are held
 // fixed, and so are map origins. Snapshot, solve without the lock, write
@@ -518,7 +541,8 @@ constexpr double kHeldSigmaDeg = 0.5;
 // the free keyframes, keeps a prior at its pose as it was.
 LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
                           const std::function<std::vector<KeyFrame*>()>& select, int iterations,
-                          const std::atomic<bool>* abort, const KeyFrame* held = nullptr) {
+                          const std::atomic<bool>* abort, const KeyFrame* held = nullptr,
+                          double disparity_weight = 0) {
   LocalBaStats stats;
   struct Obs {
     int camera;  // index into poses
@@ -596,7 +620,7 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
       if (is_outlier[i]) continue;
       const Obs& ob = observations[i];
       const double delta = std::sqrt(ob.o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
-      problem.AddResidualBlock(new BundleAdjustmentCost(*camera, ob.o), new ceres::HuberLoss(delta),
+      problem.AddResidualBlock(new BundleAdjustmentCost(*camera, ob.o, disparity_weight), new ceres::HuberLoss(delta),
                                poses[ob.camera].data(), positions[ob.point].data());
     }
     for (std::size_t c = 0; c < cameras.size(); ++c)
@@ -693,7 +717,7 @@ LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::ui
           if (!kf->bad && kf->map_id == map_id) all.push_back(kf.get());
         return all;
       },
-      iterations, abort);
+      iterations, abort, nullptr, kGlobalDisparityWeight);
 }
 
 namespace {

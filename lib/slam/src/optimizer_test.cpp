@@ -421,6 +421,45 @@ TEST(LocalBundleAdjustment, KeepsTheNewestKeyFrameWhereFarPointsLeaveItFree) {
   }
 }
 
+// A map built 2 % too small, seen by six keyframes along a 1 m path:
+// keypoints good to a pixel, depth to a twentieth of one in disparity (an
+// RGB-D sensor). With every keyframe but the first free, only the depth
+// tells the scale; the global BA must take it from there.
+TEST(GlobalBundleAdjustment, TakesTheMapsScaleFromTheDepth) {
+  std::mt19937 rng(5);
+  const CameraModel cam = testCamera();
+  const LevelInfo levels = testLevels();
+  const std::vector<Vec3> truth = randomPoints(400, &rng);
+  std::normal_distribution<double> pixel_noise(0.0, 1.0), disparity_noise(0.0, 0.05);
+  constexpr double kShrink = 0.98;
+  Map map;
+  std::vector<KeyFrame*> kfs;
+  std::vector<SE3> true_poses;
+  for (int k = 0; k < 6; ++k) {
+    true_poses.push_back(pose(0.0, 0.02 * k, 0.0, -0.2 * k, 0.01 * k, 0.0));
+    KeyFrame* kf = addKeyFrameSeeing(&map, k, cam, levels, true_poses[k], truth, [&] { return pixel_noise(rng); },
+                                     truth.size());
+    for (int i = 0; i < kf->frame.size(); ++i)
+      kf->frame.u_right[i] = static_cast<float>(kf->frame.un[i].x - cam.bf() / kf->frame.depth[i] + disparity_noise(rng));
+    SE3 shrunk = true_poses[k];
+    shrunk.translation() *= kShrink;
+    kf->T_c_w() = shrunk;
+    kfs.push_back(kf);
+  }
+  kfs[0]->origin = true;
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    auto p = map.createPoint(truth[i] * kShrink, kfs[0]);
+    for (KeyFrame* kf : kfs) kf->addObservation(p, static_cast<int>(i));
+    p->updateFromObservations();
+  }
+  for (KeyFrame* kf : kfs) kf->updateConnections();
+  const LocalBaStats stats = globalBundleAdjustment(&map, &cam, 0, 10);
+  EXPECT_EQ(stats.keyframes, 5);
+  const double scale = kfs[5]->frame.cameraCentre().norm() / true_poses[5].inverse().translation().norm();
+  std::printf("scale after the global BA: %.5f (from %.2f)\n", scale, kShrink);
+  EXPECT_NEAR(scale, 1.0, 0.002);
+}
+
 // Every point comes from a depth measurement; one that keeps only image
 // observations (its measured ones set aside) can slide along its ray with
 // little parallax. Points BA moves beyond every observer's depth range leave
