@@ -442,24 +442,25 @@ bool LoopCloser::placeCrossing(const Frame& frame, const KeyFrame& older, const 
     return false;
   }
   // The newer side, wherever its drift puts it: the frame's static features
-  // with depth matched to its points by descriptor, 3D-3D.
+  // with depth matched by descriptor to the points of the side's keyframes
+  // (the first match of each feature), 3D-3D.
   const std::vector<std::shared_ptr<MapPoint>> newer_points = groupPoints(newer);
+  std::vector<const KeyFrame*> newer_group{&newer};
+  for (const KeyFrame* n : newer.bestNeighbours(kCandidateNeighbours)) newer_group.push_back(n);
   std::vector<int> features;
   std::vector<Vec3> in_w, in_c;
-  for (int i = 0; i < frame.size(); ++i) {
-    if (frame.dynamic[i] || frame.depth[i] <= 0) continue;
-    int best = features::kDescriptorBytes * 8 + 1, second = best;
-    const MapPoint* match = nullptr;
-    for (const auto& p : newer_points) {
-      const int d = features::hammingDistance(frame.descriptor(i), p->descriptor.data());
-      if (d < best) second = best, best = d, match = p.get();
-      else if (d < second) second = d;
+  std::vector<char> taken(frame.size(), 0);
+  for (const KeyFrame* k : newer_group)
+    for (const auto& [i, j] : matchByDescriptor(frame, *k, kCrossingRatio)) {
+      const std::shared_ptr<MapPoint>& p = k->frame.points[j];
+      if (taken[i] || !(frame.depth[i] > 0) || !p || p->bad || p->isTemporary() ||
+          p->geometry.dynamic_score.load() > 0.5f)
+        continue;
+      taken[i] = 1;
+      features.push_back(i);
+      in_w.push_back(p->position);
+      in_c.push_back(camera_.unproject(Vec2(frame.un[i].x, frame.un[i].y), frame.depth[i]));
     }
-    if (!match || best >= kMatchThresholdLow || best > kCrossingRatio * second) continue;
-    features.push_back(i);
-    in_w.push_back(match->position);
-    in_c.push_back(camera_.unproject(Vec2(frame.un[i].x, frame.un[i].y), frame.depth[i]));
-  }
   auto agrees = [&](const SE3& T_c_w, std::size_t k) {
     bool behind = false;
     return reprojectionChi2(camera_, T_c_w, in_w[k], observationOf(frame, features[k]), &behind) < kChi2Stereo &&

@@ -250,8 +250,11 @@ TEST_F(Crossing, AFrameTheNewerGroupDoesNotSeeClosesNothing) {
   // frame's features.
   std::mt19937 rng(11);
   std::uniform_int_distribution<int> byte(0, 255);
-  for (auto& [i, p] : newer_points_)
-    for (auto& b : p->descriptor) b = static_cast<std::uint8_t>(byte(rng));
+  for (KeyFrame* kf : newer_)
+    for (int r = 0; r < kf->frame.descriptors.rows; ++r)
+      for (int b = 0; b < kf->frame.descriptors.cols; ++b)
+        kf->frame.descriptors.at<std::uint8_t>(r, b) = static_cast<std::uint8_t>(byte(rng));
+  for (auto& [i, p] : newer_points_) p->updateFromObservations();
   const Frame frame = frameAt(100, 12, cameraAt(0.02, 0.02), SE3::Identity(), nullptr);
   const SE3 newest_before = newer_.back()->T_c_w();
   SlamOptions options;
