@@ -682,9 +682,10 @@ int main(int argc, char** argv) {
     std::printf("places:       no vocabulary: no loop closing\n");
   else
     std::printf("places:       %s; %d loops closed (%d candidates, %d failed the geometric check; %d of %d frames "
-                "that came back to an older place), %d global BAs (%d dropped)\n",
+                "that came back to an older place), %d global BAs (%d dropped, %d cut at their time limit)\n",
                 map.vocabulary.c_str(), map.loops_closed, map.loops_detected, map.loops_rejected,
-                map.loops_crossings_closed, map.loops_crossings_checked, map.global_ba_runs, map.global_ba_dropped);
+                map.loops_crossings_closed, map.loops_crossings_checked, map.global_ba_runs, map.global_ba_dropped,
+                map.global_ba_out_of_time);
   std::printf("trajectory:   %zu poses -> %s\n", trajectory.size(), args.output.c_str());
   if (data->hasGroundTruth()) {
     auto gt = eval::readTumTrajectory(data->groundTruthPath());

@@ -50,6 +50,7 @@ struct LoopStats {
   int crossings_checked = 0;  // frames that crossed into an older place
   int crossings_closed = 0;   // of those, closed a loop (counted in `closed` too)
   int global_ba_runs = 0, global_ba_dropped = 0;
+  int global_ba_out_of_time = 0;  // cut at place.global_ba_max_s (applied or not)
   double last_correction_m = 0;  // how far the loop moved its keyframe
 };
 

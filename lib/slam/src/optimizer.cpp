@@ -4,11 +4,13 @@
 #include <ceres/rotation.h>
 
 #include <array>
+#include <chrono>
 #include <functional>
 #include <mutex>
 #include <random>
 #include <set>
 #include <unordered_map>
+#include <unordered_set>
 
 namespace stillpoint::slam {
 namespace {
@@ -534,30 +536,91 @@ constexpr double kHeldSigmaDeg = 0.5;
 // the right coordinate: their fixed neighbours hold the scale.
 constexpr double kGlobalDisparityWeight = 3.0;
 
+struct BaRun {
+  int iterations = 10;
+  const std::atomic<bool>* abort = nullptr;
+  // One of the free keyframes that keeps a prior at its pose as it was.
+  const KeyFrame* held = nullptr;
+  double disparity_weight = 0;  // 0: the depth row is the virtual right coordinate
+  double max_seconds = 0;       // 0: no limit
+  // Keyframes of this map made during the solve follow their parents.
+  bool carry_newcomers = false;
+  std::uint32_t map_id = 0;
+  const std::function<void()>* after_solve = nullptr;
+};
+
+// Keyframes of `map_id` made while a bundle adjustment ran (ids from
+// `first_new` on) keep their pose relative to their parent in the spanning tree,
+// which moved from `moved[parent].first` to `.second`; the points they made
+// follow their reference keyframe, or the newcomer that sees them.
+// Exclusive lock held.
+void carryNewcomers(Map* map, std::uint32_t map_id, std::int64_t first_new, const std::vector<KeyFrame*>& solved,
+                    const std::vector<std::shared_ptr<MapPoint>>& solved_points,
+                    std::unordered_map<const KeyFrame*, std::pair<SE3, SE3>>* moved, LocalBaStats* stats) {
+  const std::unordered_set<const KeyFrame*> in_solve(solved.begin(), solved.end());
+  std::vector<KeyFrame*> newcomers;
+  for (const auto& k : map->keyframes())
+    if (!k->bad && k->map_id == map_id && k->id >= first_new && !in_solve.count(k.get())) newcomers.push_back(k.get());
+  std::vector<KeyFrame*> carried;
+  // Parents first; a culled keyframe's children may have been handed to a
+  // newer keyframe, hence the passes.
+  for (bool progress = true; progress;) {
+    progress = false;
+    for (KeyFrame*& k : newcomers) {
+      if (!k || !k->parent) continue;
+      const auto it = moved->find(k->parent);
+      if (it == moved->end()) continue;
+      const SE3 before = k->T_c_w();
+      k->T_c_w() = renormalized(before * it->second.first.inverse() * it->second.second);
+      moved->emplace(k, std::make_pair(before, k->T_c_w()));
+      carried.push_back(k);
+      k = nullptr;
+      progress = true;
+    }
+  }
+  stats->keyframes_carried = static_cast<int>(carried.size());
+  std::unordered_set<const MapPoint*> done;
+  for (const auto& p : solved_points) done.insert(p.get());
+  for (KeyFrame* k : carried) {
+    for (const auto& p : k->frame.points) {
+      if (!p || p->bad || p->isTemporary() || !done.insert(p.get()).second) continue;
+      auto it = p->reference ? moved->find(p->reference) : moved->end();
+      if (it == moved->end()) it = moved->find(k);
+      p->position = it->second.second.inverse() * (it->second.first * p->position);
+      p->updateFromObservations();
+      ++stats->points_carried;
+    }
+  }
+}
+
 // The bundle adjustment of the keyframes `select` picks (shared lock held)
 // and every point they see; other keyframes that see those points are held
 // fixed, and so are map origins. Snapshot, solve without the lock, write
-// back unless the world moved meanwhile (Map::epoch). `held`, when one of
-// the free keyframes, keeps a prior at its pose as it was.
+// back unless the world moved meanwhile (Map::epoch).
 LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
-                          const std::function<std::vector<KeyFrame*>()>& select, int iterations,
-                          const std::atomic<bool>* abort, const KeyFrame* held = nullptr,
-                          double disparity_weight = 0) {
+                          const std::function<std::vector<KeyFrame*>()>& select, const BaRun& run) {
+  const KeyFrame* held = run.held;
+  const std::atomic<bool>* abort = run.abort;
+  const int iterations = run.iterations;
+  const auto start = std::chrono::steady_clock::now();
   LocalBaStats stats;
   struct Obs {
     int camera;  // index into poses
     int point;   // index into points
     Observation o;
-    KeyFrame* kf;
     int feature;
   };
   std::vector<KeyFrame*> cameras;
+  // A keyframe culled meanwhile may be freed (by tracking) before the
+  // write-back, which finds each one again by id.
+  std::vector<std::int64_t> camera_ids;
   std::vector<std::array<double, 6>> poses;
   std::vector<char> fixed;
   std::vector<std::shared_ptr<MapPoint>> points;
   std::vector<std::array<double, 3>> positions;
   std::vector<Obs> observations;
   std::uint64_t epoch = 0;
+  std::int64_t first_new = 0;  // keyframes from this id on were made after the snapshot
   int held_camera = -1;
   SE3 held_prior = SE3::Identity();
 
@@ -566,6 +629,7 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
     const std::vector<KeyFrame*> local = select();
     if (local.empty()) return stats;
     epoch = map->epoch();
+    first_new = map->nextKeyFrameId();
     std::unordered_map<KeyFrame*, int> camera_index;
     for (KeyFrame* k : local) {
       camera_index[k] = static_cast<int>(cameras.size());
@@ -590,11 +654,14 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
           cameras.push_back(obs_kf);
           fixed.push_back(1);
         }
-        observations.push_back({it->second, static_cast<int>(pi), observationOf(obs_kf->frame, idx), obs_kf, idx});
+        observations.push_back({it->second, static_cast<int>(pi), observationOf(obs_kf->frame, idx), idx});
       }
     }
     poses.resize(cameras.size());
-    for (std::size_t c = 0; c < cameras.size(); ++c) toParameters(cameras[c]->T_c_w(), poses[c].data());
+    for (std::size_t c = 0; c < cameras.size(); ++c) {
+      toParameters(cameras[c]->T_c_w(), poses[c].data());
+      camera_ids.push_back(cameras[c]->id);
+    }
     // Two views only (a map's second keyframe): the points have no third view
     // to pin them.
     if (cameras.size() == 2)
@@ -620,7 +687,7 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
       if (is_outlier[i]) continue;
       const Obs& ob = observations[i];
       const double delta = std::sqrt(ob.o.u_right >= 0 ? kChi2Stereo : kChi2Mono);
-      problem.AddResidualBlock(new BundleAdjustmentCost(*camera, ob.o, disparity_weight), new ceres::HuberLoss(delta),
+      problem.AddResidualBlock(new BundleAdjustmentCost(*camera, ob.o, run.disparity_weight), new ceres::HuberLoss(delta),
                                poses[ob.camera].data(), positions[ob.point].data());
     }
     for (std::size_t c = 0; c < cameras.size(); ++c)
@@ -642,10 +709,23 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
       }
     }
     options.max_num_iterations = pass == 0 ? std::max(1, iterations / 2) : iterations;
+    if (run.max_seconds > 0) {
+      // The first pass gets half of the time, the second what is left.
+      const double left =
+          run.max_seconds - std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      if (pass > 0 && left <= 0) {
+        stats.out_of_time = true;
+        break;
+      }
+      options.max_solver_time_in_seconds = std::max(0.0, pass == 0 ? left / 2 : left);
+    }
     options.num_threads = 1;
     options.logging_type = ceres::SILENT;
     ceres::Solver::Summary summary;
     ceres::Solve(options, &problem, &summary);
+    if (run.max_seconds > 0 && summary.termination_type == ceres::NO_CONVERGENCE &&
+        summary.num_successful_steps + summary.num_unsuccessful_steps < options.max_num_iterations)
+      stats.out_of_time = true;
     if (pass == 0) stats.initial_cost = summary.initial_cost;
     stats.final_cost = summary.final_cost;
     // Set aside observations that fail the chi-square test, then refine.
@@ -658,22 +738,36 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
     }
   }
 
+  if (run.after_solve && *run.after_solve) (*run.after_solve)();
   {  // Write back under the exclusive lock.
     std::unique_lock lock(map->mutex());
     // Maps merged meanwhile: the poses read are in a frame the map left.
     if (map->epoch() != epoch) return stats;
+    stats.applied = true;
+    for (std::size_t c = 0; c < cameras.size(); ++c) {
+      KeyFrame* k = map->keyFrame(camera_ids[c]);
+      cameras[c] = k && !k->bad ? k : nullptr;
+    }
     for (std::size_t i = 0; i < observations.size(); ++i) {
       if (!is_outlier[i]) continue;
       const Obs& ob = observations[i];
       const auto& p = points[ob.point];
-      if (p->bad || ob.kf->bad || ob.kf->frame.points[ob.feature] != p) continue;
-      ob.kf->eraseObservation(ob.feature);
+      KeyFrame* k = cameras[static_cast<std::size_t>(ob.camera)];
+      if (p->bad || !k || k->frame.points[ob.feature] != p) continue;
+      k->eraseObservation(ob.feature);
       ++stats.outliers_removed;
       if (p->observations.empty())
         map->erasePoint(p);
     }
-    for (std::size_t c = 0; c < cameras.size(); ++c)
-      if (!fixed[c] && !cameras[c]->bad) cameras[c]->T_c_w() = fromParameters(poses[c].data());
+    // Each solved keyframe's pose now (local BA may have moved it since the
+    // snapshot) and after: newcomers keep theirs relative to it.
+    std::unordered_map<const KeyFrame*, std::pair<SE3, SE3>> moved;
+    for (std::size_t c = 0; c < cameras.size(); ++c) {
+      if (!cameras[c]) continue;
+      const SE3 before = cameras[c]->T_c_w();
+      if (!fixed[c]) cameras[c]->T_c_w() = fromParameters(poses[c].data());
+      if (run.carry_newcomers) moved.emplace(cameras[c], std::make_pair(before, cameras[c]->T_c_w()));
+    }
     for (std::size_t pi = 0; pi < points.size(); ++pi) {
       const auto& p = points[pi];
       if (p->bad) continue;
@@ -689,6 +783,7 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
       }
       p->updateFromObservations();
     }
+    if (run.carry_newcomers) carryNewcomers(map, run.map_id, first_new, cameras, points, &moved, &stats);
   }
   return stats;
 }
@@ -696,6 +791,10 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
 
 LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
                                    const std::atomic<bool>* abort) {
+  BaRun run;
+  run.iterations = iterations;
+  run.abort = abort;
+  run.held = kf;
   return bundleAdjust(
       map, kf->frame.camera,
       [&]() -> std::vector<KeyFrame*> {
@@ -704,20 +803,43 @@ LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, in
         for (KeyFrame* n : kf->bestNeighbours(max_keyframes - 1)) local.push_back(n);
         return local;
       },
-      iterations, abort, kf);
+      run);
 }
 
-LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id, int iterations,
-                                    const std::atomic<bool>* abort) {
+LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id,
+                                    const GlobalBaOptions& options) {
+  BaRun run;
+  run.iterations = options.iterations;
+  run.abort = options.abort;
+  run.disparity_weight = kGlobalDisparityWeight;
+  run.max_seconds = options.max_seconds;
+  run.carry_newcomers = true;
+  run.map_id = map_id;
+  run.after_solve = &options.after_solve;
   return bundleAdjust(
       map, camera,
       [&] {
         std::vector<KeyFrame*> all;
         for (const auto& kf : map->keyframes())
           if (!kf->bad && kf->map_id == map_id) all.push_back(kf.get());
-        return all;
+        if (options.max_keyframes <= 0 || all.size() <= static_cast<std::size_t>(options.max_keyframes)) return all;
+        // The loop's part: outward from its two sides by covisibility,
+        // nearest first, until the cap.
+        std::vector<KeyFrame*> region;
+        std::unordered_set<const KeyFrame*> in;
+        for (std::int64_t id : options.seeds) {
+          KeyFrame* s = map->keyFrame(id);
+          if (s && !s->bad && s->map_id == map_id && in.insert(s).second) region.push_back(s);
+        }
+        for (std::size_t next = 0; next < region.size() && region.size() < static_cast<std::size_t>(options.max_keyframes);
+             ++next)
+          for (KeyFrame* n : region[next]->ordered_neighbours) {
+            if (region.size() >= static_cast<std::size_t>(options.max_keyframes)) break;
+            if (!n->bad && n->map_id == map_id && in.insert(n).second) region.push_back(n);
+          }
+        return region;
       },
-      iterations, abort, nullptr, kGlobalDisparityWeight);
+      run);
 }
 
 namespace {

@@ -2,6 +2,7 @@
 // Pose-only optimisation and local bundle adjustment with Ceres.
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <vector>
 
@@ -108,6 +109,12 @@ struct LocalBaStats {
   int keyframes = 0, fixed_keyframes = 0, points = 0, observations = 0, outliers_removed = 0;
   int out_of_range_removed = 0;  // points moved beyond every observer's depth range
   double initial_cost = 0, final_cost = 0;
+  // Global BA: whether it was written back (not when the world moved
+  // meanwhile), whether its time ran out before its iterations, and the
+  // keyframes and points made during the solve that it carried along.
+  bool applied = false;
+  bool out_of_time = false;
+  int keyframes_carried = 0, points_carried = 0;
 };
 
 // Local BA around `kf`: it and its best covisible keyframes are optimised
@@ -118,10 +125,31 @@ struct LocalBaStats {
 LocalBaStats localBundleAdjustment(Map* map, KeyFrame* kf, int max_keyframes, int iterations,
                                    const std::atomic<bool>* abort = nullptr);
 
-// The same over every keyframe of one map (its origin fixed): the global BA
-// after a loop closure. Results are dropped when the world moved meanwhile.
-LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id, int iterations,
-                                    const std::atomic<bool>* abort = nullptr);
+struct GlobalBaOptions {
+  int iterations = 10;
+  // The solve stops at this many seconds (0: at its iterations), keeping the
+  // best solution found: each accepted step lowers the cost, so a cut-short
+  // solve still improves on the map it read.
+  double max_seconds = 0;
+  const std::atomic<bool>* abort = nullptr;
+  // A map of more keyframes than this optimises the loop's part of it: the
+  // keyframes nearest `seeds` (the loop's two sides) by covisibility, the
+  // rest held where they are (0: every keyframe).
+  int max_keyframes = 0;
+  std::vector<std::int64_t> seeds;
+  // Called between the solve and the write-back, with no lock held: the map
+  // changes there as under a running system (tests).
+  std::function<void()> after_solve;
+};
+
+// The same over every keyframe of one map (its origin fixed), or the loop's
+// part of a large one: the global BA after a loop closure. Results are
+// dropped when the world moved meanwhile.
+// Keyframes made during the solve (not in it) keep their pose relative to
+// their parent in the spanning tree, and the points they made follow them: a
+// map that went on growing while the BA ran stays one piece.
+LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id,
+                                    const GlobalBaOptions& options);
 
 // A pose graph: poses (world to camera) tied by measured relative poses
 // T_i_j = T_i_w * T_j_w^-1; the fixed ones do not move. Returns the poses

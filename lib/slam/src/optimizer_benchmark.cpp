@@ -117,7 +117,12 @@ struct BaMap {
   std::vector<KeyFrame*> keyframes;
 };
 
-std::unique_ptr<BaMap> makeBaMap(int n_keyframes, int n_points, std::uint32_t seed) {
+// `observe`: the share of the points in view a keyframe observes (a running
+// map's keyframes see a few hundred points each, not all in view); `turn`
+// and `climb`: radians and metres the camera turns and rises from one
+// keyframe to the next.
+std::unique_ptr<BaMap> makeBaMap(int n_keyframes, int n_points, std::uint32_t seed, double observe = 1.0,
+                                 double turn = 0.02, double climb = 0.01) {
   std::mt19937 rng(seed);
   const CameraModel& cam = benchmarkCamera();
   const LevelInfo& levels = benchmarkLevels();
@@ -130,7 +135,7 @@ std::unique_ptr<BaMap> makeBaMap(int n_keyframes, int n_points, std::uint32_t se
   auto out = std::make_unique<BaMap>();
   std::vector<std::vector<int>> seen_by(static_cast<std::size_t>(n_keyframes));
   for (int k = 0; k < n_keyframes; ++k) {
-    const SE3 T_c_w = pose(Vec3(0.0, -0.02 * k, 0.0), Vec3(-0.1 * k, 0.01 * k, 0.0));
+    const SE3 T_c_w = pose(Vec3(0.0, -turn * k, 0.0), Vec3(-0.1 * k, climb * k, 0.0));
     Frame f;
     f.camera = &cam;
     f.levels = &levels;
@@ -140,6 +145,7 @@ std::unique_ptr<BaMap> makeBaMap(int n_keyframes, int n_points, std::uint32_t se
       if (p_c.z() < 0.5) continue;
       const Vec2 uv = cam.project(p_c);
       if (uv.x() < 0 || uv.y() < 0 || uv.x() >= cam.width || uv.y() >= cam.height) continue;
+      if (observe < 1.0 && unit(rng) >= observe) continue;
       const int level = random_level(rng);
       const double scale = levels.scales[static_cast<std::size_t>(level)];
       const bool outlier = unit(rng) < 0.03;
@@ -214,6 +220,50 @@ void BM_LocalBundleAdjustment(benchmark::State& state) {
   state.counters["final_cost"] = stats.final_cost;
 }
 BENCHMARK(BM_LocalBundleAdjustment)->Arg(10)->Unit(benchmark::kMillisecond);
+
+// The global BA after a loop (every keyframe free but the first) over maps
+// of range(0) keyframes, 10 cm apart along a straight walk (the points keep their
+// density: 1750 per 5 m; each keyframe observes 60 % of those in view,
+// about 560, as a running map's keyframes do); range(1): its
+// time limit in ms (0: none), as place.global_ba_max_s sets it in threaded
+// runs; range(2): its keyframe cap (0: none), the part nearest the newest
+// keyframe, as the loop closer's.
+void BM_GlobalBundleAdjustment(benchmark::State& state) {
+  const int n = static_cast<int>(state.range(0));
+  GlobalBaOptions options;
+  options.iterations = 10;  // the loop closer's
+  options.max_seconds = static_cast<double>(state.range(1)) / 1000.0;
+  options.max_keyframes = static_cast<int>(state.range(2));
+  options.seeds = {n - 1};
+  LocalBaStats stats;
+  for (auto _ : state) {
+    state.PauseTiming();
+    auto ba = makeBaMap(n, static_cast<int>(1750 * (5.0 + 0.1 * n) / 5.0), 11, 0.6, 0.0, 0.0);
+    ba->keyframes.front()->origin = true;
+    state.ResumeTiming();
+    stats = globalBundleAdjustment(&ba->map, &benchmarkCamera(), 0, options);
+    benchmark::ClobberMemory();
+    state.PauseTiming();
+    ba.reset();
+    state.ResumeTiming();
+  }
+  state.counters["keyframes"] = stats.keyframes;
+  state.counters["points"] = stats.points;
+  state.counters["observations"] = stats.observations;
+  state.counters["obs_per_kf"] = static_cast<double>(stats.observations) / (stats.keyframes + stats.fixed_keyframes);
+  state.counters["fixed"] = stats.fixed_keyframes;
+  state.counters["out_of_time"] = stats.out_of_time;
+  state.counters["initial_cost"] = stats.initial_cost;
+  state.counters["final_cost"] = stats.final_cost;
+}
+BENCHMARK(BM_GlobalBundleAdjustment)
+    ->Args({100, 0, 0})
+    ->Args({400, 0, 0})
+    ->Args({1600, 0, 0})
+    ->Args({1600, 3000, 0})
+    ->Args({1600, 3000, 400})
+    ->Iterations(1)
+    ->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace stillpoint::slam

@@ -157,6 +157,7 @@ Status SemanticOptions::validate() const {
 Status PlaceOptions::validate() const {
   if (loop_consistency < 1 || loop_consistency > 10) return Error{"place.loop_consistency must be in [1, 10]"};
   if (loop_min_inliers < 12) return Error{"place.loop_min_inliers must be >= 12"};
+  if (!(global_ba_max_s > 0 && global_ba_max_s <= 600)) return Error{"place.global_ba_max_s must be in (0, 600]"};
   return Status::success();
 }
 
@@ -212,7 +213,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
     "card, always or never: whether masks need the geometry module's agreement (card: as the model card says)");
   v("place", "vocabulary", o.place.vocabulary, "vocabulary file (stillpoint-vocab train); empty: the one shipped in models/");
   v("place", "loop_closing", o.place.loop_closing, "detect and close loops in their own thread (needs a vocabulary)");
-  v("place", "global_ba", o.place.global_ba, "after a loop, a full bundle adjustment in the background (off: the essential graph only); on, tracked frames that come back to an older place without a keyframe there also close loops");
+  v("place", "global_ba", o.place.global_ba, "after a loop, a bundle adjustment of the map in the background (of the 400 keyframes nearest the loop on a larger map; off: the essential graph only); on, tracked frames that come back to an older place without a keyframe there also close loops");
   v("", "sequential", o.sequential, "one thread, deterministic (tests, evaluation)");
   v("", "localisation", o.localisation, "track against a loaded map only: no new keyframes, points or maps");
 }

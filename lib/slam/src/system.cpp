@@ -658,6 +658,7 @@ MapStats SlamSystem::mapStats() const {
     stats.loops_crossings_closed = l.crossings_closed;
     stats.global_ba_runs = l.global_ba_runs;
     stats.global_ba_dropped = l.global_ba_dropped;
+    stats.global_ba_out_of_time = l.global_ba_out_of_time;
   }
   stats.relocalisations_refused = impl_->tracker.relocalisationsRefused();
   if (impl_->clustering) stats.geometry_deadline_misses = impl_->clustering->deadlineMisses();

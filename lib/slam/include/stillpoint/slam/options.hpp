@@ -301,16 +301,22 @@ struct PlaceOptions {
   // and map merging rank keyframes by small views and loops are not closed.
   std::string vocabulary;
   bool loop_closing = true;  // YAML: close loops in their own thread (pose graph, then a global BA)
-  // YAML: a full bundle adjustment in the background after each loop (its
-  // depth weighed as disparity). On the generated room's lap and a half it
-  // makes the trajectory 2-3 times better; on the real excerpt played there
-  // and back it costs 0.0001-0.0002 m. Off by default: its time grows with
-  // the map (about 2 s for 200 keyframes) and is not measured over hours
-  // (docs/place-recognition.md). On,
-  // tracked frames that come back to an older place without a keyframe
-  // there close loops too (crossings): with the essential graph alone their
-  // correction did not pay.
+  // YAML: a bundle adjustment of the map in the background after each loop
+  // (its depth weighed as disparity; the 400 keyframes nearest the loop on a
+  // larger map). On the generated room's lap and a half it makes the
+  // trajectory 2-4 times better in most runs, live as well as sequential; on
+  // the real excerpt played there and back it costs 0.0001-0.0002 m. Off by
+  // default: live, with a poster held near the camera, 4 of 13 runs bent the
+  // map where the poster was (docs/place-recognition.md). On, tracked frames
+  // that come back to an older place without a keyframe there close loops
+  // too (crossings): with the essential graph alone their correction did not
+  // pay.
   bool global_ba = false;
+  // Tuned (not in YAML): in threaded runs a global BA stops after this many
+  // seconds with the best map it found (each accepted step lowers the cost);
+  // it shares local mapping's core. Sequential runs stop at the iterations
+  // alone, so that they stay deterministic.
+  double global_ba_max_s = 3.0;
   // Tuned (not in YAML): a loop candidate must be confirmed by this many
   // consecutive keyframes (covisibility consistency), and its rigid motion
   // must explain this many 3D-3D matches and find as many map points.

@@ -206,6 +206,7 @@ struct MapStats {
   int loops_crossings_checked = 0;
   int loops_crossings_closed = 0;
   int global_ba_runs = 0, global_ba_dropped = 0;
+  int global_ba_out_of_time = 0;  // of all global BAs, those cut at place.global_ba_max_s
   std::int64_t geometry_deadline_misses = 0;
   // Semantic module (all 0 when it is off).
   int semantic_keyframes_segmented = 0;  // results applied to keyframes
