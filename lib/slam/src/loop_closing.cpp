@@ -188,8 +188,9 @@ bool LoopCloser::close(const Loop& loop) {
   const double ba_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
   SP_INFO(logger, "global BA over " << s.keyframes << " keyframes and " << s.points << " points in " << ba_ms << " ms"
                                     << (s.out_of_time ? " (cut at its time limit)" : "") << "; "
+                                    << s.keyframes_held_out << " keyframes left out for too few points; "
                                     << s.keyframes_carried << " keyframes and " << s.points_carried
-                                    << " points made meanwhile carried along"
+                                    << " points carried along (those and any made meanwhile)"
                                     << (applied ? "" : " (dropped: the map moved meanwhile)"));
   return true;
 }

@@ -536,6 +536,13 @@ constexpr double kHeldSigmaDeg = 0.5;
 // the right coordinate: their fixed neighbours hold the scale.
 constexpr double kGlobalDisparityWeight = 3.0;
 
+// A keyframe that sees fewer map points than this stays out of the global BA
+// and keeps its pose relative to its parent. Where a poster held near the
+// camera left a keyframe 9 points, the whole map's solve slid it 0.43 m
+// (docs/place-recognition.md); local BA, which holds the map around it,
+// places such keyframes.
+constexpr int kGlobalMinPoints = 50;
+
 struct BaRun {
   int iterations = 10;
   const std::atomic<bool>* abort = nullptr;
@@ -545,22 +552,28 @@ struct BaRun {
   double max_seconds = 0;       // 0: no limit
   // Keyframes of this map made during the solve follow their parents.
   bool carry_newcomers = false;
+  // Keyframes (not an origin) that see fewer map points than this are left
+  // out of the solve and follow their parents too (0: none).
+  int min_points = 0;
   std::uint32_t map_id = 0;
   const std::function<void()>* after_solve = nullptr;
 };
 
 // Keyframes of `map_id` made while a bundle adjustment ran (ids from
-// `first_new` on) keep their pose relative to their parent in the spanning tree,
-// which moved from `moved[parent].first` to `.second`; the points they made
-// follow their reference keyframe, or the newcomer that sees them.
-// Exclusive lock held.
-void carryNewcomers(Map* map, std::uint32_t map_id, std::int64_t first_new, const std::vector<KeyFrame*>& solved,
+// `first_new` on), and those it left out (`held_out`), keep their pose
+// relative to their parent in the spanning tree, which moved from
+// `moved[parent].first` to `.second`; the points they made follow their
+// reference keyframe, or the keyframe carried that sees them. Exclusive lock
+// held.
+void carryNewcomers(Map* map, std::uint32_t map_id, std::int64_t first_new,
+                    const std::unordered_set<std::int64_t>& held_out, const std::vector<KeyFrame*>& solved,
                     const std::vector<std::shared_ptr<MapPoint>>& solved_points,
                     std::unordered_map<const KeyFrame*, std::pair<SE3, SE3>>* moved, LocalBaStats* stats) {
   const std::unordered_set<const KeyFrame*> in_solve(solved.begin(), solved.end());
   std::vector<KeyFrame*> newcomers;
   for (const auto& k : map->keyframes())
-    if (!k->bad && k->map_id == map_id && k->id >= first_new && !in_solve.count(k.get())) newcomers.push_back(k.get());
+    if (!k->bad && k->map_id == map_id && (k->id >= first_new || held_out.count(k->id)) && !in_solve.count(k.get()))
+      newcomers.push_back(k.get());
   std::vector<KeyFrame*> carried;
   // Parents first; a culled keyframe's children may have been handed to a
   // newer keyframe, hence the passes.
@@ -621,12 +634,22 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
   std::vector<Obs> observations;
   std::uint64_t epoch = 0;
   std::int64_t first_new = 0;  // keyframes from this id on were made after the snapshot
+  std::unordered_set<std::int64_t> held_out;
   int held_camera = -1;
   SE3 held_prior = SE3::Identity();
 
   {  // Snapshot under a shared lock.
     std::shared_lock lock(map->mutex());
-    const std::vector<KeyFrame*> local = select();
+    std::vector<KeyFrame*> local = select();
+    // Keyframes their points cannot place (a mover filled the view) stay
+    // out: free among hundreds, a handful of points lets one slide far.
+    if (run.min_points > 0)
+      std::erase_if(local, [&](KeyFrame* k) {
+        const bool out = !k->origin && k->trackedPoints(1) < run.min_points;
+        if (out) held_out.insert(k->id);
+        return out;
+      });
+    stats.keyframes_held_out = static_cast<int>(held_out.size());
     if (local.empty()) return stats;
     epoch = map->epoch();
     first_new = map->nextKeyFrameId();
@@ -647,7 +670,7 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
     }
     for (std::size_t pi = 0; pi < points.size(); ++pi) {
       for (const auto& [obs_kf, idx] : points[pi]->observations) {
-        if (obs_kf->bad) continue;
+        if (obs_kf->bad || held_out.count(obs_kf->id)) continue;
         auto it = camera_index.find(obs_kf);
         if (it == camera_index.end()) {
           it = camera_index.emplace(obs_kf, static_cast<int>(cameras.size())).first;
@@ -783,7 +806,7 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
       }
       p->updateFromObservations();
     }
-    if (run.carry_newcomers) carryNewcomers(map, run.map_id, first_new, cameras, points, &moved, &stats);
+    if (run.carry_newcomers) carryNewcomers(map, run.map_id, first_new, held_out, cameras, points, &moved, &stats);
   }
   return stats;
 }
@@ -814,6 +837,7 @@ LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::ui
   run.disparity_weight = kGlobalDisparityWeight;
   run.max_seconds = options.max_seconds;
   run.carry_newcomers = true;
+  run.min_points = kGlobalMinPoints;
   run.map_id = map_id;
   run.after_solve = &options.after_solve;
   return bundleAdjust(

@@ -110,10 +110,12 @@ struct LocalBaStats {
   int out_of_range_removed = 0;  // points moved beyond every observer's depth range
   double initial_cost = 0, final_cost = 0;
   // Global BA: whether it was written back (not when the world moved
-  // meanwhile), whether its time ran out before its iterations, and the
-  // keyframes and points made during the solve that it carried along.
+  // meanwhile), whether its time ran out before its iterations, the
+  // keyframes too weakly observed to be in the solve, and the keyframes
+  // (those, and those made during the solve) and points it carried along.
   bool applied = false;
   bool out_of_time = false;
+  int keyframes_held_out = 0;
   int keyframes_carried = 0, points_carried = 0;
 };
 
@@ -147,7 +149,8 @@ struct GlobalBaOptions {
 // dropped when the world moved meanwhile.
 // Keyframes made during the solve (not in it) keep their pose relative to
 // their parent in the spanning tree, and the points they made follow them: a
-// map that went on growing while the BA ran stays one piece.
+// map that went on growing while the BA ran stays one piece. So do keyframes
+// that see fewer than 50 map points, left out of the solve.
 LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::uint32_t map_id,
                                     const GlobalBaOptions& options);
 

@@ -458,12 +458,16 @@ void buildShrunkMap(const CameraModel& cam, const LevelInfo& levels, std::mt1993
   for (KeyFrame* kf : out->kfs) kf->updateConnections();
 }
 
-TEST(GlobalBundleAdjustment, TakesTheMapsScaleFromTheDepth) {
-  std::mt19937 rng(5);
+class GlobalBundleAdjustment : public ::testing::Test {
+ protected:
+  void SetUp() override { buildShrunkMap(cam, levels, &rng, &m); }
+  std::mt19937 rng{5};
   const CameraModel cam = testCamera();
   const LevelInfo levels = testLevels();
   ShrunkMap m;
-  buildShrunkMap(cam, levels, &rng, &m);
+};
+
+TEST_F(GlobalBundleAdjustment, TakesTheMapsScaleFromTheDepth) {
   const LocalBaStats stats = globalBundleAdjustment(&m.map, &cam, 0, GlobalBaOptions{});
   EXPECT_EQ(stats.keyframes, 5);
   EXPECT_TRUE(stats.applied);
@@ -477,12 +481,7 @@ TEST(GlobalBundleAdjustment, TakesTheMapsScaleFromTheDepth) {
 // mapping goes on under a running system) is not in the solve. It keeps its
 // pose relative to its parent, and the point it made follows it; left where
 // it was, it would stay in the 2 % small world, 2.4 cm from its place.
-TEST(GlobalBundleAdjustment, CarriesAlongKeyFramesMadeDuringTheSolve) {
-  std::mt19937 rng(5);
-  const CameraModel cam = testCamera();
-  const LevelInfo levels = testLevels();
-  ShrunkMap m;
-  buildShrunkMap(cam, levels, &rng, &m);
+TEST_F(GlobalBundleAdjustment, CarriesAlongKeyFramesMadeDuringTheSolve) {
   const Vec3 new_point_true(0.3, -0.2, 3.5);
   KeyFrame* newcomer = nullptr;
   std::shared_ptr<MapPoint> made;
@@ -522,15 +521,32 @@ TEST(GlobalBundleAdjustment, CarriesAlongKeyFramesMadeDuringTheSolve) {
   EXPECT_LT(point_off, 0.008);
 }
 
+// A keyframe that sees only a few map points (a mover filled its view) is
+// left out of the solve: free among many, a handful of points lets it slide.
+// It keeps its pose relative to its parent instead.
+TEST_F(GlobalBundleAdjustment, LeavesOutAKeyFrameItsPointsCannotPlace) {
+  SE3 shrunk = pathPose(6);
+  shrunk.translation() *= kShrink;
+  const std::vector<Vec3> few(m.truth.begin(), m.truth.begin() + 12);
+  KeyFrame* weak = addKeyFrameSeeing(&m.map, 6, cam, levels, shrunk, few, [] { return 0.0; }, few.size());
+  for (std::size_t i = 0; i < few.size(); ++i) weak->addObservation(m.kfs[0]->frame.points[i], static_cast<int>(i));
+  weak->updateConnections();
+  weak->parent = m.kfs[5];
+  const SE3 from_parent = weak->T_c_w() * m.kfs[5]->T_c_w().inverse();
+  const LocalBaStats stats = globalBundleAdjustment(&m.map, &cam, 0, GlobalBaOptions{});
+  ASSERT_TRUE(stats.applied);
+  EXPECT_EQ(stats.keyframes_held_out, 1);
+  EXPECT_EQ(stats.keyframes, 5);
+  EXPECT_EQ(stats.keyframes_carried, 1);
+  const SE3 kept = weak->T_c_w() * m.kfs[5]->T_c_w().inverse();
+  EXPECT_LT((kept.matrix() - from_parent.matrix()).norm(), 1e-9);
+  EXPECT_LT((weak->frame.cameraCentre() - pathPose(6).inverse().translation()).norm(), 0.008);
+}
+
 // Past its keyframe cap the global BA optimises the loop's part of the map
 // (its seed and the keyframes nearest it by covisibility); the others stay
 // exactly where they were, holding the part in place.
-TEST(GlobalBundleAdjustment, PastItsCapOptimisesTheLoopsPartOnly) {
-  std::mt19937 rng(5);
-  const CameraModel cam = testCamera();
-  const LevelInfo levels = testLevels();
-  ShrunkMap m;
-  buildShrunkMap(cam, levels, &rng, &m);
+TEST_F(GlobalBundleAdjustment, PastItsCapOptimisesTheLoopsPartOnly) {
   std::vector<SE3> before;
   for (KeyFrame* kf : m.kfs) before.push_back(kf->T_c_w());
   GlobalBaOptions options;
@@ -551,12 +567,7 @@ TEST(GlobalBundleAdjustment, PastItsCapOptimisesTheLoopsPartOnly) {
 // Local mapping culls keyframes while the global BA solves, and tracking
 // frees them: the write-back finds its keyframes again by id and leaves the
 // freed one alone (under the asan preset, touching it fails the test).
-TEST(GlobalBundleAdjustment, WritesBackAroundAKeyFrameFreedDuringTheSolve) {
-  std::mt19937 rng(5);
-  const CameraModel cam = testCamera();
-  const LevelInfo levels = testLevels();
-  ShrunkMap m;
-  buildShrunkMap(cam, levels, &rng, &m);
+TEST_F(GlobalBundleAdjustment, WritesBackAroundAKeyFrameFreedDuringTheSolve) {
   GlobalBaOptions options;
   std::size_t freed = 0;
   options.after_solve = [&] {
@@ -579,12 +590,7 @@ TEST(GlobalBundleAdjustment, WritesBackAroundAKeyFrameFreedDuringTheSolve) {
 
 // Cut at its time limit, a global BA still writes back the best map it
 // found, no worse than the one it read, and says it was cut.
-TEST(GlobalBundleAdjustment, CutAtItsTimeLimitWritesBackWhatItFound) {
-  std::mt19937 rng(5);
-  const CameraModel cam = testCamera();
-  const LevelInfo levels = testLevels();
-  ShrunkMap m;
-  buildShrunkMap(cam, levels, &rng, &m);
+TEST_F(GlobalBundleAdjustment, CutAtItsTimeLimitWritesBackWhatItFound) {
   GlobalBaOptions options;
   options.max_seconds = 1e-6;
   const LocalBaStats stats = globalBundleAdjustment(&m.map, &cam, 0, options);

