@@ -187,6 +187,15 @@ std::unique_ptr<BaMap> makeBaMap(int n_keyframes, int n_points, std::uint32_t se
   return out;
 }
 
+void reportBa(const LocalBaStats& stats, benchmark::State* state) {
+  state->counters["keyframes"] = stats.keyframes;
+  state->counters["fixed"] = stats.fixed_keyframes;
+  state->counters["points"] = stats.points;
+  state->counters["observations"] = stats.observations;
+  state->counters["initial_cost"] = stats.initial_cost;
+  state->counters["final_cost"] = stats.final_cost;
+}
+
 // range(0): keyframes in the optimised window; keyframe 0 (the gauge) sits
 // outside it and is held fixed, as in a running map.
 void BM_LocalBundleAdjustment(benchmark::State& state) {
@@ -210,14 +219,9 @@ void BM_LocalBundleAdjustment(benchmark::State& state) {
     ba.reset();
     state.ResumeTiming();
   }
-  state.counters["keyframes"] = stats.keyframes;
-  state.counters["fixed"] = stats.fixed_keyframes;
-  state.counters["points"] = stats.points;
-  state.counters["observations"] = stats.observations;
+  reportBa(stats, &state);
   state.counters["obs_per_kf"] = observations_per_keyframe;
   state.counters["outliers_removed"] = stats.outliers_removed;
-  state.counters["initial_cost"] = stats.initial_cost;
-  state.counters["final_cost"] = stats.final_cost;
 }
 BENCHMARK(BM_LocalBundleAdjustment)->Arg(10)->Unit(benchmark::kMillisecond);
 
@@ -247,14 +251,9 @@ void BM_GlobalBundleAdjustment(benchmark::State& state) {
     ba.reset();
     state.ResumeTiming();
   }
-  state.counters["keyframes"] = stats.keyframes;
-  state.counters["points"] = stats.points;
-  state.counters["observations"] = stats.observations;
+  reportBa(stats, &state);
   state.counters["obs_per_kf"] = static_cast<double>(stats.observations) / (stats.keyframes + stats.fixed_keyframes);
-  state.counters["fixed"] = stats.fixed_keyframes;
   state.counters["out_of_time"] = stats.out_of_time;
-  state.counters["initial_cost"] = stats.initial_cost;
-  state.counters["final_cost"] = stats.final_cost;
 }
 BENCHMARK(BM_GlobalBundleAdjustment)
     ->Args({100, 0, 0})
