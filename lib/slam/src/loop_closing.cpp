@@ -174,14 +174,9 @@ bool LoopCloser::close(const Loop& loop) {
   ba.max_keyframes = kGlobalBaMaxKeyFrames;
   ba.seeds = {loop.keyframe, loop.candidate};
   const LocalBaStats s = globalBundleAdjustment(map_, &camera_, map_id, ba);
-  bool applied = false;
-  {
-    std::unique_lock lock(map_->mutex());
-    // Applied when nothing moved the world meanwhile; then tracking must
-    // re-express its last pose in the refined map, as after a loop.
-    applied = s.applied && s.keyframes > 0;
-    if (applied) map_->worldMoved();
-  }
+  // The write-back moved the world (Map::epoch) unless the world had moved
+  // meanwhile.
+  const bool applied = s.applied && s.keyframes > 0;
   std::lock_guard lock(mutex_);
   ++(applied ? stats_.global_ba_runs : stats_.global_ba_dropped);
   if (s.out_of_time) ++stats_.global_ba_out_of_time;

@@ -806,7 +806,12 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
       }
       p->updateFromObservations();
     }
-    if (run.carry_newcomers) carryNewcomers(map, run.map_id, first_new, held_out, cameras, points, &moved, &stats);
+    if (run.carry_newcomers) {
+      carryNewcomers(map, run.map_id, first_new, held_out, cameras, points, &moved, &stats);
+      // Under the same lock: tracking re-expresses its last pose in the
+      // moved world before it tracks another frame.
+      map->worldMoved();
+    }
   }
   return stats;
 }

@@ -146,7 +146,8 @@ struct GlobalBaOptions {
 
 // The same over every keyframe of one map (its origin fixed), or the loop's
 // part of a large one: the global BA after a loop closure. Results are
-// dropped when the world moved meanwhile.
+// dropped when the world moved meanwhile; written back, they move it
+// (Map::worldMoved, under the same lock).
 // Keyframes made during the solve (not in it) keep their pose relative to
 // their parent in the spanning tree, and the points they made follow them: a
 // map that went on growing while the BA ran stays one piece. So do keyframes
