@@ -38,6 +38,10 @@ constexpr float kFuseRadiusPx = 4.0f;  // the group's search for the older side'
 // A frame crossing into an older place is checked at most this often: the
 // check matches its features against a side's points by descriptor alone.
 constexpr double kCrossingEverySeconds = 0.5;
+// Each crossing the same newest keyframe's side failed to place doubles the
+// wait for the next, up to 2^4 times: the camera tracks on a place the map
+// holds, and the newest keyframe, made elsewhere, does not see it.
+constexpr int kCrossingBackOffSteps = 4;
 constexpr float kCrossingRatio = 0.8f;  // best to second-best descriptor distance
 constexpr std::size_t kCrossingCandidates = 2;  // the newer side's keyframes tried besides the newest
 
@@ -175,8 +179,8 @@ bool LoopCloser::close(const Loop& loop) {
   ba.seeds = {loop.keyframe, loop.candidate};
   const LocalBaStats s = globalBundleAdjustment(map_, &camera_, map_id, ba);
   // The write-back moved the world (Map::epoch) unless the world had moved
-  // meanwhile.
-  const bool applied = s.applied && s.keyframes > 0;
+  // meanwhile (a solve with nothing to move writes nothing back either).
+  const bool applied = s.applied;
   std::lock_guard lock(mutex_);
   ++(applied ? stats_.global_ba_runs : stats_.global_ba_dropped);
   if (s.out_of_time) ++stats_.global_ba_out_of_time;
@@ -369,6 +373,14 @@ std::int64_t LoopCloser::crossingDue(const KeyFrame& reference, Timestamp stamp)
       secondsBetween(newest->frame.stamp, reference.frame.stamp) < kMinLoopSeconds ||
       newest->connections.count(const_cast<KeyFrame*>(&reference)))
     return -1;
+  int misses = 0;
+  {
+    std::lock_guard lock(mutex_);
+    if (crossing_misses_keyframe_ == newest->id) misses = crossing_misses_;
+  }
+  if (crossing_checked_ && secondsBetween(stamp, last_crossing_) <
+                               kCrossingEverySeconds * (1 << std::min(misses, kCrossingBackOffSteps)))
+    return -1;
   crossing_checked_ = true;
   last_crossing_ = stamp;
   return newest->id;
@@ -426,6 +438,10 @@ void LoopCloser::processCrossing(const Frame& frame, const features::BowVector& 
     ++stats_.crossings_closed;
     crossing_closed_ = true;
     last_crossing_loop_ = frame.stamp;
+    crossing_misses_ = 0;
+  } else {
+    if (crossing_misses_keyframe_ != newest) crossing_misses_keyframe_ = newest, crossing_misses_ = 0;
+    ++crossing_misses_;
   }
 }
 

@@ -73,7 +73,9 @@ class LoopCloser {
   // Whether a frame tracked on `reference` (the keyframe most of its matches
   // hang on) at `stamp` is a crossing worth a check: `reference` is not the
   // map's newest keyframe nor covisible with it, was made 5 s or more
-  // before it, and no crossing was checked in the last 0.5 s. Returns the
+  // before it, and no crossing was checked in the last 0.5 s (1, 2, 4, 8 s
+  // after 1, 2, 3, 4 or more checks that closed nothing since the newest
+  // keyframe was made). Returns the
   // newest keyframe's id, else -1. A map lock held; the tracking thread.
   std::int64_t crossingDue(const KeyFrame& reference, Timestamp stamp);
   // Checks a crossing (`frame` with its tracked pose) and closes its loop,
@@ -145,6 +147,10 @@ class LoopCloser {
     std::uint64_t epoch = 0;
   };
   std::optional<Crossing> crossing_;  // guarded by mutex_
+  // Consecutive crossings that closed nothing with this newest keyframe
+  // (guarded by mutex_).
+  int crossing_misses_ = 0;
+  std::int64_t crossing_misses_keyframe_ = -1;
 
   static constexpr std::size_t kQueueCapacity = 16;
   mutable std::mutex mutex_;

@@ -266,6 +266,52 @@ TEST_F(Crossing, AFrameTheNewerGroupDoesNotSeeClosesNothing) {
   EXPECT_TRUE(newer_.back()->T_c_w().isApprox(newest_before));
 }
 
+TEST_F(Crossing, WaitsLongerAfterEachCheckThatClosedNothing) {
+  // The newer group mapped another wall, as in the test above: every check
+  // fails.
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<int> byte(0, 255);
+  for (KeyFrame* kf : newer_)
+    for (int r = 0; r < kf->frame.descriptors.rows; ++r)
+      for (int b = 0; b < kf->frame.descriptors.cols; ++b)
+        kf->frame.descriptors.at<std::uint8_t>(r, b) = static_cast<std::uint8_t>(byte(rng));
+  for (auto& [i, p] : newer_points_) p->updateFromObservations();
+  LoopCloser closer(SlamOptions{}, camera_, &map_);
+  auto due = [&](double t) {
+    std::shared_lock lock(map_.mutex());
+    return closer.crossingDue(*older_[2], Timestamp::fromSeconds(1000 + t));
+  };
+  auto check = [&](double t) {
+    const std::int64_t newest = due(t);
+    if (newest < 0) return false;
+    closer.processCrossing(frameAt(100, t, cameraAt(0.02, 0.02), SE3::Identity(), nullptr), {}, older_[2]->id,
+                           newest, map_.epoch());
+    return true;
+  };
+  // Tracking asks every frame (30 Hz) for 43 s: the checks come 1, 2, 4 s
+  // apart, then every 8 s.
+  std::vector<double> checked;
+  for (int f = 0; f < 1300; ++f)
+    if (check(12 + f / 30.0)) checked.push_back(12 + f / 30.0);
+  ASSERT_EQ(checked.size(), 8u);
+  const double gaps[] = {1, 2, 4, 8, 8, 8, 8};
+  for (std::size_t k = 0; k + 1 < checked.size(); ++k)
+    EXPECT_NEAR(checked[k + 1] - checked[k], gaps[k], 1.0 / 30 + 1e-9) << "after check " << k + 1;
+  EXPECT_EQ(closer.stats().crossings_checked, 8);
+  EXPECT_EQ(closer.stats().crossings_closed, 0);
+  // A new newest keyframe (the camera mapped new ground): 0.5 s again.
+  const double last = checked.back();
+  std::vector<int> seen;
+  SE3 T_c_w = cameraAt(0.4, 0.05);
+  std::unique_lock lock(map_.mutex());
+  KeyFrame* kf = map_.addKeyFrame(std::make_unique<KeyFrame>(20, frameAt(20, last, T_c_w, drift_, &seen)));
+  kf->parent = newer_.back();
+  newer_.back()->children.push_back(kf);
+  lock.unlock();
+  EXPECT_EQ(due(last + 0.3), -1);
+  EXPECT_EQ(due(last + 0.55), kf->id);
+}
+
 TEST_F(Crossing, IsNotDueWhereTheReferenceIsCovisibleWithTheNewestKeyFrame) {
   std::shared_lock lock(map_.mutex());
   LoopCloser closer(SlamOptions{}, camera_, &map_);
