@@ -103,7 +103,7 @@ while True:
     start=$(date +%s)
     while (( $(date +%s) - start < secs )); do
       sleep 10
-      map=$(grep -o 'map [0-9]* keyframes [0-9]* points' "$work/notify.txt" | tail -1 || true)
+      map=$(grep -o '[0-9]* keyframes [0-9]* points' "$work/notify.txt" | tail -1 || true)
       echo "$(( $(date +%s) - start )) $(awk '/VmRSS/ {print $2}' /proc/$pid/status) ${map:-map ? keyframes ? points}"
     done | tee "$work/rss.txt"
     kill -TERM $pid; wait $pid || true

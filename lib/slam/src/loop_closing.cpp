@@ -10,6 +10,7 @@
 
 #include "matcher.hpp"
 #include "optimizer.hpp"
+#include "stillpoint/core/geometry.hpp"
 #include "stillpoint/core/log.hpp"
 #include "stillpoint/features/descriptor.hpp"
 
@@ -44,6 +45,11 @@ constexpr double kCrossingEverySeconds = 0.5;
 constexpr int kCrossingBackOffSteps = 4;
 constexpr float kCrossingRatio = 0.8f;  // best to second-best descriptor distance
 constexpr std::size_t kCrossingCandidates = 2;  // the newer side's keyframes tried besides the newest
+// A crossing that would move the newer keyframe less than this is no seam:
+// the map already holds both sides together (the two placements of the
+// frame differ by a few millimetres from noise alone).
+constexpr double kCrossingNoSeamM = 0.005;
+constexpr double kCrossingNoSeamDeg = 0.25;
 
 // The rigid motion (no scale) taking `from` onto `to` (least squares).
 SE3 rigidFit(const std::vector<Vec3>& from, const std::vector<Vec3>& to) {
@@ -177,6 +183,9 @@ bool LoopCloser::close(const Loop& loop) {
   ba.abort = &abort_;
   ba.max_keyframes = kGlobalBaMaxKeyFrames;
   ba.seeds = {loop.keyframe, loop.candidate};
+  // A merge or a crossing's loop during the solve would leave this loop
+  // corrected by the essential graph alone: solve again from the moved map.
+  ba.retries = 1;
   const LocalBaStats s = globalBundleAdjustment(map_, &camera_, map_id, ba);
   // The write-back moved the world (Map::epoch) unless the world had moved
   // meanwhile (a solve with nothing to move writes nothing back either).
@@ -186,7 +195,8 @@ bool LoopCloser::close(const Loop& loop) {
   if (s.out_of_time) ++stats_.global_ba_out_of_time;
   const double ba_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
   SP_INFO(logger, "global BA over " << s.keyframes << " keyframes and " << s.points << " points in " << ba_ms << " ms"
-                                    << (s.out_of_time ? " (cut at its time limit)" : "") << "; "
+                                    << (s.out_of_time ? " (cut at its time limit)" : "")
+                                    << (s.dropped ? " (solved again: the map moved during the first solve)" : "") << "; "
                                     << s.keyframes_held_out << " keyframes left out for too few points; "
                                     << s.keyframes_carried << " keyframes and " << s.points_carried
                                     << " points carried along (those and any made meanwhile)"
@@ -502,6 +512,16 @@ bool LoopCloser::placeCrossing(const Frame& frame, const KeyFrame& older, const 
   }
   // The newer keyframe where the older side puts the frame.
   const SE3 T_kf_w = renormalized(newer.T_c_w() * T_newer.inverse() * T_older);
+  // Where the map has it already (an earlier loop joined the two sides), a
+  // correction would only move the map by the noise of the two fits.
+  const SE3 seam = T_kf_w * newer.T_c_w().inverse();
+  const double seam_m = seam.translation().norm(), seam_deg = rotationAngle(seam.rotation()) * 180 / M_PI;
+  if (seam_m < kCrossingNoSeamM && seam_deg < kCrossingNoSeamDeg) {
+    SP_DEBUG(logger, "frame " << frame.id << " crossed from keyframe " << newer.id << " into keyframe " << older.id
+                              << ": the two sides agree (" << seam_m * 1000 << " mm, " << seam_deg
+                              << " degrees): no seam");
+    return false;
+  }
   loop->keyframe = newer.id;
   loop->candidate = older.id;
   loop->T_kf_candidate = renormalized(T_kf_w * older.T_c_w().inverse());

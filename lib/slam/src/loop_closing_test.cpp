@@ -125,9 +125,7 @@ class Crossing : public ::testing::Test {
       wall_.emplace_back(x(rng), y(rng), z(rng));
       for (int b = 0; b < 32; ++b) descriptors_.at<std::uint8_t>(i, b) = static_cast<std::uint8_t>(byte(rng));
     }
-    // The newer group's world: 6 cm and 2 degrees off.
-    drift_.linear() = Eigen::AngleAxisd(2 * M_PI / 180, Vec3::UnitY()).toRotationMatrix();
-    drift_.translation() = Vec3(0.05, -0.02, 0.03);
+    drift_ = newerWorld();
     for (int k = 0; k < kPerSide; ++k) older_.push_back(addKeyFrame(k, 0.1 * k, cameraAt(-0.2 + 0.1 * k, 0), SE3::Identity()));
     for (int k = 0; k < kPerSide; ++k)
       newer_.push_back(addKeyFrame(kPerSide + k, 10 + 0.1 * k, cameraAt(-0.15 + 0.1 * k, 0.05), drift_));
@@ -142,6 +140,14 @@ class Crossing : public ::testing::Test {
     }
     for (KeyFrame* kf : older_) kf->updateConnections();
     for (KeyFrame* kf : newer_) kf->updateConnections();
+  }
+
+  // The newer group's world: 6 cm and 2 degrees off.
+  virtual SE3 newerWorld() const {
+    SE3 world = SE3::Identity();
+    world.linear() = Eigen::AngleAxisd(2 * M_PI / 180, Vec3::UnitY()).toRotationMatrix();
+    world.translation() = Vec3(0.05, -0.02, 0.03);
+    return world;
   }
 
   static SE3 cameraAt(double x, double y) {
@@ -310,6 +316,31 @@ TEST_F(Crossing, WaitsLongerAfterEachCheckThatClosedNothing) {
   lock.unlock();
   EXPECT_EQ(due(last + 0.3), -1);
   EXPECT_EQ(due(last + 0.55), kf->id);
+}
+
+// The two groups mapped the wall 2 mm and 0.1 degrees apart: as close as two
+// fits of one frame come, and what a map an earlier loop joined looks like.
+class CrossingWithoutSeam : public Crossing {
+ protected:
+  SE3 newerWorld() const override {
+    SE3 world = SE3::Identity();
+    world.linear() = Eigen::AngleAxisd(0.1 * M_PI / 180, Vec3::UnitY()).toRotationMatrix();
+    world.translation() = Vec3(0.001, -0.001, 0.001);
+    return world;
+  }
+};
+
+TEST_F(CrossingWithoutSeam, ClosesNothing) {
+  const Frame frame = frameAt(100, 12, cameraAt(0.02, 0.02), SE3::Identity(), nullptr);
+  const SE3 newest_before = newer_.back()->T_c_w();
+  const std::uint64_t epoch = map_.epoch();
+  LoopCloser closer(SlamOptions{}, camera_, &map_);
+  closer.processCrossing(frame, {}, older_[2]->id, newer_.back()->id, epoch);
+  EXPECT_EQ(closer.stats().crossings_checked, 1);
+  EXPECT_EQ(closer.stats().crossings_closed, 0);
+  EXPECT_EQ(closer.stats().closed, 0);
+  EXPECT_EQ(map_.epoch(), epoch);
+  EXPECT_TRUE(newer_.back()->T_c_w().isApprox(newest_before));
 }
 
 TEST_F(Crossing, IsNotDueWhereTheReferenceIsCovisibleWithTheNewestKeyFrame) {

@@ -765,7 +765,10 @@ LocalBaStats bundleAdjust(Map* map, const CameraModel* camera,
   {  // Write back under the exclusive lock.
     std::unique_lock lock(map->mutex());
     // Maps merged meanwhile: the poses read are in a frame the map left.
-    if (map->epoch() != epoch) return stats;
+    if (map->epoch() != epoch) {
+      stats.world_moved = true;
+      return stats;
+    }
     stats.applied = true;
     for (std::size_t c = 0; c < cameras.size(); ++c) {
       KeyFrame* k = map->keyFrame(camera_ids[c]);
@@ -845,30 +848,34 @@ LocalBaStats globalBundleAdjustment(Map* map, const CameraModel* camera, std::ui
   run.min_points = kGlobalMinPoints;
   run.map_id = map_id;
   run.after_solve = &options.after_solve;
-  return bundleAdjust(
-      map, camera,
-      [&] {
-        std::vector<KeyFrame*> all;
-        for (const auto& kf : map->keyframes())
-          if (!kf->bad && kf->map_id == map_id) all.push_back(kf.get());
-        if (options.max_keyframes <= 0 || all.size() <= static_cast<std::size_t>(options.max_keyframes)) return all;
-        // The loop's part: outward from its two sides by covisibility,
-        // nearest first, until the cap.
-        std::vector<KeyFrame*> region;
-        std::unordered_set<const KeyFrame*> in;
-        for (std::int64_t id : options.seeds) {
-          KeyFrame* s = map->keyFrame(id);
-          if (s && !s->bad && s->map_id == map_id && in.insert(s).second) region.push_back(s);
-        }
-        for (std::size_t next = 0; next < region.size() && region.size() < static_cast<std::size_t>(options.max_keyframes);
-             ++next)
-          for (KeyFrame* n : region[next]->ordered_neighbours) {
-            if (region.size() >= static_cast<std::size_t>(options.max_keyframes)) break;
-            if (!n->bad && n->map_id == map_id && in.insert(n).second) region.push_back(n);
-          }
-        return region;
-      },
-      run);
+  auto select = [&] {
+    std::vector<KeyFrame*> all;
+    for (const auto& kf : map->keyframes())
+      if (!kf->bad && kf->map_id == map_id) all.push_back(kf.get());
+    if (options.max_keyframes <= 0 || all.size() <= static_cast<std::size_t>(options.max_keyframes)) return all;
+    // The loop's part: outward from its two sides by covisibility,
+    // nearest first, until the cap.
+    std::vector<KeyFrame*> region;
+    std::unordered_set<const KeyFrame*> in;
+    for (std::int64_t id : options.seeds) {
+      KeyFrame* s = map->keyFrame(id);
+      if (s && !s->bad && s->map_id == map_id && in.insert(s).second) region.push_back(s);
+    }
+    for (std::size_t next = 0; next < region.size() && region.size() < static_cast<std::size_t>(options.max_keyframes);
+         ++next)
+      for (KeyFrame* n : region[next]->ordered_neighbours) {
+        if (region.size() >= static_cast<std::size_t>(options.max_keyframes)) break;
+        if (!n->bad && n->map_id == map_id && in.insert(n).second) region.push_back(n);
+      }
+    return region;
+  };
+  LocalBaStats stats;
+  for (int dropped = 0;; ++dropped) {
+    stats = bundleAdjust(map, camera, select, run);
+    stats.dropped = dropped;
+    if (!stats.world_moved || dropped >= options.retries || (options.abort && options.abort->load())) break;
+  }
+  return stats;
 }
 
 namespace {

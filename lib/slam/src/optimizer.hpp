@@ -114,6 +114,8 @@ struct LocalBaStats {
   // keyframes too weakly observed to be in the solve, and the keyframes
   // (those, and those made during the solve) and points it carried along.
   bool applied = false;
+  bool world_moved = false;  // not applied: the world moved during the solve
+  int dropped = 0;           // global BA: solves dropped for that and done again
   bool out_of_time = false;
   int keyframes_held_out = 0;
   int keyframes_carried = 0, points_carried = 0;
@@ -139,6 +141,9 @@ struct GlobalBaOptions {
   // rest held where they are (0: every keyframe).
   int max_keyframes = 0;
   std::vector<std::int64_t> seeds;
+  // A solve the world moved under (a merge, another loop) is done again
+  // from the moved map, up to this many times.
+  int retries = 0;
   // Called between the solve and the write-back, with no lock held: the map
   // changes there as under a running system (tests).
   std::function<void()> after_solve;

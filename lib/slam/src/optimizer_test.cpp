@@ -588,6 +588,36 @@ TEST_F(GlobalBundleAdjustment, WritesBackAroundAKeyFrameFreedDuringTheSolve) {
   EXPECT_EQ(observations, 5 * m.truth.size() - static_cast<std::size_t>(stats.outliers_removed));
 }
 
+// A solve the world moved under (a merge, another loop) is dropped, and
+// done again from the moved map when asked.
+TEST_F(GlobalBundleAdjustment, SolvesAgainWhenTheWorldMovedDuringTheSolve) {
+  GlobalBaOptions options;
+  int solves = 0;
+  options.after_solve = [&] {
+    if (solves++ > 0) return;
+    std::unique_lock lock(m.map.mutex());
+    m.map.worldMoved();
+  };
+  const std::uint64_t epoch = m.map.epoch();
+  LocalBaStats stats = globalBundleAdjustment(&m.map, &cam, 0, options);
+  EXPECT_EQ(solves, 1);
+  EXPECT_FALSE(stats.applied);
+  EXPECT_TRUE(stats.world_moved);
+  EXPECT_EQ(m.map.epoch(), epoch + 1);
+  const double before = m.kfs[5]->frame.cameraCentre().norm() / pathPose(5).inverse().translation().norm();
+  EXPECT_NEAR(before, kShrink, 1e-9);  // nothing written back
+
+  solves = 0;
+  options.retries = 1;
+  stats = globalBundleAdjustment(&m.map, &cam, 0, options);
+  EXPECT_EQ(solves, 2);
+  EXPECT_TRUE(stats.applied);
+  EXPECT_EQ(stats.dropped, 1);
+  EXPECT_EQ(m.map.epoch(), epoch + 3);  // moved once in the first solve, once by the write-back
+  const double scale = m.kfs[5]->frame.cameraCentre().norm() / pathPose(5).inverse().translation().norm();
+  EXPECT_NEAR(scale, 1.0, 0.002);
+}
+
 // Cut at its time limit, a global BA still writes back the best map it
 // found, no worse than the one it read, and says it was cut.
 TEST_F(GlobalBundleAdjustment, CutAtItsTimeLimitWritesBackWhatItFound) {
