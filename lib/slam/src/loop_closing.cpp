@@ -45,9 +45,11 @@ constexpr double kCrossingEverySeconds = 0.5;
 constexpr int kCrossingBackOffSteps = 4;
 constexpr float kCrossingRatio = 0.8f;  // best to second-best descriptor distance
 constexpr std::size_t kCrossingCandidates = 2;  // the newer side's keyframes tried besides the newest
-// A crossing that would move the newer keyframe less than this is no seam:
-// the map already holds both sides together (the two placements of the
-// frame differ by a few millimetres from noise alone).
+// A crossing that would move the newer keyframe less than this, when that
+// keyframe was in the last global BA, is no seam: the map already holds
+// both sides together (the two placements of the frame differ by a few
+// millimetres from noise alone), and a global BA would find what the last
+// one found.
 constexpr double kCrossingNoSeamM = 0.005;
 constexpr double kCrossingNoSeamDeg = 0.25;
 
@@ -170,11 +172,13 @@ bool LoopCloser::close(const Loop& loop) {
                               << correct_ms << " ms");
   if (!options_.place.global_ba) return true;
   std::uint32_t map_id = 0;
+  std::int64_t next_keyframe = 0;
   {
     std::shared_lock lock(map_->mutex());
     const KeyFrame* kf = map_->keyFrame(loop.keyframe);
     if (!kf) return true;
     map_id = kf->map_id;
+    next_keyframe = map_->nextKeyFrameId();
   }
   const auto t1 = std::chrono::steady_clock::now();
   GlobalBaOptions ba;
@@ -190,6 +194,7 @@ bool LoopCloser::close(const Loop& loop) {
   // The write-back moved the world (Map::epoch) unless the world had moved
   // meanwhile (a solve with nothing to move writes nothing back either).
   const bool applied = s.applied;
+  if (applied && !s.out_of_time) global_ba_covers_ = next_keyframe;
   std::lock_guard lock(mutex_);
   ++(applied ? stats_.global_ba_runs : stats_.global_ba_dropped);
   if (s.out_of_time) ++stats_.global_ba_out_of_time;
@@ -512,11 +517,12 @@ bool LoopCloser::placeCrossing(const Frame& frame, const KeyFrame& older, const 
   }
   // The newer keyframe where the older side puts the frame.
   const SE3 T_kf_w = renormalized(newer.T_c_w() * T_newer.inverse() * T_older);
-  // Where the map has it already (an earlier loop joined the two sides), a
-  // correction would only move the map by the noise of the two fits.
+  // Where the map has it already (an earlier loop joined the two sides, and
+  // a global BA has seen the newer keyframe since), a correction would only
+  // move the map by the noise of the two fits.
   const SE3 seam = T_kf_w * newer.T_c_w().inverse();
   const double seam_m = seam.translation().norm(), seam_deg = rotationAngle(seam.rotation()) * 180 / M_PI;
-  if (seam_m < kCrossingNoSeamM && seam_deg < kCrossingNoSeamDeg) {
+  if (seam_m < kCrossingNoSeamM && seam_deg < kCrossingNoSeamDeg && newer.id < global_ba_covers_.load()) {
     SP_DEBUG(logger, "frame " << frame.id << " crossed from keyframe " << newer.id << " into keyframe " << older.id
                               << ": the two sides agree (" << seam_m * 1000 << " mm, " << seam_deg
                               << " degrees): no seam");

@@ -94,6 +94,7 @@ class LoopCloser {
 
  private:
   friend class LoopCorrection;  // the unit test of correct()
+  friend class Crossing;        // the unit test of crossings
   struct Loop {
     std::int64_t keyframe = -1, candidate = -1;
     SE3 T_kf_candidate;
@@ -136,6 +137,9 @@ class LoopCloser {
   };
   std::vector<Group> groups_;
   std::atomic<std::int64_t> last_loop_keyframe_{-1};
+  // Keyframes with a smaller id were in the last global BA that ran its
+  // course (written back, not cut at its time limit).
+  std::atomic<std::int64_t> global_ba_covers_{-1};
   Timestamp last_crossing_;  // the tracking thread's (crossingDue)
   bool crossing_checked_ = false;
   Timestamp last_crossing_loop_;  // the frame's that closed the last crossing loop

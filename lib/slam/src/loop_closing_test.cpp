@@ -109,10 +109,15 @@ TEST_F(LoopCorrection, TheLoopsKeyFrameEndsWhereTheLoopPutsIt) {
   EXPECT_LT(translationError(kfs_.front()->T_c_w(), truth_.front()), 1e-9);
 }
 
+}  // namespace
+
 // The wall: 400 points 3-5 m in front of the origin, each with its own
 // random descriptor (so each is matched to itself alone).
 class Crossing : public ::testing::Test {
  protected:
+  // As if a global BA had run over every keyframe the map holds now.
+  void coveredByAGlobalBa(LoopCloser* closer) const { closer->global_ba_covers_ = map_.nextKeyFrameId(); }
+
   static constexpr int kPoints = 400;
   static constexpr int kPerSide = 5;
 
@@ -223,6 +228,8 @@ class Crossing : public ::testing::Test {
   std::map<std::int64_t, SE3> truth_;
 };
 
+namespace {
+
 TEST_F(Crossing, AFrameTrackedOnTheOlderGroupPutsTheNewerBackOnIt) {
   const double before_m = newestError();
   ASSERT_GT(before_m, 0.04);
@@ -330,17 +337,28 @@ class CrossingWithoutSeam : public Crossing {
   }
 };
 
-TEST_F(CrossingWithoutSeam, ClosesNothing) {
+TEST_F(CrossingWithoutSeam, ClosesNothingOnceAGlobalBaHasSeenTheNewerSide) {
   const Frame frame = frameAt(100, 12, cameraAt(0.02, 0.02), SE3::Identity(), nullptr);
   const SE3 newest_before = newer_.back()->T_c_w();
   const std::uint64_t epoch = map_.epoch();
   LoopCloser closer(SlamOptions{}, camera_, &map_);
+  coveredByAGlobalBa(&closer);
   closer.processCrossing(frame, {}, older_[2]->id, newer_.back()->id, epoch);
   EXPECT_EQ(closer.stats().crossings_checked, 1);
   EXPECT_EQ(closer.stats().crossings_closed, 0);
   EXPECT_EQ(closer.stats().closed, 0);
   EXPECT_EQ(map_.epoch(), epoch);
   EXPECT_TRUE(newer_.back()->T_c_w().isApprox(newest_before));
+}
+
+TEST_F(CrossingWithoutSeam, ClosesWhereNoGlobalBaHasSeenTheNewerSide) {
+  // Keyframes made since the last global BA: the loop and a global BA place
+  // them with the rest.
+  const Frame frame = frameAt(100, 12, cameraAt(0.02, 0.02), SE3::Identity(), nullptr);
+  LoopCloser closer(SlamOptions{}, camera_, &map_);
+  closer.processCrossing(frame, {}, older_[2]->id, newer_.back()->id, map_.epoch());
+  EXPECT_EQ(closer.stats().crossings_closed, 1);
+  EXPECT_EQ(closer.stats().global_ba_runs, 1);
 }
 
 TEST_F(Crossing, IsNotDueWhereTheReferenceIsCovisibleWithTheNewestKeyFrame) {
