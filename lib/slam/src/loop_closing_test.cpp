@@ -213,6 +213,18 @@ class Crossing : public ::testing::Test {
     return kf;
   }
 
+  // The newer group mapped another wall: none of its points looks like a
+  // feature of a frame of this one.
+  void newerGroupMapsAnotherWall() {
+    std::mt19937 rng(11);
+    std::uniform_int_distribution<int> byte(0, 255);
+    for (KeyFrame* kf : newer_)
+      for (int r = 0; r < kf->frame.descriptors.rows; ++r)
+        for (int b = 0; b < kf->frame.descriptors.cols; ++b)
+          kf->frame.descriptors.at<std::uint8_t>(r, b) = static_cast<std::uint8_t>(byte(rng));
+    for (auto& [i, p] : newer_points_) p->updateFromObservations();
+  }
+
   double newestError() const {
     const SE3 T = newer_.back()->T_c_w() * truth_.at(newer_.back()->id).inverse();
     return T.translation().norm();
@@ -259,15 +271,7 @@ TEST_F(Crossing, AFrameTrackedOnTheOlderGroupPutsTheNewerBackOnIt) {
 }
 
 TEST_F(Crossing, AFrameTheNewerGroupDoesNotSeeClosesNothing) {
-  // The newer group mapped another wall: none of its points looks like the
-  // frame's features.
-  std::mt19937 rng(11);
-  std::uniform_int_distribution<int> byte(0, 255);
-  for (KeyFrame* kf : newer_)
-    for (int r = 0; r < kf->frame.descriptors.rows; ++r)
-      for (int b = 0; b < kf->frame.descriptors.cols; ++b)
-        kf->frame.descriptors.at<std::uint8_t>(r, b) = static_cast<std::uint8_t>(byte(rng));
-  for (auto& [i, p] : newer_points_) p->updateFromObservations();
+  newerGroupMapsAnotherWall();
   const Frame frame = frameAt(100, 12, cameraAt(0.02, 0.02), SE3::Identity(), nullptr);
   const SE3 newest_before = newer_.back()->T_c_w();
   SlamOptions options;
@@ -280,15 +284,7 @@ TEST_F(Crossing, AFrameTheNewerGroupDoesNotSeeClosesNothing) {
 }
 
 TEST_F(Crossing, WaitsLongerAfterEachCheckThatClosedNothing) {
-  // The newer group mapped another wall, as in the test above: every check
-  // fails.
-  std::mt19937 rng(11);
-  std::uniform_int_distribution<int> byte(0, 255);
-  for (KeyFrame* kf : newer_)
-    for (int r = 0; r < kf->frame.descriptors.rows; ++r)
-      for (int b = 0; b < kf->frame.descriptors.cols; ++b)
-        kf->frame.descriptors.at<std::uint8_t>(r, b) = static_cast<std::uint8_t>(byte(rng));
-  for (auto& [i, p] : newer_points_) p->updateFromObservations();
+  newerGroupMapsAnotherWall();  // every check fails
   LoopCloser closer(SlamOptions{}, camera_, &map_);
   auto due = [&](double t) {
     std::shared_lock lock(map_.mutex());
