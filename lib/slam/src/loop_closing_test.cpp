@@ -310,10 +310,9 @@ TEST_F(Crossing, WaitsLongerAfterEachCheckThatClosedNothing) {
   EXPECT_EQ(closer.stats().crossings_closed, 0);
   // A new newest keyframe (the camera mapped new ground): 0.5 s again.
   const double last = checked.back();
-  std::vector<int> seen;
-  SE3 T_c_w = cameraAt(0.4, 0.05);
   std::unique_lock lock(map_.mutex());
-  KeyFrame* kf = map_.addKeyFrame(std::make_unique<KeyFrame>(20, frameAt(20, last, T_c_w, drift_, &seen)));
+  KeyFrame* kf =
+      map_.addKeyFrame(std::make_unique<KeyFrame>(20, frameAt(20, last, cameraAt(0.4, 0.05), drift_, nullptr)));
   kf->parent = newer_.back();
   newer_.back()->children.push_back(kf);
   lock.unlock();
