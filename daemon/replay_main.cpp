@@ -666,8 +666,10 @@ int main(int argc, char** argv) {
                 map.semantic_instances_unconfirmed, map.semantic_instances_capped, map.semantic_instances_known_static);
     std::printf("              %zu places (10 cm cells) in the map's memory of static objects and movers\n",
                 map.semantic_sighting_cells);
-    std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks)\n",
-                map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled);
+    std::printf("              %d features dropped, %d map points removed, %d culled (mostly in masks); %d features of "
+                "applied regions kept on places the map saw standing\n",
+                map.semantic_features_removed, map.semantic_points_removed, map.semantic_points_culled,
+                map.semantic_features_on_standing);
     std::printf("              %.1f features per frame followed from the last segmented keyframe's masks%s\n",
                 frames ? double(semantic_followed) / frames : 0.0,
                 options.semantic.propagate_masks ? "" : " (semantic.propagate_masks off)");

@@ -44,6 +44,7 @@ struct SemanticStats {
   int instances_applied = 0, instances_unconfirmed = 0, instances_capped = 0, instances_continued = 0;
   int instances_followed = 0;  // applied over the cap: the pose had followed them
   int instances_known_static = 0;  // left alone: the map had seen their place standing (StaticSightings)
+  int features_on_standing = 0;    // in applied regions, kept: on places seen standing, not seen moving
   RecentSamples latency_ms;  // keyframe creation -> result applied
   RecentSamples segment_ms;
 };

@@ -187,12 +187,24 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   st.instances_capped += choice.capped;
   st.instances_followed += choice.followed;
   st.instances_known_static += choice.known_static;
+  // A mask spills over what stands beside its object (COCO's mask of a
+  // person over the teddy bear next to it; depth agreement keeps both when
+  // they are as far away). Its features on a place the map has seen standing
+  // that the geometry module does not see moving stay in the map and the
+  // pose: the mask speaks of the object, the memory of the place. A person
+  // standing on such a place (sitting on the chair) keeps it too until the
+  // module sees it move.
+  std::vector<char> on_standing(f.size(), 0);
+  for (int i = 0; memory && i < f.size(); ++i)
+    on_standing[i] = region_of[i] != 0 && applied[region_of[i]] && seen_standing[i] == 1 &&
+                     f.dynamic[i] != kGeometryDynamic;
   // This keyframe's sightings: in an applied region or flagged by the
   // geometry module a moving one, else on a static instance a static one.
   if (memory) {
     std::vector<Vec3> on_static, in_movable;
     for (int i = 0; i < f.size(); ++i) {
       if (seen_standing[i] < 0) continue;  // no depth
+      if (on_standing[i]) continue;  // the place speaks, not this keyframe
       if (applied[region_of[i]] || f.dynamic[i] == kGeometryDynamic)
         in_movable.push_back(world[i]);
       else if (onStaticObject(r, f.keys[i].pt))
@@ -229,11 +241,15 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   std::vector<std::uint8_t> class_of(n_regions + 1, 0);
   for (int k = 0; k < n_regions; ++k)
     if (applied[k + 1]) class_of[k + 1] = map_->classId(r.regions[k].class_name);
-  int features_removed = 0, points_removed = 0, points_culled = 0;
+  int features_removed = 0, points_removed = 0, points_culled = 0, features_on_standing = 0;
   for (int i = 0; i < f.size(); ++i) {
     const std::shared_ptr<MapPoint> p = f.points[i] && !f.points[i]->bad ? f.points[i] : nullptr;
-    if (!applied[region_of[i]]) {
+    if (!applied[region_of[i]] || on_standing[i]) {
       if (p) ++p->semantic.checks;
+      if (on_standing[i]) {
+        if (f.dynamic[i] == kSemanticDynamic) f.dynamic[i] = kNotDynamic;  // a mark followed onto it
+        ++features_on_standing;
+      }
       continue;
     }
     f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
@@ -279,11 +295,13 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   st.features_removed += features_removed;
   st.points_removed += points_removed;
   st.points_culled += points_culled;
+  st.features_on_standing += features_on_standing;
   st.latency_ms.add(
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - r.created).count());
   SP_DEBUG(logger, "keyframe " << kf->id << ": " << n_regions << " movable regions, " << features_removed
                                << " features dropped, " << points_removed << " points removed, " << points_culled
-                               << " culled, " << unmarked << " earlier marks dropped");
+                               << " culled, " << unmarked << " earlier marks dropped, " << features_on_standing
+                               << " kept on places seen standing");
 }
 
 

@@ -679,6 +679,7 @@ MapStats SlamSystem::mapStats() const {
     stats.semantic_instances_followed = st.instances_followed;
     stats.semantic_instances_continued = st.instances_continued;
     stats.semantic_instances_known_static = st.instances_known_static;
+    stats.semantic_features_on_standing = st.features_on_standing;
     std::tie(stats.semantic_latency_ms_median, stats.semantic_latency_ms_p95) = medianP95(st.latency_ms.values());
     std::tie(stats.segmentation_ms_median, stats.segmentation_ms_p95) = medianP95(st.segment_ms.values());
     stats.semantic_model = impl_->semantic_model;

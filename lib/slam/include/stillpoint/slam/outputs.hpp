@@ -226,6 +226,7 @@ struct MapStats {
   int semantic_instances_followed = 0;     // of the applied: over it, the pose had followed them (other_motion_share)
   int semantic_instances_continued = 0;    // of the applied: kept only by the detector hysteresis (track_*)
   int semantic_instances_known_static = 0;  // left alone: the map had seen their place standing (static_memory_*)
+  int semantic_features_on_standing = 0;     // in applied regions, kept: on places seen standing, not seen moving
   std::size_t semantic_sighting_cells = 0;   // 10 cm cells of that memory (saved with the map, loaded with it)
   // Over the most recent 1024 keyframes.
   double semantic_latency_ms_median = 0, semantic_latency_ms_p95 = 0;  // keyframe creation -> mask applied
