@@ -878,17 +878,24 @@ TEST(SemanticModule, TheMapFileRemembersWhatItSawStanding) {
 // The teddy bear labelled a person: a region most of whose features lie where
 // earlier keyframes saw a static object (and no motion) is left alone; with
 // the memory off, the same detections take the features out.
+// The plane run with the map's memory of what stands (`sightings`, 0 off),
+// the first 3 keyframes segmented as a static object and `rect` labelled a
+// person after them.
+RunResult relabelledRun(int sightings, const cv::Rect& rect) {
+  SlamOptions options = semanticOptions();
+  options.semantic.static_memory_sightings = sightings;
+  options.semantic.static_memory_span_s = 0.15;  // the run is 1 s long
+  options.keyframes.tracked_ratio = 0.9;         // more keyframes than the plane needs, to be segmented
+  return runWith(options, std::make_unique<RelabellingSegmenter>(rect, 3));
+}
+
 TEST(SemanticModule, AStaticObjectRelabelledMovableIsLeftAlone) {
   for (const int sightings : {2, 0}) {
     SCOPED_TRACE("static_memory_sightings " + std::to_string(sightings));
-    SlamOptions options = semanticOptions();
-    options.semantic.static_memory_sightings = sightings;
-    options.semantic.static_memory_span_s = 0.15;  // the run is 1 s long
-    options.keyframes.tracked_ratio = 0.9;  // more keyframes than the plane needs, to be segmented
     // Sightings count where the geometry module judged the feature, which it
     // does not on the first frame: the first 3 keyframes give the middle of
     // the view 2 sightings.
-    const RunResult run = runWith(options, std::make_unique<RelabellingSegmenter>(kRect, 3));
+    const RunResult run = relabelledRun(sightings, kRect);
     ASSERT_GE(run.stats.semantic_keyframes_segmented, 5);
     const int relabelled = run.stats.semantic_keyframes_segmented - 3;
     if (sightings > 0) {
@@ -913,11 +920,7 @@ TEST(SemanticModule, AMaskLeavesThePlacesSeenStandingInThePose) {
   const cv::Rect right(320, 0, 320, 480);
   for (const int sightings : {2, 0}) {
     SCOPED_TRACE("static_memory_sightings " + std::to_string(sightings));
-    SlamOptions options = semanticOptions();
-    options.semantic.static_memory_sightings = sightings;
-    options.semantic.static_memory_span_s = 0.15;  // the run is 1 s long
-    options.keyframes.tracked_ratio = 0.9;         // more keyframes than the plane needs, to be segmented
-    const RunResult run = runWith(options, std::make_unique<RelabellingSegmenter>(right, 3));
+    const RunResult run = relabelledRun(sightings, right);
     ASSERT_GE(run.stats.semantic_keyframes_segmented, 8);
     std::vector<KeyFrameView> keyframes = run.keyframes;
     std::sort(keyframes.begin(), keyframes.end(), [](const auto& a, const auto& b) { return a.id < b.id; });
