@@ -181,7 +181,6 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
     }
   }
   const RegionChoice choice = chooseRegions(r, f, live, &seen_standing, false, o, semantic_confirm_);
-  const std::vector<int>& region_of = choice.region_of;
   const std::vector<char>& applied = choice.applied;
   st.instances_unconfirmed += choice.unconfirmed;
   st.instances_capped += choice.capped;
@@ -190,21 +189,23 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   // A mask spills over what stands beside its object (COCO's mask of a
   // person over the teddy bear next to it; depth agreement keeps both when
   // they are as far away). Its features on a place the map has seen standing
-  // that the geometry module does not see moving stay in the map and the
-  // pose: the mask speaks of the object, the memory of the place. A person
-  // standing on such a place (sitting on the chair) keeps it too until the
-  // module sees it move.
-  std::vector<char> on_standing(f.size(), 0);
+  // that the geometry module does not see moving are not the region's: the
+  // mask speaks of the object, the memory of the place. A person standing on
+  // such a place (sitting on the chair) keeps it too until the module sees
+  // it move.
+  std::vector<int> region_of = choice.region_of;
+  int features_on_standing = 0;
   for (int i = 0; memory && i < f.size(); ++i)
-    on_standing[i] = region_of[i] != 0 && applied[region_of[i]] && seen_standing[i] == 1 &&
-                     f.dynamic[i] != kGeometryDynamic;
+    if (region_of[i] != 0 && applied[region_of[i]] && seen_standing[i] == 1 && f.dynamic[i] != kGeometryDynamic) {
+      region_of[i] = 0;
+      ++features_on_standing;
+    }
   // This keyframe's sightings: in an applied region or flagged by the
   // geometry module a moving one, else on a static instance a static one.
   if (memory) {
     std::vector<Vec3> on_static, in_movable;
     for (int i = 0; i < f.size(); ++i) {
       if (seen_standing[i] < 0) continue;  // no depth
-      if (on_standing[i]) continue;  // the place speaks, not this keyframe
       if (applied[region_of[i]] || f.dynamic[i] == kGeometryDynamic)
         in_movable.push_back(world[i]);
       else if (onStaticObject(r, f.keys[i].pt))
@@ -241,15 +242,11 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   std::vector<std::uint8_t> class_of(n_regions + 1, 0);
   for (int k = 0; k < n_regions; ++k)
     if (applied[k + 1]) class_of[k + 1] = map_->classId(r.regions[k].class_name);
-  int features_removed = 0, points_removed = 0, points_culled = 0, features_on_standing = 0;
+  int features_removed = 0, points_removed = 0, points_culled = 0;
   for (int i = 0; i < f.size(); ++i) {
     const std::shared_ptr<MapPoint> p = f.points[i] && !f.points[i]->bad ? f.points[i] : nullptr;
-    if (!applied[region_of[i]] || on_standing[i]) {
+    if (!applied[region_of[i]]) {
       if (p) ++p->semantic.checks;
-      if (on_standing[i]) {
-        if (f.dynamic[i] == kSemanticDynamic) f.dynamic[i] = kNotDynamic;  // a mark followed onto it
-        ++features_on_standing;
-      }
       continue;
     }
     f.dynamic[i] = kSemanticDynamic;  // tracking finds these again in later frames
