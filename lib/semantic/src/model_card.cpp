@@ -170,15 +170,16 @@ Result<ModelCard> loadModelCard(const std::filesystem::path& path) {
   ModelCard card;
   card.card_path = path;
   card.name = path.stem().string();
-  std::string model;
+  std::string model, person_model;
 
   if (Status s = r.checkKeys(root, "", {"name", "model", "licence", "input", "decoder", "classes",
-                                        "movable", "optional_movable", "confirm_with_geometry"});
+                                        "movable", "optional_movable", "confirm_with_geometry", "person_model"});
       !s)
     return Error{s.error()};
   for (Status s : {r.read(root, "", "name", &card.name, false), r.read(root, "", "model", &model, true),
                    r.read(root, "", "licence", &card.licence, false),
                    r.read(root, "", "confirm_with_geometry", &card.confirm_with_geometry, false),
+                   r.read(root, "", "person_model", &person_model, false),
                    r.readList(root, "", "classes", &card.classes, true),
                    r.readList(root, "", "movable", &card.movable, false),
                    r.readList(root, "", "optional_movable", &card.optional_movable, false)})
@@ -239,6 +240,11 @@ Result<ModelCard> loadModelCard(const std::filesystem::path& path) {
   std::filesystem::path model_path(model);
   if (!model.empty() && model_path.is_relative()) model_path = path.parent_path() / model_path;
   card.model_path = model_path.lexically_normal();
+  if (!person_model.empty()) {
+    std::filesystem::path person_path(person_model);
+    if (person_path.is_relative()) person_path = path.parent_path() / person_path;
+    card.person_model = person_path.lexically_normal();
+  }
 
   if (Status s = card.validate(); !s) {
     // validate() knows the field, the YAML knows its line: add it.

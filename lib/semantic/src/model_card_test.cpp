@@ -140,6 +140,18 @@ TEST(ShippedCards, LoadAndListTheDefaultMovableClasses) {
     EXPECT_EQ(std::find(coco->movable.begin(), coco->movable.end(), c), coco->movable.end()) << c;
   EXPECT_NE(std::find(coco->optional_movable.begin(), coco->optional_movable.end(), "chair"),
             coco->optional_movable.end());
+  EXPECT_TRUE(coco->person_model.empty());
+  // The same model with the person model beside it where a map starts: its
+  // card is resolved from the card's folder, and loads.
+  auto people = loadModelCard(kProjectModels / "coco_yolov5s_seg_320_people.yaml");
+  ASSERT_TRUE(people.ok()) << people.error();
+  EXPECT_EQ(people->classes, coco->classes);
+  EXPECT_EQ(people->movable, coco->movable);
+  EXPECT_EQ(people->model_path, coco->model_path);
+  EXPECT_EQ(people->person_model, (kProjectModels / "person_selfie_256.yaml").lexically_normal());
+  auto person = loadModelCard(people->person_model);
+  ASSERT_TRUE(person.ok()) << person.error();
+  EXPECT_EQ(person->decoder.type, DecoderType::kPersonProbability);
 }
 
 }  // namespace

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "stillpoint/semantic/depth_agreement.hpp"
+#include "stillpoint/semantic/person_second_opinion.hpp"
 #include "stillpoint/semantic/segmenter.hpp"
 
 namespace fs = std::filesystem;
@@ -27,11 +28,12 @@ const char* kUsage =
     "usage: stillpoint-segment (--card CARD.yaml | --recommended) [--model-dir DIR]\n"
     "                          [--out DIR] [--threshold P] [--score-threshold S]\n"
     "                          [--min-area FRACTION] [--min-confidence P] [--static-overlap IOU]\n"
-    "                          [--furniture] [--threads N]\n"
+    "                          [--furniture] [--threads N] [--person-card CARD.yaml]\n"
     "                          (IMAGE... | --tum DATASET_DIR [--from I] [--to J] [--depth])\n"
     "Prints one line per image and a summary line; --out writes <name>_overlay.png\n"
     "(movable pixels red, pixels the post-filter dropped yellow, boxes with class and score)\n"
     "and <name>_mask.png (255 movable, 0 not: e.g. a person cut-out for stillpoint-synth --cutout).\n"
+    "--person-card: a person model's regions that the main model does not explain join as people.\n"
     "--depth (with --tum): cut mask pixels that disagree with the instance's depth (TUM depth, /5000).\n";
 
 int usage(const std::string& why) {
@@ -117,7 +119,7 @@ cv::Mat overlay(const cv::Mat& bgr, const Segmentation& seg) {
 
 int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
-  fs::path card_path, out_dir, tum_dir;
+  fs::path card_path, person_card_path, out_dir, tum_dir;
   bool recommended = false, use_depth = false;
   ModelLookup lookup;
   SegmenterOptions options;
@@ -135,6 +137,9 @@ int main(int argc, char** argv) {
     if (a == "--card") {
       if (!value(&v)) return usage("--card needs a file");
       card_path = v;
+    } else if (a == "--person-card") {
+      if (!value(&v)) return usage("--person-card needs a file");
+      person_card_path = v;
     } else if (a == "--recommended") {
       recommended = true;
     } else if (a == "--model-dir") {
@@ -191,6 +196,12 @@ int main(int argc, char** argv) {
   }
   auto segmenter = createSegmenter(card, options);
   if (!segmenter) return std::cerr << "stillpoint-segment: " << segmenter.error() << "\n", 1;
+  if (!person_card_path.empty()) {
+    auto person = createSegmenter(person_card_path);
+    if (!person) return std::cerr << "stillpoint-segment: " << person.error() << "\n", 1;
+    segmenter = withPersonSecondOpinion(std::move(*segmenter), std::move(*person));
+    if (!segmenter) return std::cerr << "stillpoint-segment: " << segmenter.error() << "\n", 1;
+  }
   if (!out_dir.empty()) fs::create_directories(out_dir);
 
   std::vector<std::pair<double, fs::path>> depths, rgbs;
@@ -239,7 +250,8 @@ int main(int argc, char** argv) {
                 filtered_pct, seg->instances.size(), seg->timing.total_ms);
     for (const Instance& inst : seg->instances)
       if (inst.area > 0)
-        std::printf(" [%s %.3f %dpx%s%s]", inst.class_name.c_str(), inst.score, inst.area,
+        std::printf(" [%s %.3f %dpx%s%s%s]", inst.class_name.c_str(), inst.score, inst.area,
+                    inst.second_opinion ? " second opinion" : "",
                     !inst.movable ? " static" : (inst.kept ? "" : " dropped: "), inst.drop_reason.c_str());
     std::printf("\n");
     if (!out_dir.empty()) {

@@ -66,6 +66,11 @@ struct Frame {
   // For kSemanticDynamic features: the movable class whose mask they came
   // from (Map::className), 0 when unknown. Empty until the first is set.
   std::vector<std::uint8_t> movable_class;
+  // Where a map starts: features a person model beside the main one paints
+  // (SemanticOptions::person_card). Flagged as movers for the frame, they
+  // still make points, which serve a mover's probation: that model also
+  // paints things that stand. Empty when none.
+  std::vector<char> suspect;
 
   SE3 T_c_w = SE3::Identity();
   // The grey image, only while the geometry module's photometric test needs

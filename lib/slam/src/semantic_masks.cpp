@@ -39,7 +39,11 @@ bool staticMemoryOn(const SlamOptions& o) { return o.semantic.static_memory_sigh
 // the others, best score first, may together take at most
 // semantic.max_removed_fraction of the view's features with a map point, or
 // more while semantic.min_kept_points of those stay outside them, and none
-// when the model needs confirmation.
+// when the model needs confirmation. A region of the person model beside the
+// main one (SemanticRegion::second_opinion, only where a map starts) is never
+// kept out: that model also paints things that stand (the box under the TUM
+// teddy bear), and the points the map start made there serve a mover's
+// probation instead (Frame::suspect).
 //
 // An unconfirmed region most of whose features with depth lie where the map
 // has seen a static object standing (`seen_standing` per feature: 1 yes, 0
@@ -117,7 +121,7 @@ RegionChoice chooseRegions(const SemanticResult& r, const Frame& f, const std::v
       c.known[k + 1] = 1;
       continue;
     }
-    if (!confirmed && confirmation_required) {
+    if (r.regions[k].second_opinion || (!confirmed && confirmation_required)) {
       ++c.unconfirmed;
       continue;
     }
@@ -232,9 +236,13 @@ void LocalMapper::applySemantic(const SemanticResult& r) {
   // otherwise hand its stale marks on to later frames as its own masks, and
   // their growth over a static object touching the person would go on
   // spreading from keyframe to keyframe.
+  // So are the marks a map start gave a person model's region that the
+  // keyframe's own verdict leaves alone (markMovable).
   int unmarked = 0;
   for (int i = 0; i < f.size(); ++i) {
-    if (region_of[i] != 0 || f.dynamic[i] != kSemanticDynamic) continue;
+    const int k = region_of[i];
+    const bool second_left = k != 0 && !applied[k] && r.regions[k - 1].second_opinion;
+    if ((k != 0 && !second_left) || f.dynamic[i] != kSemanticDynamic) continue;
     f.dynamic[i] = kNotDynamic;
     if (i < static_cast<int>(f.movable_class.size())) f.movable_class[i] = 0;
     ++unmarked;

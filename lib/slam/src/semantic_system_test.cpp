@@ -732,6 +732,65 @@ TEST(SemanticModule, UnconfirmedMasksOfAConfirmCardRemoveNothingWithoutGeometry)
   }
 }
 
+// A person model beside the main one also paints things that stand (the
+// selfie model, the red box under the TUM teddy bear): its regions keep
+// nothing out of a keyframe. Where a map starts, their features stay out of
+// the first frame's pose and vote (the person who walks in front of the
+// camera from the first frame, whom the main model misses) but still make
+// points, on a mover's probation: what stands there joins the pose after it.
+TEST(SemanticModule, ASecondOpinionMakesPointsOnProbationWhereAMapStarts) {
+  SlamOptions options = semanticOptions();
+  auto person_model = [](bool second_opinion) {
+    auto fake = std::make_unique<RectangleSegmenter>(kRect, false);
+    fake->second_opinion = second_opinion;
+    return fake;
+  };
+  // Segmented as each keyframe is made: no map start segmentation.
+  const RunResult inline_run = runWith(options, person_model(true));
+  EXPECT_EQ(inline_run.stats.semantic_features_removed, 0);
+  EXPECT_EQ(inline_run.stats.semantic_instances_applied, 0);
+  EXPECT_EQ(inline_run.stats.semantic_instances_unconfirmed, static_cast<int>(inline_run.keyframes.size()));
+  // The same region from the main model is applied in every keyframe.
+  expectMaskApplied(runWith(options, person_model(false)));
+
+  // Segmentations that come late: the map's first frame is segmented before
+  // the map is built. The main model's region makes no points there; the
+  // person model's makes them, and its keyframe's own verdict leaves the
+  // region alone.
+  options.semantic.sequential_latency_frames = 3;
+  const Frames& frames = planeFrames();
+  ASSERT_GE(frames.inputs.size(), 6u);
+  for (const bool second_opinion : {false, true}) {
+    SCOPED_TRACE(second_opinion ? "person model" : "main model");
+    auto system = SlamSystem::create(frames.camera, options, person_model(second_opinion));
+    ASSERT_TRUE(system.ok()) << system.error();
+    for (int i = 0; i < 6; ++i) {
+      const auto out = (*system)->track(frames.inputs[i]);
+      ASSERT_TRUE(out.ok()) << out.error();
+      EXPECT_EQ(out->state, TrackingState::kOk);
+    }
+    const std::vector<KeyFrameView> keyframes = (*system)->keyframes();
+    ASSERT_FALSE(keyframes.empty());
+    int in = 0, mapped = 0, dynamic = 0;
+    for (const KeyFrameFeature& f : keyframes.front().features) {
+      if (!inside(f, kRect, 0)) continue;
+      ++in;
+      mapped += f.mapped;
+      dynamic += f.dynamic;
+    }
+    EXPECT_GT(in, 20);
+    if (second_opinion) {
+      EXPECT_EQ((*system)->mapStats().semantic_instances_applied, 0);
+      EXPECT_GT(mapped, in * 3 / 4) << mapped << " of " << in;
+      EXPECT_EQ(dynamic, 0);
+    } else {
+      EXPECT_EQ(mapped, 0);
+      EXPECT_EQ(dynamic, in);
+    }
+    (*system)->finish();
+  }
+}
+
 TEST(SemanticModule, RemovalCapKeepsAHugeUnconfirmedMaskFromEmptyingTheMap) {
   const cv::Rect most(0, 0, 560, 480);  // 7/8 of the image
   SlamOptions options = semanticOptions();

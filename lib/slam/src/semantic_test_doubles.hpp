@@ -44,10 +44,12 @@ class RectangleSegmenter : public semantic::Segmenter {
     inst.mask = cv::Mat(r.size(), CV_8U, cv::Scalar(255));
     inst.area = r.area();
     inst.movable = true;
+    inst.second_opinion = second_opinion;
     seg.instances.push_back(inst);
     seg.movable_pixels = r.area();
     return seg;
   }
+  bool second_opinion = false;  // the rectangle comes from a person model beside the main one
   std::chrono::milliseconds delay{0};  // each segment() takes at least this long
   int ungated_calls = 0;  // the first calls pass a closed gate
   const semantic::ModelCard& card() const override { return card_; }

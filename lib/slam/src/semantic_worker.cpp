@@ -1,5 +1,7 @@
 #include "semantic_worker.hpp"
 
+#include "stillpoint/semantic/person_second_opinion.hpp"
+
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
@@ -83,12 +85,15 @@ int continueTracks(const SemanticOptions& options, double strong_score, semantic
     inst.movable = true;
     inst.kept = true;
     inst.continued = true;
+    inst.second_opinion = inst.second_opinion || track.second_opinion;
     inst.drop_reason.clear();
-    next.push_back({inst.box, track.class_id, track.class_name, track.weak_keyframes + 1, track.hits});
+    next.push_back(
+        {inst.box, track.class_id, track.class_name, track.weak_keyframes + 1, track.hits, inst.second_opinion});
     ++continued;
   }
   for (std::size_t i = 0; i < n; ++i)
-    if (strong[i]) next.push_back({insts[i].box, insts[i].class_id, insts[i].class_name, 0, hits[i]});
+    if (strong[i])
+      next.push_back({insts[i].box, insts[i].class_id, insts[i].class_name, 0, hits[i], insts[i].second_opinion});
   seg->movable_mask.setTo(0);
   for (const semantic::Instance& inst : insts)
     if (inst.movable && inst.kept && inst.area > 0 && !inst.mask.empty()) seg->movable_mask(inst.box).setTo(255, inst.mask);
@@ -131,7 +136,8 @@ void buildRegions(const semantic::Segmentation& seg, int dilation_px, double sta
     if (dilation_px > 0) cv::dilate(local, local, kernel);
     const int label = static_cast<int>(out->regions.size()) + 1;
     out->labels(grown).setTo(label, local);
-    out->regions.push_back({inst->class_name, inst->score, cv::countNonZero(local), inst->continued});
+    out->regions.push_back(
+        {inst->class_name, inst->score, cv::countNonZero(local), inst->continued, inst->second_opinion});
   }
 }
 
@@ -140,6 +146,15 @@ SemanticWorker::SemanticWorker(std::unique_ptr<semantic::Segmenter> segmenter, c
     : segmenter_(std::move(segmenter)), options_(options), sink_(std::move(sink)) {}
 
 SemanticWorker::~SemanticWorker() { finish(); }
+
+Status SemanticWorker::setPersonModel(std::unique_ptr<semantic::Segmenter> person) {
+  const int id = segmenter_->card().classId("person");
+  if (person && id < 0) return Error{"model '" + segmenter_->card().name + "' has no class 'person' to join a person model's regions to"};
+  std::lock_guard lock(process_mutex_);
+  person_ = std::move(person);
+  person_id_ = id;
+  return Status::success();
+}
 
 SemanticResult SemanticWorker::process(const SemanticJob& job) {
   std::lock_guard lock(process_mutex_);
@@ -154,6 +169,16 @@ SemanticResult SemanticWorker::process(const SemanticJob& job) {
   } else if (seg->movable_mask.size() != job.bgr.size()) {
     out.error = "segmenter returned a mask of another size than the keyframe";
   } else {
+    if (job.map_start && person_) {
+      // Where a map starts the geometry module has seen nothing move yet,
+      // and a person the main model misses would go into the map.
+      if (auto people = person_->segment(job.bgr); people) {
+        const int added = semantic::joinPersonSecondOpinion(*people, person_id_, {}, &*seg);
+        if (added > 0) SP_DEBUG(logger, "map start: the person model adds " << added << " regions");
+      } else {
+        SP_WARN(logger, "map start: person model '" << person_->card().name << "': " << people.error());
+      }
+    }
     if (options_.track_score_ratio > 0) {
       const semantic::ModelCard& card = segmenter_->card();
       const double strong = card.decoder.type == semantic::DecoderType::kYoloInstance ? card.decoder.score_threshold : 0.0;

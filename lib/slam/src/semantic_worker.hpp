@@ -37,6 +37,9 @@ struct SemanticJob {
   // loaded map holds): its id, with keyframe_id -1. Its result goes to
   // tracking, not to the map.
   std::int64_t frame_id = -1;
+  // The frame a map is about to start from (SlamSystem's map start): the
+  // person model beside the main one is consulted too (setPersonModel).
+  bool map_start = false;
 };
 
 // One kept movable instance, dilated, as a region of the label image.
@@ -45,6 +48,10 @@ struct SemanticRegion {
   float score = 0;
   int pixels = 0;
   bool continued = false;  // kept only as the continuation of a track (hysteresis)
+  // Found by the person model beside the main one where a map starts
+  // (SemanticWorker::setPersonModel): its features make points on a mover's
+  // probation there, and it never keeps anything out of a keyframe.
+  bool second_opinion = false;
 };
 
 struct SemanticResult {
@@ -71,6 +78,7 @@ struct SemanticTrack {
   std::string class_name;
   int weak_keyframes = 0;  // keyframes in a row continued by weak evidence only
   int hits = 1;            // keyframes with a strong detection of it
+  bool second_opinion = false;  // started by the person model beside the main one: its continuations too
 };
 
 // Detector hysteresis (SemanticOptions::track_*): drops the kept movable
@@ -93,6 +101,12 @@ class SemanticWorker {
 
   const semantic::ModelCard& card() const { return segmenter_->card(); }
 
+  // A person model consulted beside the main one for map-start jobs
+  // (SemanticJob::map_start, semantic::ModelCard::person_model): the people it
+  // finds that the main model does not explain join the result as regions
+  // marked second_opinion. Error when the main model has no "person" class.
+  Status setPersonModel(std::unique_ptr<semantic::Segmenter> person);
+
   // Segments one keyframe on the calling thread (no queue, no sink); calls
   // from several threads take turns.
   SemanticResult process(const SemanticJob& job);
@@ -110,6 +124,8 @@ class SemanticWorker {
   void run(std::stop_token stop);
 
   std::unique_ptr<semantic::Segmenter> segmenter_;
+  std::unique_ptr<semantic::Segmenter> person_;  // may be null
+  int person_id_ = -1;                             // the main card's "person"
   SemanticOptions options_;
   std::mutex process_mutex_;  // one process() at a time: the network and tracks_
   std::vector<SemanticTrack> tracks_;

@@ -196,6 +196,34 @@ TEST(SemanticWorker, HysteresisContinuesAWeakDetectionOfATrackOnly) {
   EXPECT_FALSE(seg.instances[0].kept);
 }
 
+// A track the person model beside the main one started hands its need for
+// the geometry module's confirmation on to the weak detections continuing it.
+TEST(SemanticWorker, ATrackOfTheSecondOpinionStaysOne) {
+  SemanticOptions o;
+  o.track_score_ratio = 0.5;
+  o.track_iou = 0.3;
+  const cv::Rect person(100, 50, 40, 100), moved(108, 52, 40, 100);
+  std::vector<SemanticTrack> tracks;
+  for (int k = 0; k < 2; ++k) {
+    semantic::Segmentation seg = segmentationOf({boxInstance(0, "person", 0.95f, person, true)});
+    seg.instances[0].second_opinion = true;
+    EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  }
+  ASSERT_EQ(tracks.size(), 1u);
+  EXPECT_TRUE(tracks[0].second_opinion);
+  semantic::Segmentation seg = segmentationOf({boxInstance(0, "person", 0.2f, moved, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 1);
+  EXPECT_TRUE(seg.instances[0].kept);
+  EXPECT_TRUE(seg.instances[0].second_opinion);
+  ASSERT_EQ(tracks.size(), 1u);
+  EXPECT_TRUE(tracks[0].second_opinion);
+  // The main model's own strong detection starts a track of its own.
+  seg = segmentationOf({boxInstance(0, "person", 0.8f, moved, true)});
+  EXPECT_EQ(continueTracks(o, 0.25, &seg, &tracks), 0);
+  ASSERT_EQ(tracks.size(), 1u);
+  EXPECT_FALSE(tracks[0].second_opinion);
+}
+
 TEST(SemanticWorker, HysteresisAcrossLabelsNeedsTheTracksOwnBox) {
   SemanticOptions o;
   o.track_score_ratio = 0.5;

@@ -29,7 +29,9 @@ namespace {
 // Flags the features of `frame` inside the movable regions of `r` as the
 // semantic module does, with their class. Not when that would leave out more
 // than `max_fraction` of the features (the module's own cap for masks
-// nothing confirms). Returns whether it flagged any.
+// nothing confirms). Features of a person model's regions beside the main
+// one are suspects too (Frame::suspect): they make points on probation.
+// Returns whether it flagged any.
 bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fraction) {
   std::vector<std::pair<int, int>> inside;  // feature, region
   for (int i = 0; i < frame->size(); ++i)
@@ -37,8 +39,13 @@ bool markMovable(Frame* frame, const SemanticResult& r, Map& map, double max_fra
   if (inside.empty() || inside.size() > max_fraction * frame->size()) return false;
   frame->movable_class.resize(frame->size(), 0);
   for (const auto& [i, label] : inside) {
+    const SemanticRegion& region = r.regions[label - 1];
+    if (region.second_opinion) {
+      frame->suspect.resize(frame->size(), 0);
+      frame->suspect[i] = 1;
+    }
     frame->dynamic[i] = kSemanticDynamic;
-    frame->movable_class[i] = map.classId(r.regions[label - 1].class_name);
+    frame->movable_class[i] = map.classId(region.class_name);
   }
   return true;
 }
@@ -66,20 +73,19 @@ std::pair<double, double> medianP95(std::vector<double> v) {
   return {median, v[i95]};
 }
 
-// The model card the options ask for: an explicit card (a relative path that
-// does not exist is looked up in the project's models/ folder; the model file
-// is looked up in model_dirs and $STILLPOINT_MODEL_DIR before the card's own
-// folder), or the recommended one.
-Result<semantic::ResolvedModel> resolveModel(const SemanticOptions& o) {
+// A model card named in the options (`field`): a relative path that does not
+// exist is looked up in the project's models/ folder; the model file is looked
+// up in model_dirs and $STILLPOINT_MODEL_DIR before the card's own folder.
+Result<semantic::ResolvedModel> resolveCard(const std::string& path, const std::vector<std::string>& model_dirs,
+                                            const char* field) {
   namespace fs = std::filesystem;
-  std::vector<fs::path> dirs(o.model_dirs.begin(), o.model_dirs.end());
-  if (o.model_card.empty()) return semantic::resolveRecommendedModel({.card_dir = {}, .model_dirs = dirs});
+  std::vector<fs::path> dirs(model_dirs.begin(), model_dirs.end());
   std::error_code ec;
-  fs::path card_path = o.model_card;
+  fs::path card_path = path;
   if (card_path.is_relative() && !fs::exists(card_path, ec) && fs::exists(semantic::defaultModelCardDir() / card_path, ec))
     card_path = semantic::defaultModelCardDir() / card_path;
   auto card = semantic::loadModelCard(card_path);
-  if (!card) return Error{"semantic.model_card: " + card.error()};
+  if (!card) return Error{std::string(field) + ": " + card.error()};
   if (const char* env = std::getenv("STILLPOINT_MODEL_DIR"); env && *env) dirs.emplace_back(env);
   for (const fs::path& d : dirs) {
     const fs::path candidate = d / card->model_path.filename();
@@ -89,6 +95,15 @@ Result<semantic::ResolvedModel> resolveModel(const SemanticOptions& o) {
     }
   }
   return semantic::ResolvedModel{*card, "card " + card_path.string()};
+}
+
+// The main model card the options ask for: a named one, or the recommended one.
+Result<semantic::ResolvedModel> resolveModel(const SemanticOptions& o) {
+  if (o.model_card.empty()) {
+    const std::vector<std::filesystem::path> dirs(o.model_dirs.begin(), o.model_dirs.end());
+    return semantic::resolveRecommendedModel({.card_dir = {}, .model_dirs = dirs});
+  }
+  return resolveCard(o.model_card, o.model_dirs, "semantic.model_card");
 }
 }  // namespace
 
@@ -186,9 +201,10 @@ struct SlamSystem::Impl {
   std::optional<SemanticResult> map_start_masks;
   bool segmentMapStart(Frame* frame) {
     if (!semantic || segmentsInline() || !input_now || input_now->bgr.empty()) return false;
-    SemanticResult r = semantic->process(SemanticJob{
-        -1, input_now->bgr.clone(), input_now->depth_m.empty() ? cv::Mat() : input_now->depth_m.clone(),
-        std::chrono::steady_clock::now()});
+    SemanticJob job{-1, input_now->bgr.clone(), input_now->depth_m.empty() ? cv::Mat() : input_now->depth_m.clone(),
+                    std::chrono::steady_clock::now()};
+    job.map_start = true;
+    SemanticResult r = semantic->process(job);
     if (!r.ok) return false;
     const bool flagged = markMovable(frame, r, map, 1.0);
     map_start_masks = std::move(r);
@@ -271,8 +287,27 @@ Result<std::unique_ptr<SlamSystem>> SlamSystem::create(const CameraModel& camera
     so.score_threshold = model->card.decoder.score_threshold * options.semantic.track_score_ratio;
   auto segmenter = semantic::createSegmenter(model->card, so);
   if (!segmenter) return Error{"semantic model '" + model->card.card_path.string() + "': " + segmenter.error()};
+  // The person model the card names, consulted beside it where a map starts.
+  std::unique_ptr<semantic::Segmenter> person;
+  if (!model->card.person_model.empty()) {
+    const std::string where = "semantic model '" + model->card.card_path.string() + "': person_model";
+    auto person_model = resolveCard(model->card.person_model.string(), options.semantic.model_dirs, where.c_str());
+    if (!person_model) return Error{person_model.error()};
+    semantic::SegmenterOptions po;
+    po.threads = options.semantic.threads;
+    po.device = options.semantic.device;
+    auto created = semantic::createSegmenter(person_model->card, po);
+    if (!created) return Error{where + " '" + person_model->card.card_path.string() + "': " + created.error()};
+    person = std::move(*created);
+  }
   auto system = create(camera, options, std::move(*segmenter), hooks);
-  if (system) (*system)->impl_->semantic_model = model->card.name + " (" + model->reason + ")";
+  if (!system) return system;
+  Impl& s = *(*system)->impl_;
+  s.semantic_model = model->card.name + " (" + model->reason + ")";
+  if (person) {
+    s.semantic_model += ", with " + person->card().name + " where a map starts";
+    if (Status st = s.semantic->setPersonModel(std::move(person)); !st) return Error{st.error()};
+  }
   return system;
 }
 

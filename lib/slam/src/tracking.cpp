@@ -993,8 +993,15 @@ bool Tracker::initialise(const std::vector<int>* only) {
   if (only)
     for (int i : *only) allowed[i] = 1;
   for (int i = 0; i < k->frame.size(); ++i) {
-    if (k->frame.depth[i] <= 0 || k->frame.dynamic[i] || !allowed[i]) continue;  // movers (known or masked) make no points
+    // Movers (known or masked) make no points; a person model's suspects
+    // make points on a mover's probation (that model also paints what stands).
+    const bool suspect = i < static_cast<int>(k->frame.suspect.size()) && k->frame.suspect[i];
+    if (k->frame.depth[i] <= 0 || (k->frame.dynamic[i] && !suspect) || !allowed[i]) continue;
     auto p = map_->createPoint(k->frame.unprojectToWorld(i), k);
+    if (suspect) {
+      p->geometry.on_mover = true;
+      p->geometry.probation = options_.geometry.mover_probation_frames;
+    }
     k->addObservation(p, i);
     p->updateFromObservations();
     current_.points[i] = p;

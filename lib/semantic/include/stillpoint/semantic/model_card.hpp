@@ -73,6 +73,11 @@ struct ModelCard {
   // P > 0.95, so no threshold helps): the pipeline should remove map content
   // under its masks only where another cue (geometry) agrees.
   bool confirm_with_geometry = false;
+  // A person model's card (relative: to this card's folder) that the SLAM
+  // consults beside this model where a map starts: an instance detector
+  // misses a person near the camera, cut by the border or half hidden, whom
+  // a person model paints (person_second_opinion.hpp). Empty: none.
+  std::filesystem::path person_model;
 
   // Checks every field; the message names the field.
   Status validate() const;

@@ -26,6 +26,9 @@ struct Instance {
   // Kept only as the continuation of an instance of the previous keyframe
   // (the SLAM's detector hysteresis, SemanticOptions::track_*).
   bool continued = false;
+  // Found by a person model beside the main one, where the main model saw
+  // nothing (person_second_opinion.hpp).
+  bool second_opinion = false;
 };
 
 struct SegmentationTiming {
