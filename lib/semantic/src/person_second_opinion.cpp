@@ -18,6 +18,15 @@ Status SecondOpinionOptions::validate() const {
   return Status::success();
 }
 
+Result<int> secondOpinionPersonId(const ModelCard& main, const ModelCard& person) {
+  const int person_id = main.classId("person");
+  if (person_id < 0) return Error{"person second opinion: model '" + main.name + "' has no class 'person'"};
+  if (person.decoder.type != DecoderType::kPersonProbability)
+    return Error{"person second opinion: model '" + person.name +
+                 "' is not a person model (its decoder is not person_probability)"};
+  return person_id;
+}
+
 int joinPersonSecondOpinion(const Segmentation& people, int person_id, const SecondOpinionOptions& options,
                             Segmentation* seg) {
   const cv::Size size = seg->movable_mask.size();
@@ -107,13 +116,10 @@ Result<std::unique_ptr<Segmenter>> withPersonSecondOpinion(std::unique_ptr<Segme
                                                            const SecondOpinionOptions& options) {
   if (!main || !person) return Error{"person second opinion: both segmenters are needed"};
   if (Status s = options.validate(); !s) return Error{s.error()};
-  const int person_id = main->card().classId("person");
-  if (person_id < 0) return Error{"person second opinion: model '" + main->card().name + "' has no class 'person'"};
-  if (person->card().decoder.type != DecoderType::kPersonProbability)
-    return Error{"person second opinion: model '" + person->card().name +
-                 "' is not a person model (its decoder is not person_probability)"};
+  auto person_id = secondOpinionPersonId(main->card(), person->card());
+  if (!person_id) return Error{person_id.error()};
   return std::unique_ptr<Segmenter>(
-      std::make_unique<SecondOpinionSegmenter>(std::move(main), std::move(person), options, person_id));
+      std::make_unique<SecondOpinionSegmenter>(std::move(main), std::move(person), options, *person_id));
 }
 
 }  // namespace stillpoint::semantic

@@ -67,7 +67,7 @@ struct Frame {
   // from (Map::className), 0 when unknown. Empty until the first is set.
   std::vector<std::uint8_t> movable_class;
   // Where a map starts: features a person model beside the main one paints
-  // (SemanticOptions::person_card). Flagged as movers for the frame, they
+  // (semantic::ModelCard::person_model). Flagged as movers for the frame, they
   // still make points, which serve a mover's probation: that model also
   // paints things that stand. Empty when none.
   std::vector<char> suspect;

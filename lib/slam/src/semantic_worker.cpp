@@ -148,8 +148,12 @@ SemanticWorker::SemanticWorker(std::unique_ptr<semantic::Segmenter> segmenter, c
 SemanticWorker::~SemanticWorker() { finish(); }
 
 Status SemanticWorker::setPersonModel(std::unique_ptr<semantic::Segmenter> person) {
-  const int id = segmenter_->card().classId("person");
-  if (person && id < 0) return Error{"model '" + segmenter_->card().name + "' has no class 'person' to join a person model's regions to"};
+  int id = -1;
+  if (person) {
+    auto checked = semantic::secondOpinionPersonId(segmenter_->card(), person->card());
+    if (!checked) return Error{checked.error()};
+    id = *checked;
+  }
   std::lock_guard lock(process_mutex_);
   person_ = std::move(person);
   person_id_ = id;

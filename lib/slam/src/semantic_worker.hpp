@@ -104,7 +104,7 @@ class SemanticWorker {
   // A person model consulted beside the main one for map-start jobs
   // (SemanticJob::map_start, semantic::ModelCard::person_model): the people it
   // finds that the main model does not explain join the result as regions
-  // marked second_opinion. Error when the main model has no "person" class.
+  // marked second_opinion. Errors: semantic::secondOpinionPersonId's.
   Status setPersonModel(std::unique_ptr<semantic::Segmenter> person);
 
   // Segments one keyframe on the calling thread (no queue, no sink); calls

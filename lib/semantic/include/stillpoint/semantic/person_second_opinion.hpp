@@ -32,6 +32,11 @@ struct SecondOpinionOptions {
   Status validate() const;
 };
 
+// The main card's "person" class id, which a person model's regions join as.
+// Errors: the main card has no "person" class, or the person card decodes no
+// person probability map.
+Result<int> secondOpinionPersonId(const ModelCard& main, const ModelCard& person);
+
 // Adds to `seg` (the main model's result) the regions of `people` (the person
 // model's result on the same image) that no instance of `seg` explains, as
 // instances of class `person_id` with Instance::second_opinion set. Returns
@@ -41,8 +46,7 @@ int joinPersonSecondOpinion(const Segmentation& people, int person_id, const Sec
 
 // The main segmenter's card, classes and movable ids; its results gain the
 // person model's unexplained regions as instances of the main card's
-// "person" class (Instance::second_opinion). Errors: the main card has no
-// "person" class, the person model's card decodes no person probability map,
+// "person" class (Instance::second_opinion). Errors: secondOpinionPersonId's,
 // bad options. Threading as Segmenter: one caller at a time.
 Result<std::unique_ptr<Segmenter>> withPersonSecondOpinion(std::unique_ptr<Segmenter> main,
                                                            std::unique_ptr<Segmenter> person,
