@@ -33,12 +33,20 @@ int joinPersonSecondOpinion(const Segmentation& people, int person_id, const Sec
   if (people.movable_mask.size() != size || seg->movable_mask.empty()) return 0;
   // What the main model has named: its static objects and the movers it keeps.
   cv::Mat explained(size, CV_8U, cv::Scalar(0));
-  for (const Instance& inst : seg->instances)
-    if (inst.area > 0 && !inst.mask.empty() && (!inst.movable || inst.kept))
-      explained(inst.box).setTo(255, inst.mask);
+  cv::Mat kept_people(size, CV_8U, cv::Scalar(0));
+  for (const Instance& inst : seg->instances) {
+    if (inst.area <= 0 || inst.mask.empty() || (inst.movable && !inst.kept)) continue;
+    explained(inst.box).setTo(255, inst.mask);
+    if (inst.movable && inst.class_id == person_id) kept_people(inst.box).setTo(255, inst.mask);
+  }
   const double min_area = options.min_region_fraction * double(size.area());
   const cv::Mat kernel =
       cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * options.open_px + 1, 2 * options.open_px + 1));
+  // The opening parts a piece from what explains its neighbours by up to
+  // open_px; a piece within that reach of a kept person continues that person.
+  const int reach = options.open_px + 2;
+  cv::dilate(kept_people, kept_people,
+             cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
   std::vector<Instance> added;
   for (const Instance& region : people.instances) {
     if (!region.movable || !region.kept || region.area < min_area || region.score < options.min_probability ||
@@ -53,13 +61,20 @@ int joinPersonSecondOpinion(const Segmentation& people, int person_id, const Sec
     for (int c = 1; c < n; ++c) {
       const int area = stats.at<int>(c, cv::CC_STAT_AREA);
       if (area < min_area) continue;
+      const cv::Rect box(stats.at<int>(c, cv::CC_STAT_LEFT), stats.at<int>(c, cv::CC_STAT_TOP),
+                         stats.at<int>(c, cv::CC_STAT_WIDTH), stats.at<int>(c, cv::CC_STAT_HEIGHT));
+      cv::Mat piece;
+      cv::compare(labels(box), c, piece, cv::CMP_EQ);
+      // A piece that continues a person the main model keeps is that person's,
+      // and the main model's outline is the one to trust: what the person model
+      // adds there is what stands with the person (the box under the TUM bear).
+      if (cv::countNonZero(kept_people(box) & piece) > 0) continue;
       Instance inst;
       inst.class_id = person_id;
       inst.class_name = "person";
       inst.score = region.score;
-      inst.box = cv::Rect(stats.at<int>(c, cv::CC_STAT_LEFT), stats.at<int>(c, cv::CC_STAT_TOP),
-                          stats.at<int>(c, cv::CC_STAT_WIDTH), stats.at<int>(c, cv::CC_STAT_HEIGHT));
-      cv::compare(labels(inst.box), c, inst.mask, cv::CMP_EQ);
+      inst.box = box;
+      inst.mask = piece;
       inst.area = area;
       inst.movable = true;
       inst.second_opinion = true;

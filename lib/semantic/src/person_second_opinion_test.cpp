@@ -46,8 +46,9 @@ class FixedSegmenter : public Segmenter {
     card_.movable = {card_.classes.front()};
     card_.decoder.type = decoder;
   }
-  void add(const cv::Mat& mask, int class_id, bool movable, float score = 0.9f) {
+  void add(const cv::Mat& mask, int class_id, bool movable, float score = 0.9f, bool kept = true) {
     answer_.push_back(instanceOf(mask, class_id, card_.classes.at(class_id), movable, score));
+    answer_.back().kept = kept;
   }
   Result<Segmentation> segment(const cv::Mat& bgr) override {
     if (bgr.empty()) return Error{"empty image"};
@@ -57,7 +58,7 @@ class FixedSegmenter : public Segmenter {
     seg.instances = answer_;
     for (const Instance& inst : answer_) {
       seg.labels(inst.box).setTo(inst.class_id, inst.mask);
-      if (inst.movable) seg.movable_mask(inst.box).setTo(255, inst.mask);
+      if (inst.movable && inst.kept) seg.movable_mask(inst.box).setTo(255, inst.mask);
     }
     seg.movable_pixels = cv::countNonZero(seg.movable_mask);
     return seg;
@@ -133,6 +134,30 @@ TEST(PersonSecondOpinion, APersonTheMainModelKeepsIsNotAddedTwice) {
   ASSERT_EQ(seg.instances.size(), 2u);
   EXPECT_FALSE(seg.instances[1].second_opinion);
   EXPECT_EQ(seg.movable_pixels, kPerson.area());
+}
+
+TEST(PersonSecondOpinion, WhatContinuesAPersonTheMainModelKeepsIsLeftToIt) {
+  // The main model keeps the person's head; the person model paints the
+  // head, the body below it and the box the body stands behind, in one region.
+  const cv::Rect head(kPerson.x, kPerson.y, kPerson.width, 120);
+  const cv::Rect body_and_box(kPerson.x, kPerson.y + 120, kPerson.width, kPerson.height - 120);
+  const cv::Rect other(540, 100, 90, 300);  // a second person, apart from the first
+  auto main = mainModel();
+  main->add(maskOf({head}), 0, true);
+  Segmentation seg = segmentWith(std::move(main), personModel(maskOf({kPerson, other})));
+  ASSERT_EQ(seg.instances.size(), 3u);
+  EXPECT_FALSE(seg.instances[1].second_opinion);
+  EXPECT_TRUE(seg.instances[2].second_opinion);
+  EXPECT_EQ((seg.instances[2].box & kPerson).area(), 0);
+  EXPECT_EQ(cv::countNonZero(seg.movable_mask(body_and_box)), 0);
+
+  // A person the main model's post-filter dropped explains nothing.
+  main = mainModel();
+  main->add(maskOf({head}), 0, true, 0.9f, /*kept=*/false);
+  seg = segmentWith(std::move(main), personModel(maskOf({kPerson})));
+  ASSERT_EQ(seg.instances.size(), 3u);
+  EXPECT_TRUE(seg.instances[2].second_opinion);
+  EXPECT_GT(seg.instances[2].area, 0.99 * kPerson.area());
 }
 
 TEST(PersonSecondOpinion, SmallOrUnsureRegionsAreLeftOut) {
