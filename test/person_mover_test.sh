@@ -36,7 +36,8 @@
 #                frames where a map starts (`person-walking` in
 #                docs/results.md).
 # With MODEL_CARD=CARD in the environment (and MASK_DELAY_FRAMES) the
-# semantic module runs that model card instead of the recommended one (COCO).
+# semantic module runs that model card instead of the recommended one (COCO,
+# with the person model where a map starts).
 # With ON_EXCERPT_MAP=1 in the environment the sequence is replayed on a map
 # of the clean excerpt, made first by the same replay and saved (a robot's
 # map from an earlier run of the same way): after a cover the frame

@@ -56,8 +56,8 @@ struct ModulesConfig {
   bool geometry = slam::GeometryOptions{}.enabled;  // the SLAM core's default
   bool semantic = false;  // keyframe segmentation (needs colour: sources deliver BGR when on)
   // Model card YAML; "" = the SLAM options' semantic.model_card, and when that
-  // is empty too the recommended model (COCO if its .onnx is found, else the
-  // in-tree person model). A relative path that does not exist is looked up in
+  // is empty too the recommended model (COCO if its .onnx is found, with the
+  // person model where a map starts; else the in-tree person model). A relative path that does not exist is looked up in
   // the models folder (/usr/share/stillpoint/models when installed).
   std::string semantic_model_card;
   // Folders searched first for the card's model file; empty = the SLAM options' semantic.model_dirs.

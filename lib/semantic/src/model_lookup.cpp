@@ -15,7 +15,7 @@ Result<ResolvedModel> resolveRecommendedModel(const ModelLookup& lookup) {
   const std::filesystem::path dir = lookup.card_dir.empty() ? defaultModelCardDir() : lookup.card_dir;
   std::error_code ec;
   std::string coco_note;
-  auto coco = loadModelCard(dir / kCocoCardFile);
+  auto coco = loadModelCard(dir / kRecommendedCardFile);
   if (coco) {
     std::vector<std::filesystem::path> candidates;
     const std::filesystem::path file = coco->model_path.filename();

@@ -387,7 +387,7 @@ TEST_F(CocoModel, TeddyBearCalledPersonTooIsDroppedAsTheSameObject) {
 TEST(ModelLookup, PrefersCocoWhenFoundElseThePersonModel) {
   ::unsetenv("STILLPOINT_MODEL_DIR");
   const fs::path dir = tempDir("lookup");
-  for (const char* f : {kCocoCardFile, kPersonCardFile, "person_selfie_256.onnx"})
+  for (const char* f : {kRecommendedCardFile, kPersonCardFile, "person_selfie_256.onnx"})
     fs::copy_file(kProjectModels / f, dir / f, fs::copy_options::overwrite_existing);
   auto fallback = resolveRecommendedModel({dir, {}});
   ASSERT_TRUE(fallback.ok()) << fallback.error();
@@ -397,13 +397,14 @@ TEST(ModelLookup, PrefersCocoWhenFoundElseThePersonModel) {
   if (fs::exists(kSharedModels / "coco_yolov5s_seg_320.onnx")) {
     auto coco = resolveRecommendedModel({dir, {"/nonexistent", kSharedModels}});
     ASSERT_TRUE(coco.ok()) << coco.error();
-    EXPECT_EQ(coco->card.name, "coco_yolov5s_seg_320");
+    EXPECT_EQ(coco->card.name, "coco_yolov5s_seg_320_people");
+    EXPECT_EQ(coco->card.person_model, dir / kPersonCardFile);
     EXPECT_EQ(coco->card.model_path, kSharedModels / "coco_yolov5s_seg_320.onnx");
     ::setenv("STILLPOINT_MODEL_DIR", kSharedModels.c_str(), 1);
     auto env = resolveRecommendedModel({dir, {}});
     ::unsetenv("STILLPOINT_MODEL_DIR");
     ASSERT_TRUE(env.ok());
-    EXPECT_EQ(env->card.name, "coco_yolov5s_seg_320");
+    EXPECT_EQ(env->card.name, "coco_yolov5s_seg_320_people");
   }
   fs::remove(dir / "person_selfie_256.onnx");
   auto none = resolveRecommendedModel({dir, {}});

@@ -198,7 +198,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("geometry", "deadline_ms", o.geometry.deadline_ms,
     "longest tracking waits for a frame's clusters; a miss tracks the frame without the module");
   v("semantic", "enabled", o.semantic.enabled, "the semantic module (keyframe segmentation, movable objects out of the map)");
-  v("semantic", "model_card", o.semantic.model_card, "model card YAML; empty: COCO if its ONNX file is found, else the person model");
+  v("semantic", "model_card", o.semantic.model_card, "model card YAML; empty: COCO if its ONNX file is found (with the person model where a map starts), else the person model");
   v("semantic", "model_dirs", o.semantic.model_dirs, "folders searched first for the model file (then $STILLPOINT_MODEL_DIR)");
   v("semantic", "movable_furniture", o.semantic.movable_furniture, "chairs, couches, beds, tables, benches count as movable too");
   v("semantic", "mask_dilation_px", o.semantic.mask_dilation_px, "instance masks grow by this many pixels, 0..100");

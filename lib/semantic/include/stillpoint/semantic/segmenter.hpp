@@ -81,6 +81,8 @@ Result<std::unique_ptr<Segmenter>> createSegmenter(const std::filesystem::path& 
 
 // ---- Model lookup -------------------------------------------------------
 inline constexpr const char* kCocoCardFile = "coco_yolov5s_seg_320.yaml";
+// COCO with the person model consulted beside it where a map starts.
+inline constexpr const char* kRecommendedCardFile = "coco_yolov5s_seg_320_people.yaml";
 inline constexpr const char* kPersonCardFile = "person_selfie_256.yaml";
 
 struct ModelLookup {
@@ -97,8 +99,9 @@ struct ResolvedModel {
   std::string reason;  // human-readable: why this model was chosen
 };
 
-// The recommended model: the COCO instance model when its ONNX file is found,
-// else the in-tree person model. Error when neither is usable.
+// The recommended model: the COCO instance model when its ONNX file is found
+// (card kRecommendedCardFile, whose person_model the SLAM consults where a map
+// starts), else the in-tree person model. Error when neither is usable.
 Result<ResolvedModel> resolveRecommendedModel(const ModelLookup& lookup = {});
 // The models/ folder this build knows about (see ModelLookup::card_dir).
 std::filesystem::path defaultModelCardDir();

@@ -204,8 +204,9 @@ struct GeometryOptions {
 struct SemanticOptions {
   bool enabled = false;  // YAML: the module on (stillpoint-replay --modules overrides)
   // YAML: model card; "" = the recommended model (COCO when its ONNX file is
-  // found in model_dirs / $STILLPOINT_MODEL_DIR, else the in-tree person
-  // model). A relative path not found from the working directory is looked
+  // found in model_dirs / $STILLPOINT_MODEL_DIR, with the in-tree person model
+  // consulted where a map starts; else the in-tree person model alone). A
+  // relative path not found from the working directory is looked
   // up in the project's models/ folder.
   std::string model_card;
   std::vector<std::string> model_dirs;  // YAML: folders searched first for the card's model file
