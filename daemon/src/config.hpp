@@ -57,8 +57,9 @@ struct ModulesConfig {
   bool semantic = false;  // keyframe segmentation (needs colour: sources deliver BGR when on)
   // Model card YAML; "" = the SLAM options' semantic.model_card, and when that
   // is empty too the recommended model (COCO if its .onnx is found, with the
-  // person model where a map starts; else the in-tree person model). A relative path that does not exist is looked up in
-  // the models folder (/usr/share/stillpoint/models when installed).
+  // person model where a map starts; else the in-tree person model). A
+  // relative path that does not exist is looked up in the models folder
+  // (/usr/share/stillpoint/models when installed).
   std::string semantic_model_card;
   // Folders searched first for the card's model file; empty = the SLAM options' semantic.model_dirs.
   std::vector<std::string> semantic_model_dirs;

@@ -80,7 +80,6 @@ Result<std::unique_ptr<Segmenter>> createSegmenter(const std::filesystem::path& 
                                                    const SegmenterOptions& options = {});
 
 // ---- Model lookup -------------------------------------------------------
-inline constexpr const char* kCocoCardFile = "coco_yolov5s_seg_320.yaml";
 // COCO with the person model consulted beside it where a map starts.
 inline constexpr const char* kRecommendedCardFile = "coco_yolov5s_seg_320_people.yaml";
 inline constexpr const char* kPersonCardFile = "person_selfie_256.yaml";
