@@ -615,6 +615,9 @@ int main(int argc, char** argv) {
                 args.localisation ? ", localisation only" : "");
   std::printf("map:          %zu keyframes, %zu points, %d local BA runs, local mapping %.1f ms total\n",
               map.keyframes, map.points, map.local_ba_runs, map.local_mapping_ms_total);
+  if (map.young_map_waits > 0)
+    std::printf("young map:    %d frames waited for local mapping, %.1f ms in all\n", map.young_map_waits,
+                map.young_map_wait_ms_total);
   std::printf("timing [ms]:  %-24s mean %6.2f  median %6.2f  p95 %6.2f  max %6.2f\n", "ORB extraction", ex.mean,
               ex.median, ex.p95, ex.max);
   const std::pair<const char*, const std::vector<double>*> stages[] = {

@@ -170,8 +170,16 @@ void LocalMapper::run(std::stop_token stop) {
     }
     process(kf);
     std::lock_guard lock(queue_mutex_);
-    if (queue_.empty()) idle_ = true;
+    if (queue_.empty()) {
+      idle_ = true;
+      queue_cv_.notify_all();
+    }
   }
+}
+
+bool LocalMapper::waitIdle(std::chrono::duration<double, std::milli> timeout) {
+  std::unique_lock lock(queue_mutex_);
+  return queue_cv_.wait_for(lock, timeout, [&] { return (queue_.empty() && idle_.load()) || closed_; });
 }
 
 void LocalMapper::finish() {

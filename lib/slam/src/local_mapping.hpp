@@ -3,6 +3,7 @@
 // points and redundant keyframes, applies semantic masks, and refines the
 // local window with bundle adjustment.
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <functional>
@@ -61,6 +62,9 @@ class LocalMapper {
   void start();
   void enqueue(KeyFrame* kf);
   bool idle() const { return idle_.load() && pending() == 0; }
+  // Waits until every queued keyframe is processed, at most `timeout`;
+  // false on a timeout.
+  bool waitIdle(std::chrono::duration<double, std::milli> timeout);
   std::size_t pending() const;
   void finish();  // drains the queue, joins the worker
 

@@ -54,6 +54,9 @@ Status MappingOptions::validate() const {
   if (!(redundant_ratio > 0 && redundant_ratio <= 1)) return Error{"mapping.redundant_ratio must be in (0, 1]"};
   if (redundant_min_observers < 1) return Error{"mapping.redundant_min_observers must be >= 1"};
   if (!(point_found_ratio >= 0 && point_found_ratio < 1)) return Error{"mapping.point_found_ratio must be in [0, 1)"};
+  if (young_map_keyframes < 0) return Error{"mapping.young_map_keyframes must be >= 0"};
+  if (!(young_map_wait_ms > 0 && young_map_wait_ms <= 1000))
+    return Error{"mapping.young_map_wait_ms must be in (0, 1000]"};
   return Status::success();
 }
 

@@ -93,6 +93,8 @@ TEST(SlamOptionsValidate, EachOutOfRangeValueNamesItsField) {
       {"mapping.redundant_ratio", [](SlamOptions& o) { o.mapping.redundant_ratio = 0; }},
       {"mapping.redundant_min_observers", [](SlamOptions& o) { o.mapping.redundant_min_observers = 0; }},
       {"mapping.point_found_ratio", [](SlamOptions& o) { o.mapping.point_found_ratio = 1; }},
+      {"mapping.young_map_keyframes", [](SlamOptions& o) { o.mapping.young_map_keyframes = -1; }},
+      {"mapping.young_map_wait_ms", [](SlamOptions& o) { o.mapping.young_map_wait_ms = 0; }},
   };
   for (const BadValue& c : cases) {
     SCOPED_TRACE(c.field);

@@ -163,6 +163,11 @@ struct SlamSystem::Impl {
   std::string semantic_model;
   std::atomic<int> semantic_no_colour{0};
   std::atomic<std::size_t> no_depth_frames{0};
+  // The last frame made a keyframe in a young map (mapping.young_map_keyframes):
+  // local mapping finishes it before the next frame is tracked.
+  bool young_map_wait = false;
+  std::atomic<int> young_map_waits{0};
+  std::atomic<double> young_map_wait_ms{0};
   log::RateLimiter no_colour_warning{std::chrono::seconds(10)};
   bool finished = false;
   bool tracked_any = false;  // a frame reached tracking (no map can be loaded then)
@@ -443,6 +448,16 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   if (s.latency.busy()) s.latency.advance(frame.id, [&s](const SemanticJob& job) { s.applySegmentation(job); });
   if (s.semantic) s.applyFrameMasks();
   TrackOutput out;
+  if (s.young_map_wait) {
+    // Features are extracted meanwhile.
+    s.young_map_wait = false;
+    const auto wait_from = std::chrono::steady_clock::now();
+    s.mapper.waitIdle(std::chrono::duration<double, std::milli>(s.options.mapping.young_map_wait_ms));
+    out.stages.mapping_wait =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - wait_from).count();
+    ++s.young_map_waits;
+    s.young_map_wait_ms = s.young_map_wait_ms + out.stages.mapping_wait;
+  }
   const bool idle = s.options.sequential || s.mapper.idle();
   s.tracked_any = true;
   s.input_now = &input;
@@ -529,7 +544,13 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
       s.mapper.process(kf);
       if (s.loops) s.loops->process(id);
     } else {
-      s.mapper.enqueue(kf);
+      const std::uint32_t map_id = kf->map_id;
+      s.mapper.enqueue(kf);  // kf may be culled from here on
+      const int young = s.options.mapping.young_map_keyframes;
+      if (young > 0 && s.options.mapping.local_ba) {
+        std::shared_lock lock(s.map.mutex());
+        s.young_map_wait = s.map.goodKeyFrameCount(map_id) <= static_cast<std::size_t>(young);
+      }
     }
   } else if (s.loops && s.options.place.global_ba && hasPose(out.state)) {
     s.checkCrossing();
@@ -682,6 +703,8 @@ MapStats SlamSystem::mapStats() const {
   stats.semantic_sighting_cells = impl_->map.staticSightings().cells();
   stats.local_ba_runs = impl_->mapper.baRuns();
   stats.local_mapping_ms_total = impl_->mapper.totalMs();
+  stats.young_map_waits = impl_->young_map_waits;
+  stats.young_map_wait_ms_total = impl_->young_map_wait_ms;
   stats.dynamic_points_culled = impl_->mapper.dynamicPointsCulled();
   stats.vocabulary = impl_->vocabulary_path;
   if (impl_->loops) {

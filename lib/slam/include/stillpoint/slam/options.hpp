@@ -93,6 +93,15 @@ struct MappingOptions {
   double redundant_ratio = 0.9;        // keyframe culling: this share of its points seen by 3 others
   int redundant_min_observers = 3;
   double point_found_ratio = 0.25;     // a new point found in fewer of the frames that saw it is culled
+  // Live: while the map being extended holds at most this many keyframes,
+  // tracking waits for local mapping to finish each new keyframe before it
+  // takes the next frame, as a sequential run does (0: never waits). A young
+  // map makes a keyframe every frame or two, each one cuts the running
+  // bundle adjustment short, and the next frames are then tracked on points
+  // and poses no adjustment has refined; a mover filling the view there
+  // decides whether the map follows it (docs/decisions.md).
+  int young_map_keyframes = 6;
+  double young_map_wait_ms = 100.0;  // the longest wait per keyframe, (0, 1000]
   Status validate() const;
 };
 

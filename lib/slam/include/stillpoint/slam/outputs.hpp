@@ -57,6 +57,9 @@ struct StageTimes {
   double geometry = 0;        // waiting for the clusters and judging them (tracking thread)
   double objects = 0;         // the frame's dynamic objects (TrackOutput::objects)
   double semantic = 0;        // carrying the newest masks to the frame (tracking thread)
+  // Live, a young map: waiting for local mapping to finish the keyframe the
+  // last frame made (mapping.young_map_keyframes).
+  double mapping_wait = 0;
 };
 
 // A feature matched in the first tracking stage and judged by the geometry
@@ -195,6 +198,10 @@ struct MapStats {
   std::size_t trajectory_records = 0;
   int local_ba_runs = 0;
   double local_mapping_ms_total = 0;
+  // Frames that waited for local mapping in a young map, and how long in all
+  // (mapping.young_map_keyframes; live runs only).
+  int young_map_waits = 0;
+  double young_map_wait_ms_total = 0;
   int dynamic_points_culled = 0;          // map points removed by the geometry module
   // Place recognition and loop closing (docs/place-recognition.md).
   std::string vocabulary;                 // the file in use; empty: none
