@@ -163,9 +163,12 @@ struct SlamSystem::Impl {
   std::string semantic_model;
   std::atomic<int> semantic_no_colour{0};
   std::atomic<std::size_t> no_depth_frames{0};
-  // The last frame made a keyframe in a young map (mapping.young_map_keyframes):
+  // The last frame made a keyframe in a young map (MappingOptions::young_map_keyframes):
   // local mapping finishes it before the next frame is tracked.
   bool young_map_wait = false;
+  // A map seen to hold more keyframes than that is not counted again: culling
+  // may take it back under the count, but it is no longer young.
+  std::optional<std::uint32_t> grown_map;
   std::atomic<int> young_map_waits{0};
   std::atomic<double> young_map_wait_ms{0};
   log::RateLimiter no_colour_warning{std::chrono::seconds(10)};
@@ -456,7 +459,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
     out.stages.mapping_wait =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - wait_from).count();
     ++s.young_map_waits;
-    s.young_map_wait_ms = s.young_map_wait_ms + out.stages.mapping_wait;
+    s.young_map_wait_ms += out.stages.mapping_wait;
   }
   const bool idle = s.options.sequential || s.mapper.idle();
   s.tracked_any = true;
@@ -547,9 +550,10 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
       const std::uint32_t map_id = kf->map_id;
       s.mapper.enqueue(kf);  // kf may be culled from here on
       const int young = s.options.mapping.young_map_keyframes;
-      if (young > 0 && s.options.mapping.local_ba) {
+      if (young > 0 && s.options.mapping.local_ba && s.grown_map != map_id) {
         std::shared_lock lock(s.map.mutex());
         s.young_map_wait = s.map.goodKeyFrameCount(map_id) <= static_cast<std::size_t>(young);
+        if (!s.young_map_wait) s.grown_map = map_id;
       }
     }
   } else if (s.loops && s.options.place.global_ba && hasPose(out.state)) {

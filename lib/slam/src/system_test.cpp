@@ -282,7 +282,7 @@ TEST(SlamSystemTracking, RoomSequenceFollowsTheTrueMotion) {
 }
 
 // A live run waits for local mapping after each keyframe of a young map
-// (mapping.young_map_keyframes): every frame is then tracked on the map a
+// (MappingOptions::young_map_keyframes): every frame is then tracked on the map a
 // sequential run tracks it on, bundle-adjusted, and the two runs agree to
 // the last digit. Without the wait the next keyframe cuts the running
 // adjustment short, and the frames after it are tracked on other points.

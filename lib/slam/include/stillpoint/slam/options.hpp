@@ -99,7 +99,8 @@ struct MappingOptions {
   // map makes a keyframe every frame or two, each one cuts the running
   // bundle adjustment short, and the next frames are then tracked on points
   // and poses no adjustment has refined; a mover filling the view there
-  // decides whether the map follows it (docs/decisions.md).
+  // decides whether the map follows it (docs/architecture.md, "Queues").
+  // Tuned, not read from YAML.
   int young_map_keyframes = 6;
   double young_map_wait_ms = 100.0;  // the longest wait per keyframe, (0, 1000]
   Status validate() const;

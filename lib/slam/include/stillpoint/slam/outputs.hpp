@@ -58,7 +58,7 @@ struct StageTimes {
   double objects = 0;         // the frame's dynamic objects (TrackOutput::objects)
   double semantic = 0;        // carrying the newest masks to the frame (tracking thread)
   // Live, a young map: waiting for local mapping to finish the keyframe the
-  // last frame made (mapping.young_map_keyframes).
+  // last frame made (MappingOptions::young_map_keyframes).
   double mapping_wait = 0;
 };
 
@@ -199,7 +199,7 @@ struct MapStats {
   int local_ba_runs = 0;
   double local_mapping_ms_total = 0;
   // Frames that waited for local mapping in a young map, and how long in all
-  // (mapping.young_map_keyframes; live runs only).
+  // (MappingOptions::young_map_keyframes; live runs only).
   int young_map_waits = 0;
   double young_map_wait_ms_total = 0;
   int dynamic_points_culled = 0;          // map points removed by the geometry module
