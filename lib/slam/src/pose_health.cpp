@@ -18,13 +18,19 @@ constexpr int kUnreliableInliers = 30, kDegradedInliers = 80;
 constexpr float kUnreliableDynamicShare = 0.5f, kDegradedDynamicShare = 0.25f;
 constexpr float kUnreliableConditioning = 0.02f, kDegradedConditioning = 0.05f;
 constexpr float kDegradedRmsPx = 2.0f;
+// With the semantic module as the only judge of what moves: masks whose image
+// is this old no longer say where the movers are, and the keyframes waiting
+// for theirs hold their points back (infinity: none near the camera has any).
+constexpr float kUnreliableMaskAgeS = 2.0f, kDegradedMaskAgeS = 0.6f;
 
-PoseHealth rawHealth(const PoseQuality& q) {
+PoseHealth rawHealth(const PoseQuality& q, bool masks_alone) {
+  const bool masks_known = masks_alone && q.mask_age_s >= 0;
   if (q.inliers < kUnreliableInliers || q.dynamic_share > kUnreliableDynamicShare ||
-      q.conditioning < kUnreliableConditioning)
+      q.conditioning < kUnreliableConditioning || (masks_known && q.mask_age_s > kUnreliableMaskAgeS))
     return PoseHealth::kUnreliable;
   if (q.inliers < kDegradedInliers || q.dynamic_share > kDegradedDynamicShare ||
-      q.conditioning < kDegradedConditioning || q.reprojection_rms_px > kDegradedRmsPx)
+      q.conditioning < kDegradedConditioning || q.reprojection_rms_px > kDegradedRmsPx ||
+      (masks_known && q.mask_age_s > kDegradedMaskAgeS))
     return PoseHealth::kDegraded;
   return PoseHealth::kGood;
 }
@@ -43,6 +49,8 @@ const char* toString(PoseHealth health) {
 
 PoseQuality Tracker::measureQuality(bool ok) {
   PoseQuality q;
+  q.mask_age_s = mask_age_s_;
+  q.masks_found_movers = masks_found_movers_;
   if (!ok) {
     health_ = PoseHealth::kLost;
     better_frames_ = 0;
@@ -94,7 +102,8 @@ PoseQuality Tracker::measureQuality(bool ok) {
   }
   // Hysteresis: worse at once, better only when it has held a while. A pose
   // kept on fallback evidence (movers starved the frame) is unreliable.
-  const PoseHealth raw = starved_ ? PoseHealth::kUnreliable : rawHealth(q);
+  const bool masks_alone = options_.semantic.enabled && !detector_;
+  const PoseHealth raw = starved_ ? PoseHealth::kUnreliable : rawHealth(q, masks_alone);
   if (raw >= health_ || health_ == PoseHealth::kLost) {  // lost -> a pose: its own level at once
     health_ = raw;
     better_frames_ = 0;

@@ -4,6 +4,7 @@
 // (tracking's thread, Tracker::markSemanticMovers).
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <unordered_set>
 
 #include "local_mapping.hpp"
@@ -382,12 +383,17 @@ void Tracker::markSemanticMovers() {
   for (const KeyFrame* kf : local_keyframes_) consider(kf);
   const Frame* from = source ? &source->frame : nullptr;
   if (masked_frame_ && (!from || masked_frame_->id > from->id)) from = &*masked_frame_;
-  if (!from) return;
+  if (!from) {
+    mask_age_s_ = std::numeric_limits<float>::infinity();  // none within reach: as if never segmented
+    return;
+  }
   const auto has_flags = [](const Frame& other) {
     return std::find(other.dynamic.begin(), other.dynamic.end(), kSemanticDynamic) != other.dynamic.end();
   };
+  mask_age_s_ = static_cast<float>(std::max(0.0, secondsBetween(current_.stamp, from->stamp)));
+  masks_found_movers_ = has_flags(*from);
   // Most keyframes mask nothing: skip the brute-force pass then.
-  if (!has_flags(*from)) return;
+  if (!masks_found_movers_) return;
   const auto flagged = [](const Frame& other) {
     std::vector<int> out;
     for (int i = 0; i < other.size(); ++i)

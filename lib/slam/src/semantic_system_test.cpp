@@ -27,6 +27,7 @@
 #include "semantic_test_doubles.hpp"
 #include "stillpoint/semantic/segmenter.hpp"
 #include "stillpoint/slam/system.hpp"
+#include "system_test_scenes.hpp"
 #include "test_helpers.hpp"
 
 namespace stillpoint::slam {
@@ -584,6 +585,76 @@ TEST(SemanticModule, SequentialLatencyAppliesResultsLateAndQueuesLikeAThread) {
     EXPECT_EQ(stats.semantic_keyframes_dropped, expected_dropped);
     EXPECT_GT(stats.semantic_keyframes_segmented, 0);
   }
+}
+
+// With the semantic module as the only judge of what moves, the pose health
+// says when the newest masks are too old to vouch for the view
+// (docs/pose-health.md). In the rendered room (3 s, the fake segmenter's
+// rectangle in a corner of the image), masks that come with the keyframes
+// leave the poses `good`; when each segmentation takes 70 frames (2.3 s),
+// every frame whose newest masks are over 0.6 s old is at least `degraded`,
+// and over 2 s `unreliable`.
+TEST(SemanticModule, StaleMasksLowerThePoseHealthOfTheSemanticModuleAlone) {
+  static const Sequence room = roomSequence(90);
+  struct Seen {
+    float oldest = -1;
+    int posed = 0, good = 0, unknown = 0, stale = 0, very_stale = 0;
+  };
+  const auto run = [](bool semantic, int latency) {
+    Seen seen;
+    SlamOptions options = semanticOptions();
+    options.semantic.enabled = semantic;
+    options.semantic.propagate_masks = true;
+    options.semantic.sequential_latency_frames = latency;
+    options.geometry.enabled = false;
+    options.place.loop_closing = false;
+    auto system = SlamSystem::create(room.camera, options,
+                                     semantic ? std::make_unique<RectangleSegmenter>(cv::Rect(0, 0, 160, 120), false)
+                                              : nullptr);
+    EXPECT_TRUE(system.ok()) << system.error();
+    if (!system.ok()) return seen;
+    for (std::size_t i = 0; i < room.frames.size(); ++i) {
+      RgbdInput input = room.frames[i];
+      cv::cvtColor(input.gray, input.bgr, cv::COLOR_GRAY2BGR);
+      const auto out = (*system)->track(input);
+      EXPECT_TRUE(out.ok()) << out.error();
+      if (!out.ok() || !hasPose(out->state)) continue;
+      const PoseQuality& q = out->quality;
+      ++seen.posed;
+      // The first frame's masks come when the map is made from it.
+      seen.unknown += i > 0 && q.mask_age_s < 0;
+      seen.oldest = std::max(seen.oldest, q.mask_age_s);
+      seen.good += q.health == PoseHealth::kGood;
+      if (q.mask_age_s > 0.6f) {
+        ++seen.stale;
+        EXPECT_NE(q.health, PoseHealth::kGood) << "frame " << i << ": masks " << q.mask_age_s << " s old";
+      }
+      if (q.mask_age_s > 2.0f) {
+        ++seen.very_stale;
+        EXPECT_EQ(q.health, PoseHealth::kUnreliable) << "frame " << i << ": masks " << q.mask_age_s << " s old";
+      }
+    }
+    (*system)->finish();
+    return seen;
+  };
+  const int frames = static_cast<int>(room.frames.size());
+  const Seen off = run(false, 0);
+  EXPECT_EQ(off.posed, frames);
+  EXPECT_EQ(off.unknown, frames - 1) << "no masks, no age";
+  EXPECT_GT(off.good, frames / 2);
+
+  const Seen prompt = run(true, 0);
+  EXPECT_EQ(prompt.posed, frames);
+  EXPECT_EQ(prompt.unknown, 0);
+  EXPECT_EQ(prompt.stale, 0) << "the oldest masks were " << prompt.oldest << " s old";
+  EXPECT_GT(prompt.good, frames / 2);
+
+  const Seen late = run(true, 70);
+  EXPECT_GT(late.posed, frames * 9 / 10);
+  EXPECT_EQ(late.unknown, 0);
+  EXPECT_GT(late.stale, 20) << "the oldest masks were " << late.oldest << " s old";
+  EXPECT_GT(late.very_stale, 3) << "the oldest masks were " << late.oldest << " s old";
+  EXPECT_GT(late.good, 5) << "good while the masks were young";
 }
 
 TEST(SemanticModule, ThreadedRunAppliesEveryResultByFinish) {

@@ -61,6 +61,8 @@ KeyFrame* Tracker::track(Frame frame, bool mapping_idle, bool clusters_pending, 
   times_ = StageTimes{};
   geometry_ = GeometryOutput{};
   semantic_marked_ = 0;
+  mask_age_s_ = -1;
+  masks_found_movers_ = false;
   starved_ = false;
   rejected_ = false;
   carried_.clear();
@@ -389,6 +391,10 @@ void Tracker::flagMapStartMovers() {
       secondsBetween(current_.stamp, *map_start_waiting_since_) >= options_.tracking.new_map_after_lost_s)
     return;  // waited long enough: the map starts as without them
   masked_ahead_ = map_start_masks_(&current_);
+  if (masked_ahead_) {
+    mask_age_s_ = 0;  // the frame's own masks
+    masks_found_movers_ = std::find(current_.dynamic.begin(), current_.dynamic.end(), kSemanticDynamic) != current_.dynamic.end();
+  }
 }
 
 bool Tracker::mapStartRefused(const std::vector<int>* only) {

@@ -299,6 +299,9 @@ class Tracker {
   StageTimes times_;
   GeometryOutput geometry_;
   int semantic_marked_ = 0;
+  // The newest masks markSemanticMovers followed (PoseQuality::mask_age_s).
+  float mask_age_s_ = -1;
+  bool masks_found_movers_ = false;
   // A frame segmented because no keyframe was made there (keepForMasks),
   // until its result is back; then the newest such frame, with its masks.
   std::optional<Frame> awaiting_masks_, masked_frame_;

@@ -45,6 +45,12 @@ struct PoseQuality {
   // lambda_max) of the pose's information matrix (translation scaled by the
   // median depth), 1 = every direction equally, 0 = one is free.
   float conditioning = 0;
+  // The semantic module: seconds from the image of the newest masks followed
+  // into this frame to this frame, infinity when no keyframe near the camera
+  // has masks (-1: not known, the module off or the frame relocalised), and
+  // whether those masks kept anything out.
+  float mask_age_s = -1;
+  bool masks_found_movers = false;
 };
 
 // Where one frame's tracking time went (milliseconds).
