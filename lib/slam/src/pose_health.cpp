@@ -18,19 +18,19 @@ constexpr int kUnreliableInliers = 30, kDegradedInliers = 80;
 constexpr float kUnreliableDynamicShare = 0.5f, kDegradedDynamicShare = 0.25f;
 constexpr float kUnreliableConditioning = 0.02f, kDegradedConditioning = 0.05f;
 constexpr float kDegradedRmsPx = 2.0f;
-// With the semantic module as the only judge of what moves: masks whose image
-// is this old no longer say where the movers are, and the keyframes waiting
-// for theirs hold their points back (infinity: none near the camera has any).
-constexpr float kUnreliableMaskAgeS = 2.0f, kDegradedMaskAgeS = 0.6f;
+// With the semantic module as the only judge of what moves, masks whose image
+// is old no longer say where the movers are, and the keyframes waiting for
+// theirs hold their points back (infinity: none near the camera has any):
+// PoseQuality::kDegradedMaskAgeS and kUnreliableMaskAgeS.
 
 PoseHealth rawHealth(const PoseQuality& q, bool masks_alone) {
   const bool masks_known = masks_alone && q.mask_age_s >= 0;
   if (q.inliers < kUnreliableInliers || q.dynamic_share > kUnreliableDynamicShare ||
-      q.conditioning < kUnreliableConditioning || (masks_known && q.mask_age_s > kUnreliableMaskAgeS))
+      q.conditioning < kUnreliableConditioning || (masks_known && q.mask_age_s > PoseQuality::kUnreliableMaskAgeS))
     return PoseHealth::kUnreliable;
   if (q.inliers < kDegradedInliers || q.dynamic_share > kDegradedDynamicShare ||
       q.conditioning < kDegradedConditioning || q.reprojection_rms_px > kDegradedRmsPx ||
-      (masks_known && q.mask_age_s > kDegradedMaskAgeS))
+      (masks_known && q.mask_age_s > PoseQuality::kDegradedMaskAgeS))
     return PoseHealth::kDegraded;
   return PoseHealth::kGood;
 }

@@ -4,6 +4,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <deque>
 #include <filesystem>
@@ -172,6 +173,7 @@ struct SlamSystem::Impl {
   std::atomic<int> young_map_waits{0};
   std::atomic<double> young_map_wait_ms{0};
   log::RateLimiter no_colour_warning{std::chrono::seconds(10)};
+  log::RateLimiter old_masks_warning{std::chrono::seconds(60)};
   bool finished = false;
   bool tracked_any = false;  // a frame reached tracking (no map can be loaded then)
 
@@ -467,6 +469,17 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   s.map_start_masks.reset();
   KeyFrame* kf = s.tracker.track(std::move(frame), idle, clusters_pending, &out);
   s.input_now = nullptr;
+  if (s.semantic && !s.options.geometry.enabled && out.quality.mask_age_s > PoseQuality::kDegradedMaskAgeS) {
+    // Segmentation cannot keep up: said to whoever runs it, now and then.
+    char what[64];
+    if (std::isinf(out.quality.mask_age_s))
+      std::snprintf(what, sizeof what, "no keyframe near the camera has semantic masks");
+    else
+      std::snprintf(what, sizeof what, "the newest semantic masks are %.2f s old", out.quality.mask_age_s);
+    SP_WARN_EVERY(logger, s.old_masks_warning,
+                  what << ": with the semantic module alone the pose health is lowered (docs/pose-health.md); "
+                         "the geometry module, or inference on a GPU (semantic.device), keeps up");
+  }
   const auto t2 = std::chrono::steady_clock::now();
   out.extract_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stages.extract = out.extract_ms;

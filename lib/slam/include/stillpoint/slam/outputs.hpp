@@ -36,6 +36,9 @@ const char* toString(PoseHealth health);
 
 struct PoseQuality {
   static constexpr int kRecoveryFrames = 15;
+  // With the semantic module alone, masks older than these make a pose
+  // degraded and unreliable.
+  static constexpr float kDegradedMaskAgeS = 0.6f, kUnreliableMaskAgeS = 2.0f;
   PoseHealth health = PoseHealth::kLost;
   int inliers = 0;              // map points in the final pose
   float dynamic_share = 0;      // features kept out as moving / (those + inliers)
