@@ -13,6 +13,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <ctime>
 #include <filesystem>
@@ -55,7 +56,8 @@ constexpr const char* kUsage =
     "                command, the accuracy table (ATE RMSE, RPE: median and\n"
     "                min-max over runs, and the share of frames with a pose), the runtime table\n"
     "                (semantic part per keyframe, geometry part and tracking per frame, frames\n"
-    "                over 33 ms, keyframes per second, segmentations dropped), plots, and\n"
+    "                over 33 ms, keyframes per second, segmentations dropped, the newest\n"
+    "                masks' age), plots, and\n"
     "                published figures of other systems beside ours\n"
     "  results.csv   one row per sequence x module set x run\n"
     "  plots/        per sequence and module set (first run): trajectory and ATE over time,\n"
@@ -195,6 +197,9 @@ struct FrameRecord {
   int features = 0, in_pose = 0, geometry_dynamic = 0, semantic_dynamic = 0;
   bool keyframe = false;
   std::string health;  // empty in a log without the column
+  // The newest semantic masks' age (infinity: none near the camera; NaN: not
+  // known or a log without the column).
+  double mask_age_s = NAN;
 };
 
 struct RunResult {
@@ -208,6 +213,8 @@ struct RunResult {
   double track_median = NAN, track_p95 = NAN, geometry_median = NAN, segment_median = NAN;
   std::size_t over_33ms = 0;
   double keyframes_per_s = NAN, duration_s = 0;
+  // Frames with a pose: the age of their newest semantic masks.
+  double mask_age_median = NAN, mask_age_p90 = NAN;
   std::vector<FrameRecord> log;
   eval::Trajectory gt, est;
   Result<eval::EvalResult> eval = Error{"not evaluated"};
@@ -275,6 +282,15 @@ Result<std::vector<FrameRecord>> readFrameLog(const std::string& path) {
       return Error{path + ":" + std::to_string(number) + ": malformed frame record"};
     r.keyframe = keyframe != 0;
     fields >> r.health;
+    // dynamic_share outlier_share reprojection_rms_px conditioning, then the age
+    // ("inf" too, which operator>> would refuse).
+    std::string skipped, age;
+    for (int k = 0; k < 4; ++k) fields >> skipped;
+    if (fields >> age) {
+      char* end = nullptr;
+      const double value = std::strtod(age.c_str(), &end);
+      if (end != age.c_str() && *end == '\0' && value >= 0) r.mask_age_s = value;
+    }
     log.push_back(r);
   }
   return log;
@@ -334,9 +350,10 @@ void runOnce(const Args& args, const std::string& replay, const SequenceArg& seq
   }
   r->log = std::move(*log);
   r->frames = r->log.size();
-  std::vector<double> track, geometry;
+  std::vector<double> track, geometry, ages;
   for (const FrameRecord& f : r->log) {
     if (f.state == "skipped") continue;
+    if (hasPose(f.state) && !std::isnan(f.mask_age_s)) ages.push_back(f.mask_age_s);
     track.push_back(f.track_ms);
     if (f.geometry_ms > 0) geometry.push_back(f.geometry_ms);
     r->over_33ms += f.track_ms > 33.0;
@@ -345,6 +362,10 @@ void runOnce(const Args& args, const std::string& replay, const SequenceArg& seq
   r->track_median = quantile(track, 0.5);
   r->track_p95 = quantile(track, 0.95);
   r->geometry_median = quantile(geometry, 0.5);
+  if (!ages.empty()) {
+    r->mask_age_median = quantile(ages, 0.5);
+    r->mask_age_p90 = quantile(ages, 0.9);
+  }
   const bool semantic = modules.find("semantic") != std::string::npos;
   if (modules.find("geometry") == std::string::npos) r->geometry_median = NAN;
   r->segment_median = semantic ? lineValue(summary, "segment_ms_median") : NAN;
@@ -665,10 +686,13 @@ bool writeReport(const Args& args, const std::string& command, const std::string
   md << "Per the paper's Table IV: the semantic part per segmented keyframe (its own thread), the geometry part "
         "per frame (in the tracking thread), tracking per frame (ORB extraction included): medians over the runs.\n\n";
   md << "| Sequence | Modules | Semantic model | Semantic per keyframe [ms] | Geometry per frame [ms] | "
-        "Tracking median [ms] | Tracking p95 [ms] | Frames over 33 ms | Keyframes per s | Segmentations dropped |\n";
-  md << "|---|---|---|---|---|---|---|---|---|---|\n";
+        "Tracking median [ms] | Tracking p95 [ms] | Frames over 33 ms | Keyframes per s | Segmentations dropped | "
+        "Masks' age median, p90 [s] |\n";
+  md << "|---|---|---|---|---|---|---|---|---|---|---|\n";
+  // Masks' age: infinity where no keyframe near the camera had masks.
+  const auto seconds = [](double v) { return std::isinf(v) ? std::string("inf") : fmt(v, 2); };
   for (const Group& g : groups) {
-    std::vector<double> seg, geo, med, p95, over, kfs, dropped;
+    std::vector<double> seg, geo, med, p95, over, kfs, dropped, age, aged;
     for (const RunResult* r : g.runs) {
       if (r->log.empty()) continue;
       if (std::isfinite(r->segment_median)) seg.push_back(r->segment_median);
@@ -678,6 +702,7 @@ bool writeReport(const Args& args, const std::string& command, const std::string
       over.push_back(r->frames ? 100.0 * r->over_33ms / r->frames : NAN);
       kfs.push_back(r->keyframes_per_s);
       dropped.push_back(static_cast<double>(r->segmentations_dropped));
+      if (!std::isnan(r->mask_age_median)) age.push_back(r->mask_age_median), aged.push_back(r->mask_age_p90);
     }
     std::string model = "-";
     for (const RunResult* r : g.runs)
@@ -685,7 +710,8 @@ bool writeReport(const Args& args, const std::string& command, const std::string
     md << "| `" << g.sequence << "` | " << g.label << " | " << model << " | " << fmt(quantile(seg, 0.5), 1) << " | "
        << fmt(quantile(geo, 0.5), 2) << " | " << fmt(quantile(med, 0.5), 2) << " | " << fmt(quantile(p95, 0.5), 2)
        << " | " << (over.empty() ? "-" : fmt(quantile(over, 0.5), 1) + " %") << " | " << fmt(quantile(kfs, 0.5), 2)
-       << " | " << (g.label.find("semantic") != std::string::npos ? fmt(quantile(dropped, 0.5), 0) : "-") << " |\n";
+       << " | " << (g.label.find("semantic") != std::string::npos ? fmt(quantile(dropped, 0.5), 0) : "-") << " | "
+       << (age.empty() ? "-" : seconds(quantile(age, 0.5)) + ", " + seconds(quantile(aged, 0.5))) << " |\n";
   }
 
   md << "\n## Published figures (other systems, other hardware)\n\n";

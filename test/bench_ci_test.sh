@@ -37,6 +37,17 @@ for m in none geometry semantic geometry+semantic; do
 done
 odd=$(grep -Ev '^\| [a-z+]+ \| (good|degraded|unreliable) \| [0-9]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ % \|$' <<< "$health_rows")
 [[ -z $odd ]] || fail "pose health rows not of a level with its numbers: $odd"
+# The runtime table's last column: the newest semantic masks' age (median, p90) where the module ran.
+runtime_rows=$(awk '/^## Runtime/{f=1;next} /^## /{f=0} f && /^\| `/' "$report")
+[[ $(wc -l <<< "$runtime_rows") -eq 12 ]] || fail "runtime table rows: $runtime_rows"
+while IFS='|' read -r _ seq modules _ _ _ _ _ _ _ _ age _; do
+  age=${age// /}
+  if [[ $modules == *semantic* && $seq != *absent* ]]; then
+    [[ $age =~ ^([0-9]+\.[0-9]{2}|inf),([0-9]+\.[0-9]{2}|inf)$ ]] || fail "$seq/$modules: masks' age '$age'"
+  else
+    [[ $age == - ]] || fail "$seq/$modules: masks' age '$age' without the semantic module"
+  fi
+done <<< "$runtime_rows"
 header=$(head -n 1 "$csv")
 for col in sequence modules run ate_rmse_m rpe_trans_m_s rpe_rot_deg_s frames frames_with_pose \
            track_ms_median track_ms_p95 trajectory; do
