@@ -76,7 +76,8 @@ constexpr const char* kUsage =
     "  1 geometry, 2 semantic, 3 both).\n"
     "--frame-log writes one line per frame: 'index timestamp state track_ms geometry_ms features\n"
     "in_pose geometry_dynamic semantic_dynamic keyframe(0|1) health dynamic_share outlier_share\n"
-    "reprojection_rms_px conditioning mask_age_s masks_found_movers' (health: good, degraded, unreliable, lost;\n"
+    "reprojection_rms_px conditioning mask_age_s masks_found_movers health_causes' (health: good, degraded,\n"
+    "unreliable, lost; health_causes: what lowered it, names joined by '+', or none;\n"
     "docs/pose-health.md) (state: ok, relocalised, new_map, lost, no_depth, initialising, or skipped\n"
     "for a frame that could not be read or tracked) (mask_age_s: seconds from the image of the newest\n"
     "semantic masks to the frame, inf when none is near the camera, -1 when not known;\n"
@@ -337,7 +338,8 @@ int main(int argc, char** argv) {
       return 1;
     }
     std::fputs("# index timestamp state track_ms geometry_ms features in_pose geometry_dynamic semantic_dynamic "
-               "keyframe health dynamic_share outlier_share reprojection_rms_px conditioning mask_age_s masks_found_movers\n",
+               "keyframe health dynamic_share outlier_share reprojection_rms_px conditioning mask_age_s masks_found_movers "
+               "health_causes\n",
                frame_log);
   }
   std::FILE* objects_out = nullptr;
@@ -422,7 +424,7 @@ int main(int argc, char** argv) {
     if (!frame) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, frame.error().c_str());
       ++skipped;
-      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0 -1 0\n", i, data->stamp(i).toSecondsString().c_str());
+      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0 -1 0 none\n", i, data->stamp(i).toSecondsString().c_str());
       continue;
     }
     if (frames == 0) first_stamp = frame->stamp;
@@ -454,17 +456,18 @@ int main(int argc, char** argv) {
     if (!out) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, out.error().c_str());
       ++skipped;
-      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0 -1 0\n", i, frame->stamp.toSecondsString().c_str());
+      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0 -1 0 none\n", i, frame->stamp.toSecondsString().c_str());
       continue;
     }
     const bool has_pose = slam::hasPose(out->state);
     if (has_pose) health.push_back({frame->stamp, slam::toString(out->quality.health)});
     if (frame_log)
-      std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d %s %.3f %.3f %.3f %.4f %.3f %d\n", i, frame->stamp.toSecondsString().c_str(),
+      std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d %s %.3f %.3f %.3f %.4f %.3f %d %s\n", i, frame->stamp.toSecondsString().c_str(),
                    slam::toString(out->state), out->track_ms, out->stages.geometry, out->features, out->tracked,
                    out->geometry.dynamic_features, out->semantic_features, out->new_keyframe ? 1 : 0, slam::toString(out->quality.health),
                    out->quality.dynamic_share, out->quality.outlier_share, out->quality.reprojection_rms_px,
-                   out->quality.conditioning, out->quality.mask_age_s, out->quality.masks_found_movers ? 1 : 0);
+                   out->quality.conditioning, out->quality.mask_age_s, out->quality.masks_found_movers ? 1 : 0,
+                   health_cause::toString(out->quality.causes).c_str());
     if (objects_out)
       for (const slam::DynamicObject& o : out->objects)
         std::fprintf(objects_out, "%s %u %s %d %.4f %.4f %.4f %.4f %.4f %.4f %.4f %.4f %.4f %d %d\n",

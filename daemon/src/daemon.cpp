@@ -152,7 +152,11 @@ struct Daemon::Impl {
   std::atomic<std::uint64_t> frames_received{0}, frames_bad{0}, frames_tracked{0}, frames_lost{0},
       frames_processed{0}, reconnects{0}, keyframes{0};
   std::atomic<int> last_state{-1};
-  std::atomic<int> last_health{static_cast<int>(slam::PoseHealth::kLost)};
+  // The newest frame's pose health (low byte) and what lowered it (the 16 bits
+  // above), in one word so that a status never pairs one frame's health with
+  // another's causes.
+  std::atomic<std::uint32_t> last_health{static_cast<std::uint32_t>(slam::PoseHealth::kLost)};
+  std::atomic<float> last_mask_age_s{-1.0f};
   std::atomic<std::uint32_t> map_id{0};
   std::atomic<std::int64_t> last_stamp_ns{0};  // sensor stamp of the newest frame tracked
   std::atomic<double> tracking_rate_hz{0};
@@ -350,6 +354,8 @@ void Daemon::Impl::trackingLoop() {
     pose.dynamic_share = out->quality.dynamic_share;
     pose.reprojection_rms_px = out->quality.reprojection_rms_px;
     pose.conditioning = out->quality.conditioning;
+    pose.health_causes = out->quality.causes;
+    pose.mask_age_s = out->quality.mask_age_s;
     const bool has_pose = slam::hasPose(out->state);
     if (!has_pose) {
       // Nothing a consumer could take for a pose.
@@ -372,7 +378,8 @@ void Daemon::Impl::trackingLoop() {
     map_id = out->map_id;
     last_stamp_ns = frame->stamp.nanoseconds();
     last_state = static_cast<int>(out->state);
-    last_health = static_cast<int>(out->quality.health);
+    last_health = static_cast<std::uint32_t>(out->quality.health) | static_cast<std::uint32_t>(out->quality.causes) << 8;
+    last_mask_age_s = out->quality.mask_age_s;
   }
   std::lock_guard lock(mutex);
   tracking_done = true;
@@ -411,7 +418,10 @@ ipc::StatusMessage Daemon::Impl::statusMessage() const {
   m.frames_dropped = queue->dropped();
   m.map_id = map_id;
   if (last_state >= 0) m.tracking_state = toIpc(static_cast<slam::TrackingState>(last_state.load()));
-  m.health = static_cast<ipc::PoseHealth>(last_health.load());
+  const std::uint32_t health = last_health.load();
+  m.health = static_cast<ipc::PoseHealth>(health & 0xFF);
+  m.health_causes = static_cast<std::uint16_t>(health >> 8);
+  m.mask_age_s = last_mask_age_s.load();
   ipc::ThreadStats tracking;
   tracking.name = "tracking";
   tracking.loop_rate_hz = tracking_rate_hz;  // frames tracked per second over the last status period

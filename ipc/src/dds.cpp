@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <string>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -32,6 +33,16 @@ void copyName(char (&dst)[32], const std::string& src) {
   dst[n] = '\0';
 }
 
+// The masks' age as the frame log writes it: seconds, "inf" for none near the
+// camera, "-1" when not known.
+std::string maskAgeString(float age_s) {
+  if (age_s < 0) return "-1";
+  if (std::isinf(age_s)) return "inf";
+  char text[32];
+  std::snprintf(text, sizeof text, "%.3f", age_s);
+  return text;
+}
+
 stillpoint_dds_Pose toDds(const PoseMessage& p) {
   stillpoint_dds_Pose m{};
   m.schema_version = PoseMessage::kSchemaVersion;
@@ -49,6 +60,8 @@ stillpoint_dds_Pose toDds(const PoseMessage& p) {
   m.dynamic_share = p.dynamic_share;
   m.reprojection_rms_px = p.reprojection_rms_px;
   m.conditioning = p.conditioning;
+  m.health_causes = p.health_causes;
+  m.mask_age_s = p.mask_age_s;
   return m;
 }
 
@@ -75,6 +88,8 @@ Result<PoseMessage> fromDds(const stillpoint_dds_Pose& m) {
   p.dynamic_share = m.dynamic_share;
   p.reprojection_rms_px = m.reprojection_rms_px;
   p.conditioning = m.conditioning;
+  p.health_causes = m.health_causes;
+  p.mask_age_s = m.mask_age_s;
   return p;
 }
 
@@ -88,6 +103,8 @@ void toDds(const StatusMessage& s, stillpoint_dds_Status& m) {
   m.map_id = s.map_id;
   m.tracking_state = static_cast<std::uint8_t>(s.tracking_state);
   m.health = static_cast<std::uint8_t>(s.health);
+  m.health_causes = s.health_causes;
+  m.mask_age_s = s.mask_age_s;
   m.thread_count = static_cast<std::uint8_t>(s.threads.size());
   for (std::size_t i = 0; i < s.threads.size(); ++i) {
     copyName(m.threads[i].name, s.threads[i].name);
@@ -122,6 +139,8 @@ Result<StatusMessage> fromDds(const stillpoint_dds_Status& m) {
   if (!health) return Error{"dds: status " + health.error()};
   s.tracking_state = *state;
   s.health = *health;
+  s.health_causes = m.health_causes;
+  s.mask_age_s = m.mask_age_s;
   for (int i = 0; i < m.thread_count; ++i) {
     const auto& t = m.threads[i];
     s.threads.push_back({std::string(t.name, strnlen(t.name, sizeof(t.name))), t.loop_rate_hz,
@@ -606,6 +625,8 @@ class Ros2Transport final : public Transport {
     std::vector<std::pair<std::string, std::string>> kv = {
         {"tracking_state", toString(status.tracking_state)},
         {"pose_health", toString(status.health)},
+        {"pose_health_causes", health_cause::toString(status.health_causes)},
+        {"semantic_mask_age_s", maskAgeString(status.mask_age_s)},
         {"map_id", std::to_string(status.map_id)},
         {"uptime_s", std::to_string(status.uptime_s)},
         {"frames_received", std::to_string(status.frames_received)},
@@ -623,7 +644,9 @@ class Ros2Transport final : public Transport {
     const bool tracking = hasPose(status.tracking_state);
     const bool warn = !tracking || status.health != PoseHealth::kGood || dropping;
     const std::string message = std::string(tracking ? "tracking" : toString(status.tracking_state)) +
-                                ", pose " + toString(status.health) + (dropping ? ", frames or messages dropped" : "");
+                                ", pose " + toString(status.health) +
+                                (status.health_causes ? " (" + health_cause::toString(status.health_causes) + ")" : "") +
+                                (dropping ? ", frames or messages dropped" : "");
     std::vector<diagnostic_msgs_msg_dds__KeyValue_> values(kv.size());
     for (std::size_t k = 0; k < kv.size(); ++k) {
       values[k].key = kv[k].first.data();

@@ -34,6 +34,8 @@ stillpoint_lcm::pose_t toLcm(const PoseMessage& p) {
   m.dynamic_share = p.dynamic_share;
   m.reprojection_rms_px = p.reprojection_rms_px;
   m.conditioning = p.conditioning;
+  m.health_causes = static_cast<std::int16_t>(p.health_causes);
+  m.mask_age_s = p.mask_age_s;
   return m;
 }
 
@@ -73,6 +75,8 @@ Result<PoseMessage> fromLcm(const stillpoint_lcm::pose_t& m) {
   p.dynamic_share = m.dynamic_share;
   p.reprojection_rms_px = m.reprojection_rms_px;
   p.conditioning = m.conditioning;
+  p.health_causes = static_cast<std::uint16_t>(m.health_causes);
+  p.mask_age_s = m.mask_age_s;
   return p;
 }
 
@@ -86,6 +90,8 @@ stillpoint_lcm::status_t toLcm(const StatusMessage& s) {
   m.map_id = asSigned(s.map_id);
   m.tracking_state = static_cast<std::int8_t>(s.tracking_state);
   m.health = static_cast<std::int8_t>(s.health);
+  m.health_causes = static_cast<std::int16_t>(s.health_causes);
+  m.mask_age_s = s.mask_age_s;
   m.num_threads = static_cast<std::int16_t>(s.threads.size());
   for (const auto& t : s.threads)
     m.threads.push_back({t.name, t.loop_rate_hz, t.latency_ms_median, t.latency_ms_max});
@@ -110,6 +116,8 @@ Result<StatusMessage> fromLcm(const stillpoint_lcm::status_t& m) {
   if (!health) return Error{"lcm: status " + health.error()};
   s.tracking_state = *state;
   s.health = *health;
+  s.health_causes = static_cast<std::uint16_t>(m.health_causes);
+  s.mask_age_s = m.mask_age_s;
   for (const auto& t : m.threads) s.threads.push_back({t.name, t.loop_rate_hz, t.latency_ms_median, t.latency_ms_max});
   for (const auto& q : m.queues) {
     auto depth = narrow<std::uint32_t>(q.depth, "queues.depth");

@@ -31,6 +31,8 @@ sp_pose_record toRecord(const PoseMessage& p) {
   r.dynamic_share = p.dynamic_share;
   r.reprojection_rms_px = p.reprojection_rms_px;
   r.conditioning = p.conditioning;
+  r.health_causes = p.health_causes;
+  r.mask_age_s = p.mask_age_s;
   return r;
 }
 
@@ -54,6 +56,8 @@ Result<PoseMessage> fromRecord(const sp_pose_record& r) {
   p.dynamic_share = r.dynamic_share;
   p.reprojection_rms_px = r.reprojection_rms_px;
   p.conditioning = r.conditioning;
+  p.health_causes = static_cast<std::uint16_t>(r.health_causes);
+  p.mask_age_s = r.mask_age_s;
   return p;
 }
 

@@ -31,6 +31,11 @@ def f32(x):
     return struct.unpack("f", struct.pack("f", x))[0]
 
 
+def int16(bits):
+    """The 16 bits as LCM's signed int16 carries them."""
+    return bits - (1 << 16) if bits >= 1 << 15 else bits
+
+
 def expected_pose(k):
     """Same arithmetic as probe::testPose(k): CPython's math calls the C library."""
     a = k * 0.001
@@ -39,7 +44,7 @@ def expected_pose(k):
     s = math.sin(half)
     map_id = 0xC0FFEE0000000000 | (k // 100)
     return {
-        "schema_version": 2,
+        "schema_version": 3,
         "sensor_stamp_ns": 1700000000123456789 + k * 33333333,
         "frame_counter": k,
         "position": [math.sin(a) * 3.14159265358979, -math.ldexp(float(k), -7) / 3.0, 1.0 / (k + 3.0)],
@@ -53,6 +58,8 @@ def expected_pose(k):
         "dynamic_share": f32((k % 101) / 100.0),
         "reprojection_rms_px": f32(0.5 + f32((k % 13) / 7.0)),
         "conditioning": f32(1.0 / (k + 2)),
+        "health_causes": int16((k * 0x2F1B) & 0xFFFF),  # LCM int16 carries the unsigned bits
+        "mask_age_s": math.inf if k % 3 == 0 else -1.0 if k % 3 == 1 else f32(f32(0.1) * k),
     }
 
 
@@ -82,8 +89,10 @@ def on_status(channel, data):
         problems.append(f"status {j}: threads {[t.name for t in m.threads]}")
     if m.uptime_s != 0.25 * j + 1.0 / 3.0 or m.queues[1].dropped != 0xFFFFFFFFFFFFFFF0 - (1 << 64):
         problems.append(f"status {j}: fields differ")
-    if m.schema_version != 2 or m.tracking_state != j % 6 or m.health != j % 4:
+    if m.schema_version != 3 or m.tracking_state != j % 6 or m.health != j % 4:
         problems.append(f"status {j}: schema {m.schema_version}, state {m.tracking_state}, health {m.health}")
+    if m.health_causes != int16(0xFFFF - j) or m.mask_age_s != (math.inf if j % 2 else 0.25 * j):
+        problems.append(f"status {j}: health causes {m.health_causes}, masks' age {m.mask_age_s}")
 
 
 lc = lcm.LCM(url)

@@ -353,14 +353,17 @@ def main():
     print(f"ros2 reader: {len(poses)} PoseStamped samples, {bad} that rosbags decoded differently or malformed; "
           f"{len(odometry)} Odometry, {odom_bad} missing or not the pose; {len(transforms)} tf, {tf_bad} missing or "
           f"not the pose")
-    # Diagnostics: one status "stillpoint" per status message, its fields as values; while
-    # the excerpt plays, tracking with a good pose is OK.
+    # Diagnostics: one status "stillpoint" per status message, its fields as values (what
+    # lowered the pose health named unless it is good or lost); while the excerpt plays,
+    # tracking with a good pose is OK.
     diag_bad, tracking_ok = 0, 0
     for d in diagnostics:
         s = d.status[0] if len(d.status) == 1 else None
         values = {kv.key: kv.value for kv in s.values} if s else {}
         if s is None or s.name != "stillpoint" or s.level not in (0, 1) or "tracking_state" not in values \
-                or "pose_health" not in values or "tracking.loop_rate_hz" not in values:
+                or "pose_health" not in values or "tracking.loop_rate_hz" not in values \
+                or "semantic_mask_age_s" not in values \
+                or (values.get("pose_health_causes") == "none") != (values["pose_health"] in ("good", "lost")):
             diag_bad += 1
             continue
         tracking_ok += s.level == 0 and values["tracking_state"] == "ok" and values["pose_health"] == "good"

@@ -154,7 +154,8 @@ int main(int argc, char** argv) {
          << " rejected=" << p.dynamic_rejected_features << " keyframes=" << p.keyframes << " map=" << std::hex
          << p.map_id << std::dec << " health=" << toString(p.health) << std::setprecision(3)
          << " dynamic_share=" << p.dynamic_share << " rms_px=" << p.reprojection_rms_px
-         << " conditioning=" << p.conditioning << std::setprecision(1)
+         << " conditioning=" << p.conditioning << " causes=" << health_cause::toString(p.health_causes)
+         << " mask_age_s=" << p.mask_age_s << std::setprecision(1)
          << " latency_us=" << (wallNowNs() - static_cast<double>(p.publish_stamp.nanoseconds())) * 1e-3;
     std::cout << line.str() << "\n";
   });
@@ -165,7 +166,7 @@ int main(int argc, char** argv) {
     std::ostringstream line;
     line << std::fixed << std::setprecision(2) << "status uptime_s=" << s.uptime_s
          << " frames=" << s.frames_received << " dropped=" << s.frames_dropped << " state=" << toString(s.tracking_state)
-         << " health=" << toString(s.health);
+         << " health=" << toString(s.health) << " causes=" << health_cause::toString(s.health_causes);
     for (const auto& t : s.threads)
       line << " " << t.name << "=" << t.loop_rate_hz << "Hz/" << t.latency_ms_median << "ms";
     for (const auto& q : s.queues) line << " q." << q.name << "=" << q.depth << "/" << q.capacity;

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 namespace stillpoint::ipc::probe {
 
@@ -24,6 +25,8 @@ PoseMessage testPose(std::uint64_t k) {
   p.dynamic_share = static_cast<float>(k % 101) / 100.0f;
   p.reprojection_rms_px = 0.5f + static_cast<float>(k % 13) / 7.0f;
   p.conditioning = 1.0f / static_cast<float>(k + 2);
+  p.health_causes = static_cast<std::uint16_t>(k * 0x2F1Bu);  // bit 15 too: unsigned survives signed wire types
+  p.mask_age_s = k % 3 == 0 ? std::numeric_limits<float>::infinity() : k % 3 == 1 ? -1.0f : 0.1f * static_cast<float>(k);
   return p;
 }
 
@@ -35,6 +38,8 @@ StatusMessage testStatus(std::uint64_t k) {
   s.map_id = 0xC0FFEE0000000000ULL | k;
   s.tracking_state = static_cast<TrackingState>(k % 6);
   s.health = static_cast<PoseHealth>(k % 4);
+  s.health_causes = static_cast<std::uint16_t>(0xFFFFu - k);
+  s.mask_age_s = k % 2 ? std::numeric_limits<float>::infinity() : 0.25f * static_cast<float>(k);
   s.threads = {{"tracking", 29.97, 11.9 + 0.01 * static_cast<double>(k), 15.5},
                {"local_mapping", 2.5, 40.0, 165.0},
                {"publisher", 30.0, 0.004, 0.05}};
@@ -94,6 +99,8 @@ std::string diff(const PoseMessage& e, const PoseMessage& g) {
   if (e.dynamic_share != g.dynamic_share) return "dynamic_share";
   if (e.reprojection_rms_px != g.reprojection_rms_px) return "reprojection_rms_px";
   if (e.conditioning != g.conditioning) return "conditioning";
+  if (e.health_causes != g.health_causes) return "health_causes";
+  if (e.mask_age_s != g.mask_age_s) return "mask_age_s";
   return {};
 }
 

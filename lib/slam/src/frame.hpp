@@ -2,6 +2,7 @@
 // A camera frame with its ORB features, per-feature depth and map matches.
 #include <opencv2/core.hpp>
 
+#include <algorithm>
 #include <memory>
 #include <vector>
 
@@ -84,6 +85,10 @@ struct Frame {
   std::vector<cv::Vec3b> colour;
 
   int size() const { return static_cast<int>(keys.size()); }
+  // Whether a semantic mask (or a known mover) keeps any feature out.
+  bool hasSemanticFlags() const {
+    return std::find(dynamic.begin(), dynamic.end(), kSemanticDynamic) != dynamic.end();
+  }
   const std::uint8_t* descriptor(int i) const { return descriptors.ptr<std::uint8_t>(i); }
   Vec3 cameraCentre() const { return T_c_w.inverse().translation(); }
   // World point of keypoint i from its depth (requires depth[i] > 0).

@@ -23,16 +23,27 @@ constexpr float kDegradedRmsPx = 2.0f;
 // theirs hold their points back (infinity: none near the camera has any):
 // PoseQuality::kDegradedMaskAgeS and kUnreliableMaskAgeS.
 
-PoseHealth rawHealth(const PoseQuality& q, bool masks_alone) {
+// The frame's own level, and every measure that lowered it.
+PoseHealth rawHealth(const PoseQuality& q, bool masks_alone, bool starved, std::uint16_t* causes) {
   const bool masks_known = masks_alone && q.mask_age_s >= 0;
-  if (q.inliers < kUnreliableInliers || q.dynamic_share > kUnreliableDynamicShare ||
-      q.conditioning < kUnreliableConditioning || (masks_known && q.mask_age_s > PoseQuality::kUnreliableMaskAgeS))
-    return PoseHealth::kUnreliable;
-  if (q.inliers < kDegradedInliers || q.dynamic_share > kDegradedDynamicShare ||
-      q.conditioning < kDegradedConditioning || q.reprojection_rms_px > kDegradedRmsPx ||
-      (masks_known && q.mask_age_s > PoseQuality::kDegradedMaskAgeS))
-    return PoseHealth::kDegraded;
-  return PoseHealth::kGood;
+  PoseHealth level = PoseHealth::kGood;
+  std::uint16_t why = 0;
+  auto lower = [&](bool unreliable, bool degraded, std::uint16_t cause) {
+    if (!unreliable && !degraded) return;
+    why |= cause;
+    level = std::max(level, unreliable ? PoseHealth::kUnreliable : PoseHealth::kDegraded);
+  };
+  lower(q.inliers < kUnreliableInliers, q.inliers < kDegradedInliers, health_cause::kFewInliers);
+  lower(q.dynamic_share > kUnreliableDynamicShare, q.dynamic_share > kDegradedDynamicShare,
+        health_cause::kViewMoving);
+  lower(q.conditioning < kUnreliableConditioning, q.conditioning < kDegradedConditioning,
+        health_cause::kPoorConditioning);
+  lower(false, q.reprojection_rms_px > kDegradedRmsPx, health_cause::kHighReprojection);
+  lower(starved, false, health_cause::kFallbackEvidence);
+  lower(masks_known && q.mask_age_s > PoseQuality::kUnreliableMaskAgeS,
+        masks_known && q.mask_age_s > PoseQuality::kDegradedMaskAgeS, health_cause::kMasksLate);
+  *causes = why;
+  return level;
 }
 
 }  // namespace
@@ -103,7 +114,8 @@ PoseQuality Tracker::measureQuality(bool ok) {
   // Hysteresis: worse at once, better only when it has held a while. A pose
   // kept on fallback evidence (movers starved the frame) is unreliable.
   const bool masks_alone = options_.semantic.enabled && !detector_;
-  const PoseHealth raw = starved_ ? PoseHealth::kUnreliable : rawHealth(q, masks_alone);
+  std::uint16_t causes = 0;
+  const PoseHealth raw = rawHealth(q, masks_alone, starved_, &causes);
   if (raw >= health_ || health_ == PoseHealth::kLost) {  // lost -> a pose: its own level at once
     health_ = raw;
     better_frames_ = 0;
@@ -112,6 +124,7 @@ PoseQuality Tracker::measureQuality(bool ok) {
     better_frames_ = 0;
   }
   q.health = health_;
+  q.causes = health_ == raw ? causes : static_cast<std::uint16_t>(causes | health_cause::kRecovering);
   return q;
 }
 

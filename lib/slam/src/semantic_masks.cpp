@@ -387,11 +387,8 @@ void Tracker::markSemanticMovers() {
     mask_age_s_ = std::numeric_limits<float>::infinity();  // none within reach: as if never segmented
     return;
   }
-  const auto has_flags = [](const Frame& other) {
-    return std::find(other.dynamic.begin(), other.dynamic.end(), kSemanticDynamic) != other.dynamic.end();
-  };
   mask_age_s_ = static_cast<float>(std::max(0.0, secondsBetween(current_.stamp, from->stamp)));
-  masks_found_movers_ = has_flags(*from);
+  masks_found_movers_ = from->hasSemanticFlags();
   // Most keyframes mask nothing: skip the brute-force pass then.
   if (!masks_found_movers_) return;
   const auto flagged = [](const Frame& other) {
@@ -410,7 +407,7 @@ void Tracker::markSemanticMovers() {
     current_.dynamic[j] = kSemanticDynamic, ++semantic_marked_;
     copyMovableClass(f, i, &current_, j);
   }
-  if (options_.semantic.propagate_from_last && has_last_ && has_flags(last_)) {
+  if (options_.semantic.propagate_from_last && has_last_ && last_.hasSemanticFlags()) {
     // The last frame's flagged features, looked up here: from frame to frame
     // an object changes less than since its keyframe. (Features the geometry
     // module flagged carry its flag instead and are not followed.)

@@ -625,9 +625,13 @@ TEST(SemanticModule, StaleMasksLowerThePoseHealthOfTheSemanticModuleAlone) {
       seen.unknown += i > 0 && q.mask_age_s < 0;
       seen.oldest = std::max(seen.oldest, q.mask_age_s);
       seen.good += q.health == PoseHealth::kGood;
+      EXPECT_EQ(q.health == PoseHealth::kGood, q.causes == 0) << "frame " << i << ": " << health_cause::toString(q.causes);
       if (q.mask_age_s > 0.6f) {
         ++seen.stale;
         EXPECT_NE(q.health, PoseHealth::kGood) << "frame " << i << ": masks " << q.mask_age_s << " s old";
+        EXPECT_TRUE(q.causes & health_cause::kMasksLate) << "frame " << i << ": " << health_cause::toString(q.causes);
+      } else {
+        EXPECT_FALSE(q.causes & health_cause::kMasksLate) << "frame " << i << ": masks " << q.mask_age_s << " s old";
       }
       if (q.mask_age_s > 2.0f) {
         ++seen.very_stale;

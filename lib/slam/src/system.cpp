@@ -469,7 +469,7 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
   s.map_start_masks.reset();
   KeyFrame* kf = s.tracker.track(std::move(frame), idle, clusters_pending, &out);
   s.input_now = nullptr;
-  if (s.semantic && !s.options.geometry.enabled && out.quality.mask_age_s > PoseQuality::kDegradedMaskAgeS) {
+  if (out.quality.causes & health_cause::kMasksLate) {
     // Segmentation cannot keep up: said to whoever runs it, now and then.
     char what[64];
     if (std::isinf(out.quality.mask_age_s))

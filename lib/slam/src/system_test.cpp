@@ -597,7 +597,9 @@ TEST(SlamSystemKnownMovers, MasksKeepTheBoardOutOfThePoseAndTheMap) {
 // a minimum share of 20 % it keeps them all.
 // The room with a known-mover mask over 90 % of the view (all but its right
 // tenth) on frames first..last: every frame must keep a pose. Counts the
-// masked frames reported unreliable.
+// masked frames reported unreliable, and checks what the pose health gives as
+// its causes: none for a good pose, the moving view or the fallback evidence
+// for a masked frame, and recovery while a better level has not held yet.
 void trackRoomUnderMask(const Sequence& seq, std::size_t first, std::size_t last, PoseErrors* errors,
                         int* unreliable) {
   cv::Mat mask(seq.camera.height, seq.camera.width, CV_8UC1, cv::Scalar(1));
@@ -613,7 +615,19 @@ void trackRoomUnderMask(const Sequence& seq, std::size_t first, std::size_t last
     const auto out = system->track(input);
     ASSERT_TRUE(out.ok()) << out.error();
     ASSERT_EQ(out->state, TrackingState::kOk) << "frame " << i << ", masked from frame " << first;
-    if (masked) *unreliable += out->quality.health == PoseHealth::kUnreliable;
+    const PoseQuality& q = out->quality;
+    if (masked) *unreliable += q.health == PoseHealth::kUnreliable;
+    EXPECT_EQ(q.health == PoseHealth::kGood, q.causes == 0)
+        << "frame " << i << ": " << toString(q.health) << " for " << health_cause::toString(q.causes);
+    EXPECT_FALSE(q.causes & health_cause::kMasksLate) << "frame " << i << ": no semantic module";
+    if (masked && q.health == PoseHealth::kUnreliable) {
+      EXPECT_TRUE(q.causes & (health_cause::kViewMoving | health_cause::kFallbackEvidence))
+          << "frame " << i << ": " << health_cause::toString(q.causes);
+    }
+    // The mask gone, the frame's own evidence is good again before the health is.
+    if (i == last + 1) {
+      EXPECT_TRUE(q.causes & health_cause::kRecovering) << health_cause::toString(q.causes);
+    }
     online.push_back(out->T_w_c);
   }
   system->finish();

@@ -393,7 +393,7 @@ void Tracker::flagMapStartMovers() {
   masked_ahead_ = map_start_masks_(&current_);
   if (masked_ahead_) {
     mask_age_s_ = 0;  // the frame's own masks
-    masks_found_movers_ = std::find(current_.dynamic.begin(), current_.dynamic.end(), kSemanticDynamic) != current_.dynamic.end();
+    masks_found_movers_ = current_.hasSemanticFlags();
   }
 }
 

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "stillpoint/core/health_causes.hpp"
 #include "stillpoint/core/result.hpp"
 #include "stillpoint/core/time.hpp"
 
@@ -33,10 +34,11 @@ enum class PoseHealth : std::uint8_t { kGood = 0, kDegraded = 1, kUnreliable = 2
 const char* toString(PoseHealth health);
 Result<PoseHealth> poseHealthFromInt(std::int64_t value);
 
-// Schema 2 added the pose health; a message without a pose carries NaN in
-// position and orientation (nothing a consumer could take for a pose).
+// Schema 2 added the pose health, schema 3 what lowered it and the semantic
+// masks' age; a message without a pose carries NaN in position and orientation
+// (nothing a consumer could take for a pose).
 struct PoseMessage {
-  static constexpr std::uint32_t kSchemaVersion = 2;
+  static constexpr std::uint32_t kSchemaVersion = 3;
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
   Timestamp sensor_stamp;         // capture time of the frame
@@ -55,6 +57,10 @@ struct PoseMessage {
   float dynamic_share = 0;        // features kept out as moving / (those + inliers)
   float reprojection_rms_px = 0;  // of the inliers
   float conditioning = 0;         // 0..1: how well the inliers pin all six degrees of freedom
+  std::uint16_t health_causes = 0;  // what lowered the health: health_cause::k* bits (stillpoint/core/health_causes.hpp)
+  // Seconds from the image of the newest semantic masks to the frame; infinity
+  // when no keyframe near the camera has any, -1 when not known (the module off).
+  float mask_age_s = -1;
 
   // Equal fields; NaN equals NaN (a message without a pose).
   bool operator==(const PoseMessage& o) const;
@@ -76,9 +82,10 @@ struct QueueStats {
   bool operator==(const QueueStats&) const = default;
 };
 
-// Schema 2 added the tracking state and pose health of the newest frame.
+// Schema 2 added the tracking state and pose health of the newest frame,
+// schema 3 what lowered that health and the semantic masks' age.
 struct StatusMessage {
-  static constexpr std::uint32_t kSchemaVersion = 2;
+  static constexpr std::uint32_t kSchemaVersion = 3;
   static constexpr std::size_t kMaxThreads = 16;
   static constexpr std::size_t kMaxQueues = 16;
   static constexpr std::size_t kMaxNameLength = 31;
@@ -90,6 +97,8 @@ struct StatusMessage {
   std::uint64_t map_id = 0;
   TrackingState tracking_state = TrackingState::kInitialising;  // of the newest frame tracked
   PoseHealth health = PoseHealth::kLost;                         // of the newest frame tracked
+  std::uint16_t health_causes = 0;                               // of the newest frame tracked (PoseMessage)
+  float mask_age_s = -1;                                         // of the newest frame tracked (PoseMessage)
   std::vector<ThreadStats> threads;
   std::vector<QueueStats> queues;
 
@@ -113,7 +122,7 @@ struct ObjectMessage {
 
 // The dynamic objects of one frame with a pose (none: nothing moves there).
 struct ObjectsMessage {
-  static constexpr std::uint32_t kSchemaVersion = 2;  // the pose schema it goes with
+  static constexpr std::uint32_t kSchemaVersion = 2;  // its own: unchanged by the pose's version 3
   static constexpr std::size_t kMaxObjects = 32;
   static constexpr std::size_t kMaxLabelLength = 31;
   Timestamp sensor_stamp;

@@ -10,6 +10,7 @@
 #include <Eigen/Core>
 
 #include "stillpoint/core/geometry.hpp"
+#include "stillpoint/core/health_causes.hpp"
 #include "stillpoint/core/time.hpp"
 #include "stillpoint/geometry/depth_clustering.hpp"
 #include "stillpoint/geometry/dynamic_clusters.hpp"
@@ -54,6 +55,11 @@ struct PoseQuality {
   // whether those masks kept anything out.
   float mask_age_s = -1;
   bool masks_found_movers = false;
+  // What lowered the health (health_cause::k* bits): every measure past its
+  // bound this frame, and health_cause::kRecovering while the frame's own
+  // level is better than the one reported but has not held for
+  // kRecoveryFrames yet. 0 for a good pose and for no pose.
+  std::uint16_t causes = 0;
 };
 
 // Where one frame's tracking time went (milliseconds).
