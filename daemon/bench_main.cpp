@@ -200,6 +200,7 @@ struct FrameRecord {
   // The newest semantic masks' age (infinity: none near the camera; NaN: not
   // known or a log without the column).
   double mask_age_s = NAN;
+  std::string causes;  // what lowered the health, names joined by '+'; empty in a log without the column
 };
 
 struct RunResult {
@@ -219,6 +220,7 @@ struct RunResult {
   eval::Trajectory gt, est;
   Result<eval::EvalResult> eval = Error{"not evaluated"};
   std::vector<eval::LabelledDrift> drift;  // each pose's health and drift
+  std::vector<eval::LabelledDrift> cause_drift;  // each pose's drift under each of its health causes
 };
 
 // Runs argv with stdout and stderr into files; returns the wait status, or -1.
@@ -284,13 +286,14 @@ Result<std::vector<FrameRecord>> readFrameLog(const std::string& path) {
     fields >> r.health;
     // dynamic_share outlier_share reprojection_rms_px conditioning, then the age
     // ("inf" too, which operator>> would refuse).
-    std::string skipped, age;
+    std::string skipped, age, found_movers;
     for (int k = 0; k < 4; ++k) fields >> skipped;
     if (fields >> age) {
       char* end = nullptr;
       const double value = std::strtod(age.c_str(), &end);
       if (end != age.c_str() && *end == '\0' && value >= 0) r.mask_age_s = value;
     }
+    fields >> found_movers >> r.causes;
     log.push_back(r);
   }
   return log;
@@ -414,6 +417,11 @@ void runOnce(const Args& args, const std::string& replay, const SequenceArg& seq
   for (const FrameRecord& f : r->log)
     if (!f.health.empty()) health.push_back({Timestamp::fromSeconds(f.t), f.health});
   if (auto drift = eval::driftPerPose(*r->eval, health); drift) r->drift = std::move(*drift);
+  std::vector<eval::StampedLabel> causes;
+  for (const FrameRecord& f : r->log)
+    if (!f.causes.empty()) causes.push_back({Timestamp::fromSeconds(f.t), f.causes});
+  if (causes.empty()) return;
+  if (auto drift = eval::driftPerPose(*r->eval, causes); drift) r->cause_drift = eval::splitLabels(*drift);
 }
 
 // ---------------------------------------------------------------------------
@@ -663,24 +671,30 @@ bool writeReport(const Args& args, const std::string& command, const std::string
   md << "How far off the poses of each health level were, over all sequences and runs of a module set: the "
         "translation error of the motion over the last 1/3 s up to the pose (10 frames at 30 Hz; "
         "`stillpoint-eval --frame-log`), which a consumer trusting the level would have taken in.\n\n";
-  md << "| Modules | Health | Poses | Median [m] | p90 [m] | Max [m] | Over 2 cm |\n";
-  md << "|---|---|---|---|---|---|---|\n";
-  {
+  // One table per labelling of the poses: by health level, and by what lowered it.
+  const auto driftTable = [&](const char* what, const eval::DriftOptions& drift_options,
+                              std::vector<eval::LabelledDrift> RunResult::*drift) {
+    md << "| Modules | " << what << " | Poses | Median [m] | p90 [m] | Max [m] | Over 2 cm |\n";
+    md << "|---|---|---|---|---|---|---|\n";
     std::vector<std::string> labels;
     for (const Group& g : groups)
       if (std::find(labels.begin(), labels.end(), g.label) == labels.end()) labels.push_back(g.label);
-    const eval::DriftOptions drift_options = eval::poseHealthDriftOptions();
     for (const std::string& label : labels) {
       std::vector<eval::LabelledDrift> pooled;
       for (const Group& g : groups)
         if (g.label == label)
-          for (const RunResult* r : g.runs) pooled.insert(pooled.end(), r->drift.begin(), r->drift.end());
+          for (const RunResult* r : g.runs) pooled.insert(pooled.end(), (r->*drift).begin(), (r->*drift).end());
       for (const eval::LabelDrift& d : eval::summariseDrift(pooled, drift_options))
         md << "| " << label << " | " << d.label << " | " << d.poses << " | " << fmt(d.median_m, 4) << " | "
            << fmt(d.p90_m, 4) << " | " << fmt(d.max_m, 4) << " | " << fmt(100.0 * d.share_over_bound, 1) << " % |\n";
     }
-  }
-  md << "\n";
+    md << "\n";
+  };
+  driftTable("Health", eval::poseHealthDriftOptions(), &RunResult::drift);
+  md << "## What lowered the pose health\n\n";
+  md << "The same poses by what lowered their health (`health_causes`, [pose-health.md](../pose-health.md)): a pose "
+        "counts under each of its causes, and `none` holds the good ones.\n\n";
+  driftTable("Cause", eval::healthCauseDriftOptions(), &RunResult::cause_drift);
 
   md << "## Runtime\n\n";
   md << "Per the paper's Table IV: the semantic part per segmented keyframe (its own thread), the geometry part "

@@ -39,7 +39,11 @@ constexpr const char* kUsage =
     "  drift  translation error of the motion over the last --drift-window\n"
     "         seconds (default 0.333, 10 frames at 30 Hz) up to the pose, in\n"
     "         its map [m]; poses without a pose that far back in their map\n"
-    "         are not counted\n"
+    "         are not counted\n"    "When the frame log has the health_causes column, one more line per cause\n"
+    "(none, few_inliers, view_moving, ...: docs/pose-health.md), a pose counted\n"
+    "under each of its causes:\n"
+    "  cause=<name> poses=<n> drift_median_m=<v> drift_p90_m=<v> drift_max_m=<v>\n"
+    "  over_2cm=<share>\n"
     "\n"
     "options:\n"
     "  --plot OUT.png  also write a top view and ATE-over-time plot\n"
@@ -119,7 +123,7 @@ int main(int argc, char** argv) {
 
   const auto result = evaluate(*gt, *est, options);
   if (!result) return inputError(result.error());
-  std::vector<LabelDrift> drift;
+  std::vector<LabelDrift> drift, by_cause;
   if (!frame_log.empty()) {
     const auto health = readLabelColumn(frame_log, "health");
     if (!health) return inputError(health.error());
@@ -127,6 +131,18 @@ int main(int argc, char** argv) {
     auto by_level = driftByLabel(*result, *health, drift_options);
     if (!by_level) return inputError(by_level.error());
     drift = std::move(*by_level);
+    const auto has_causes = namesColumn(frame_log, "health_causes");
+    if (!has_causes) return inputError(has_causes.error());
+    if (*has_causes) {
+      const auto causes = readLabelColumn(frame_log, "health_causes");
+      if (!causes) return inputError(causes.error());
+      DriftOptions cause_options = healthCauseDriftOptions();
+      cause_options.window_s = drift_options.window_s;
+      cause_options.max_dt_s = drift_options.max_dt_s;
+      const auto per_pose = driftPerPose(*result, *causes, cause_options);
+      if (!per_pose) return inputError(per_pose.error());
+      by_cause = summariseDrift(splitLabels(*per_pose), cause_options);
+    }
   }
 
   if (!plot_path.empty()) {
@@ -148,6 +164,10 @@ int main(int argc, char** argv) {
               result->ate_rmse_m, result->rpe_trans_m_s, result->rpe_rot_deg_s, result->matched);
   for (const LabelDrift& d : drift) {
     std::printf("health=%s poses=%zu drift_median_m=%.6f drift_p90_m=%.6f drift_max_m=%.6f over_2cm=%.4f\n",
+                d.label.c_str(), d.poses, d.median_m, d.p90_m, d.max_m, d.share_over_bound);
+  }
+  for (const LabelDrift& d : by_cause) {
+    std::printf("cause=%s poses=%zu drift_median_m=%.6f drift_p90_m=%.6f drift_max_m=%.6f over_2cm=%.4f\n",
                 d.label.c_str(), d.poses, d.median_m, d.p90_m, d.max_m, d.share_over_bound);
   }
   return 0;

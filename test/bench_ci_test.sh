@@ -22,7 +22,8 @@ report=$out/report.md csv=$out/results.csv
 for f in "$report" "$csv"; do [[ -s $f ]] || fail "$f missing or empty"; done
 grep -qx '<!-- bench-summary: begin -->' "$report" && grep -qx '<!-- bench-summary: end -->' "$report" \
   || fail "report without the summary markers"
-for section in '## Accuracy' '## Pose health' '## Runtime' '## Published figures' '## Plots'; do
+for section in '## Accuracy' '## Pose health' '## What lowered the pose health' '## Runtime' '## Published figures' \
+    '## Plots'; do
   grep -qx "$section.*" "$report" || fail "report without '$section'"
 done
 grep -Eq '^\| host speed: ORB extraction[^|]*\| at start [0-9]+\.[0-9] ms; at end [0-9]+\.[0-9] ms \|$' "$report" \
@@ -37,6 +38,17 @@ for m in none geometry semantic geometry+semantic; do
 done
 odd=$(grep -Ev '^\| [a-z+]+ \| (good|degraded|unreliable) \| [0-9]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ % \|$' <<< "$health_rows")
 [[ -z $odd ]] || fail "pose health rows not of a level with its numbers: $odd"
+# The same poses by cause: known cause names only, and a module set's poses
+# without a cause are exactly its good ones.
+cause_rows=$(awk '/^## What lowered the pose health/{f=1;next} /^## /{f=0} f && /^\| [a-z+]+ \| /' "$report")
+cause_names='none|few_inliers|view_moving|poor_conditioning|high_reprojection|fallback_evidence|masks_late|recovering'
+odd=$(grep -Ev "^\| [a-z+]+ \| ($cause_names) \| [0-9]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ \| [0-9.]+ % \|\$" <<< "$cause_rows")
+[[ -z $odd ]] || fail "health cause rows not of a cause with its numbers: $odd"
+for m in none geometry semantic geometry+semantic; do
+  good=$(awk -F'|' -v m=" $m " '$2 == m && $3 == " good " {print $4 + 0}' <<< "$health_rows")
+  none=$(awk -F'|' -v m=" $m " '$2 == m && $3 == " none " {print $4 + 0}' <<< "$cause_rows")
+  [[ ${good:-0} -eq ${none:-0} ]] || fail "$m: ${good:-0} good poses but ${none:-0} without a cause"
+done
 # The runtime table's last column: the newest semantic masks' age (median, p90) where the module ran.
 runtime_rows=$(awk '/^## Runtime/{f=1;next} /^## /{f=0} f && /^\| `/' "$report")
 [[ $(wc -l <<< "$runtime_rows") -eq 12 ]] || fail "runtime table rows: $runtime_rows"

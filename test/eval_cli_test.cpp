@@ -47,6 +47,14 @@ std::string trajectoryText(double yaw0, double x0, double y0, int jump_from = 60
   return text;
 }
 
+// One drift line of --frame-log's output, `key`=`name`: its groups are the
+// poses, then the median, p90, max and share over 2 cm.
+std::regex driftLine(const std::string& key, const std::string& name) {
+  const std::string number = "([0-9.]+)";
+  return std::regex("\n" + key + "=" + name + " poses=([0-9]+) drift_median_m=" + number + " drift_p90_m=" + number +
+                    " drift_max_m=" + number + " over_2cm=" + number + "\n");
+}
+
 class EvalCli : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -66,6 +74,12 @@ class EvalCli : public ::testing::Test {
   RunResult eval(std::vector<std::string> args) {
     args.insert(args.begin(), STILLPOINT_EVAL);
     return test::run(args, scratch_);
+  }
+  // Writes `text` to a file of the scratch folder; its path.
+  std::string writeScratch(const std::string& name, const std::string& text) {
+    const std::string path = (scratch_ / name).string();
+    writeFile(path, text);
+    return path;
   }
 
   fs::path scratch_;
@@ -124,16 +138,11 @@ TEST_F(EvalCli, FrameLogGivesTheDriftOfEachHealthLevel) {
     std::snprintf(line, sizeof(line), "%d %.6f ok %s\n", k, 1000.0 + 0.05 * k, k >= 30 && k <= 36 ? "unreliable" : "good");
     log += line;
   }
-  const std::string frames = (scratch_ / "frames.txt").string();
-  writeFile(frames, log);
+  const std::string frames = writeScratch("frames.txt", log);
   const RunResult r = eval({gt_, est_, "--frame-log", frames});
   ASSERT_EQ(r.exit_code, 0) << describe(r);
   std::smatch m;
-  const std::string number = "([0-9.]+)";
-  const auto level = [&](const std::string& name) {
-    return std::regex("\nhealth=" + name + " poses=([0-9]+) drift_median_m=" + number + " drift_p90_m=" + number +
-                      " drift_max_m=" + number + " over_2cm=" + number + "\n");
-  };
+  const auto level = [](const std::string& name) { return driftLine("health", name); };
   ASSERT_TRUE(std::regex_search(r.out, m, level("good"))) << describe(r);
   EXPECT_EQ(m[1], "45");  // frames 7-58 with a pose 7 frames back, less the 7 unreliable ones
   EXPECT_LT(std::stod(m[4]), 1e-5) << r.out;
@@ -147,6 +156,7 @@ TEST_F(EvalCli, FrameLogGivesTheDriftOfEachHealthLevel) {
   // The levels come good, unreliable, then the poses without a frame.
   EXPECT_LT(r.out.find("health=good"), r.out.find("health=unreliable"));
   EXPECT_LT(r.out.find("health=unreliable"), r.out.find("health=-"));
+  EXPECT_EQ(r.out.find("cause="), std::string::npos) << "no health_causes column: " << r.out;
 
   writeFile(frames, "# index timestamp state\n0 1000.0 ok\n");
   const RunResult no_health = eval({gt_, est_, "--frame-log", frames});
@@ -156,6 +166,44 @@ TEST_F(EvalCli, FrameLogGivesTheDriftOfEachHealthLevel) {
   const RunResult bad_window = eval({gt_, est_, "--frame-log", frames, "--drift-window", "0"});
   EXPECT_EQ(bad_window.exit_code, 2) << describe(bad_window);
   EXPECT_TRUE(contains(bad_window.err, "--drift-window"));
+}
+
+TEST_F(EvalCli, FrameLogGivesTheDriftOfEachHealthCause) {
+  // As above: the pose jumps 5 cm at frame 30, and frames 30-36 name two
+  // causes; frames 37-40 are recovering, the others have none.
+  writeFile(est_, trajectoryText(0.7, 1.5, -2.0, 30));
+  std::string log = "# index timestamp state health dynamic_share health_causes\n";
+  for (int k = 0; k < 60; ++k) {
+    const bool jump = k >= 30 && k <= 36, after = k >= 37 && k <= 40;
+    char line[160];
+    std::snprintf(line, sizeof(line), "%d %.6f ok %s 0.3 %s\n", k, 1000.0 + 0.05 * k,
+                  jump ? "unreliable" : after ? "degraded" : "good",
+                  jump ? "view_moving+masks_late" : after ? "recovering" : "none");
+    log += line;
+  }
+  const RunResult r = eval({gt_, est_, "--frame-log", writeScratch("frames.txt", log)});
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  std::smatch m;
+  const auto cause = [](const std::string& name) { return driftLine("cause", name); };
+  for (const char* name : {"view_moving", "masks_late"}) {
+    ASSERT_TRUE(std::regex_search(r.out, m, cause(name))) << name << ": " << describe(r);
+    EXPECT_EQ(m[1], "7") << name;  // each pose under both of its causes
+    EXPECT_NEAR(std::stod(m[2]), 0.05, 1e-5) << r.out;
+    EXPECT_EQ(std::stod(m[5]), 1.0) << r.out;
+  }
+  ASSERT_TRUE(std::regex_search(r.out, m, cause("recovering"))) << describe(r);
+  EXPECT_EQ(m[1], "4");
+  EXPECT_LT(std::stod(m[4]), 1e-5) << r.out;
+  ASSERT_TRUE(std::regex_search(r.out, m, cause("none"))) << describe(r);
+  EXPECT_EQ(m[1], "42");  // frames 7-59 with a pose 7 frames back, less the 11 above
+  EXPECT_LT(std::stod(m[4]), 1e-5) << r.out;
+  EXPECT_EQ(r.out.find("cause=view_moving+"), std::string::npos) << "a set is split: " << r.out;
+  // none first, then the causes in the order of their bits.
+  EXPECT_LT(r.out.find("cause=none"), r.out.find("cause=view_moving"));
+  EXPECT_LT(r.out.find("cause=view_moving"), r.out.find("cause=masks_late"));
+  EXPECT_LT(r.out.find("cause=masks_late"), r.out.find("cause=recovering"));
+  // The health lines come first, as before.
+  EXPECT_LT(r.out.find("health=unreliable"), r.out.find("cause=none"));
 }
 
 TEST_F(EvalCli, MissingGroundTruthFileIsNamed) {

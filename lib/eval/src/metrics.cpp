@@ -12,6 +12,8 @@
 
 #include <Eigen/SVD>
 
+#include "stillpoint/core/health_causes.hpp"
+
 namespace stillpoint::eval {
 namespace {
 
@@ -302,6 +304,29 @@ DriftOptions poseHealthDriftOptions() {
   DriftOptions options;
   options.order = {"good", "degraded", "unreliable"};
   return options;
+}
+
+DriftOptions healthCauseDriftOptions() {
+  DriftOptions options;
+  options.order = {"none"};
+  for (int bit = 0; bit < health_cause::kCount; ++bit)
+    options.order.push_back(health_cause::name(static_cast<std::uint16_t>(1u << bit)));
+  return options;
+}
+
+std::vector<LabelledDrift> splitLabels(const std::vector<LabelledDrift>& poses, char separator) {
+  std::vector<LabelledDrift> out;
+  out.reserve(poses.size());
+  for (const LabelledDrift& p : poses) {
+    std::size_t from = 0;
+    for (;;) {
+      const std::size_t to = p.label.find(separator, from);
+      out.push_back({p.label.substr(from, to == std::string::npos ? std::string::npos : to - from), p.drift_m});
+      if (to == std::string::npos) break;
+      from = to + 1;
+    }
+  }
+  return out;
 }
 
 Result<std::vector<LabelledDrift>> driftPerPose(const EvalResult& result, const std::vector<StampedLabel>& labels,

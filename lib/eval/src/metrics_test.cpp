@@ -335,6 +335,24 @@ TEST(DriftByLabel, GivesEachLabelTheErrorItsPosesAdded) {
   EXPECT_DOUBLE_EQ(good.share_over_bound, 0.0);
 }
 
+TEST(DriftByLabel, ASetLabelCountsItsPoseUnderEachPart) {
+  const std::vector<LabelledDrift> poses = {
+      {"none", 0.001}, {"view_moving+masks_late", 0.03}, {"masks_late", 0.01}, {"recovering", 0.002}};
+  const std::vector<LabelledDrift> split = splitLabels(poses);
+  ASSERT_EQ(split.size(), 5u);
+  const auto summary = summariseDrift(split, healthCauseDriftOptions());
+  std::vector<std::string> names;
+  for (const LabelDrift& d : summary) names.push_back(d.label);
+  // none first, then the causes in the order of their bits.
+  EXPECT_EQ(names, (std::vector<std::string>{"none", "view_moving", "masks_late", "recovering"}));
+  EXPECT_EQ(summary[1].poses, 1u);
+  EXPECT_DOUBLE_EQ(summary[1].max_m, 0.03);
+  EXPECT_EQ(summary[2].poses, 2u);
+  EXPECT_DOUBLE_EQ(summary[2].max_m, 0.03);
+  EXPECT_DOUBLE_EQ(summary[2].share_over_bound, 0.5);
+  EXPECT_EQ(splitLabels({{"a+", 1.0}}).size(), 2u) << "an empty part is a label too";
+}
+
 TEST(DriftByLabel, PosesWithoutALabelNearbyAreCountedApart) {
   std::mt19937 rng(14);
   const Trajectory gt = randomTrajectory(rng, 30.0, 2.0);

@@ -62,6 +62,11 @@ bool isBlankOrComment(std::string_view line) {
   return true;
 }
 
+// The column names of a header comment line ("# index timestamp ...").
+std::vector<std::string_view> headerNames(std::string_view line) {
+  return splitFields(line.substr(line.find('#') + 1));
+}
+
 }  // namespace
 
 Result<Trajectory> readTumTrajectory(const std::string& path) {
@@ -125,6 +130,17 @@ Result<Trajectory> readTumTrajectory(const std::string& path) {
   return trajectory;
 }
 
+Result<bool> namesColumn(const std::string& path, const std::string& column) {
+  std::ifstream in(path);
+  if (!in) return Error{path + ": cannot open"};
+  std::string line;
+  if (std::getline(in, line) && isBlankOrComment(line)) {
+    const auto names = headerNames(line);
+    return std::find(names.begin(), names.end(), column) != names.end();
+  }
+  return Error{path + ": no header comment naming the columns"};
+}
+
 Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const std::string& column) {
   std::ifstream in(path);
   if (!in) return Error{path + ": cannot open"};
@@ -137,7 +153,7 @@ Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const
     ++line_number;
     if (isBlankOrComment(line)) {
       if (header) continue;
-      auto names = splitFields(std::string_view(line).substr(line.find('#') + 1));
+      auto names = headerNames(line);
       const auto find = [&names](std::string_view name) {
         return static_cast<std::size_t>(std::find(names.begin(), names.end(), name) - names.begin());
       };

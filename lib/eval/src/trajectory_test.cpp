@@ -171,6 +171,18 @@ TEST_F(TrajectoryIoTest, ReadsTheNamedColumnOfAFrameLog) {
   EXPECT_EQ((*state)[1].label, "lost");
 }
 
+TEST_F(TrajectoryIoTest, SaysWhetherAFrameLogNamesAColumn) {
+  const std::string path = writeFile("frames.txt", "# index timestamp state health\n0 1.0 ok good\n");
+  ASSERT_TRUE(namesColumn(path, "health").ok());
+  EXPECT_TRUE(*namesColumn(path, "health"));
+  EXPECT_FALSE(*namesColumn(path, "health_causes")) << "a log from before that column";
+  EXPECT_FALSE(*namesColumn(path, "heal")) << "whole names only";
+  const auto headless = namesColumn(writeFile("rows.txt", "0 1.0 ok good\n"), "health");
+  ASSERT_FALSE(headless.ok());
+  EXPECT_NE(headless.error().find("no header"), std::string::npos) << headless.error();
+  EXPECT_FALSE(namesColumn((dir_ / "none.txt").string(), "health").ok());
+}
+
 TEST_F(TrajectoryIoTest, LabelTableErrorsNameFileAndLine) {
   const std::string header = "# index timestamp health\n";
   const auto expect = [&](const std::string& content, const std::string& where, const std::string& what) {

@@ -155,6 +155,10 @@ struct DriftOptions {
 // The options for stillpoint's pose health (the frame log's `health`): its
 // levels reported best first, good, degraded, unreliable.
 DriftOptions poseHealthDriftOptions();
+// The options for what lowered the pose health (the frame log's
+// `health_causes`, split by splitLabels): none first, then the causes in the
+// order of their bits (stillpoint/core/health_causes.hpp).
+DriftOptions healthCauseDriftOptions();
 
 Result<std::vector<LabelDrift>> driftByLabel(const EvalResult& result, const std::vector<StampedLabel>& labels,
                                              const DriftOptions& options = {});
@@ -168,5 +172,8 @@ struct LabelledDrift {
 Result<std::vector<LabelledDrift>> driftPerPose(const EvalResult& result, const std::vector<StampedLabel>& labels,
                                                 const DriftOptions& options = {});
 std::vector<LabelDrift> summariseDrift(const std::vector<LabelledDrift>& poses, const DriftOptions& options = {});
+// Each pose once under every part of its label ("view_moving+masks_late":
+// once under each), for labels that name a set.
+std::vector<LabelledDrift> splitLabels(const std::vector<LabelledDrift>& poses, char separator = '+');
 
 }  // namespace stillpoint::eval

@@ -42,6 +42,9 @@ struct StampedLabel {
 // Rows in any time order. Errors name the file (and the line): no header, no
 // such column, a short row, a bad timestamp.
 Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const std::string& column);
+// Whether that header comment names `column` (a frame log written before a
+// column was added does not). Errors: the file cannot be read, no header.
+Result<bool> namesColumn(const std::string& path, const std::string& column);
 
 // Writes a TUM trajectory: timestamps with Timestamp::toSecondsString()
 // (microseconds), numbers with 9 significant digits, quaternion sign chosen so
