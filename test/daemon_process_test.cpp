@@ -294,6 +294,18 @@ TEST_F(DaemonProcess, EndOfRecordingDrainsAndExitsZero) {
   auto traj = stillpoint::eval::readTumTrajectory((d / "traj.txt").string());
   ASSERT_TRUE(traj) << traj.error();
   EXPECT_EQ(traj->size(), std::stoul(status.at("frames_tracked")));
+  // Every pose has a health level, and every one below good a cause.
+  const unsigned long good = std::stoul(status.at("frames_good")), degraded = std::stoul(status.at("frames_degraded")),
+                      unreliable = std::stoul(status.at("frames_unreliable"));
+  EXPECT_EQ(good + degraded + unreliable, std::stoul(status.at("frames_tracked")));
+  unsigned long causes = 0;
+  for (const char* name : {"few_inliers", "view_moving", "poor_conditioning", "high_reprojection",
+                           "fallback_evidence", "masks_late", "recovering"}) {
+    const unsigned long n = std::stoul(status.at(std::string("frames_") + name));
+    EXPECT_LE(n, degraded + unreliable) << name << ": a good pose has no cause";
+    causes += n;
+  }
+  EXPECT_GE(causes, degraded + unreliable);
 }
 
 TEST_F(DaemonProcess, SecondSignalForcesExit) {

@@ -151,6 +151,10 @@ struct Daemon::Impl {
   std::atomic<bool> waiting_for_camera{false};
   std::atomic<std::uint64_t> frames_received{0}, frames_bad{0}, frames_tracked{0}, frames_lost{0},
       frames_processed{0}, reconnects{0}, keyframes{0};
+  // Frames with a pose by health (good, degraded, unreliable) and by what
+  // lowered it (one count per health_cause bit), over the run.
+  std::array<std::atomic<std::uint64_t>, 3> frames_by_health{};
+  std::array<std::atomic<std::uint64_t>, health_cause::kCount> frames_by_cause{};
   std::atomic<int> last_state{-1};
   // The newest frame's pose health (low byte) and what lowered it (the 16 bits
   // above), in one word so that a status never pairs one frame's health with
@@ -372,7 +376,13 @@ void Daemon::Impl::trackingLoop() {
     if (has_pose) publisher->publishObjects(toIpc(out->objects, pose));
     latency.add(std::chrono::duration<double, std::milli>(Clock::now() - frame->arrival).count());
     ++frames_processed;
-    if (has_pose) ++frames_tracked;
+    if (has_pose) {
+      ++frames_tracked;
+      const auto level = static_cast<std::size_t>(out->quality.health);
+      if (level < frames_by_health.size()) ++frames_by_health[level];
+      for (int bit = 0; bit < health_cause::kCount; ++bit)
+        if (out->quality.causes & (1u << bit)) ++frames_by_cause[static_cast<std::size_t>(bit)];
+    }
     if (out->state == slam::TrackingState::kLost) ++frames_lost;
     keyframes = out->keyframes;
     map_id = out->map_id;
@@ -476,6 +486,12 @@ Status Daemon::Impl::writeOutputs(const std::string& reason, double shutdown_ms)
                  "trajectory_records=%zu\nmap_id=%u\nmaps=%u\nframes_no_depth=%zu\nrelocalisations_refused=%d\n",
                  map.keyframes, map.points, map.keyframes_in_memory, map.points_in_memory, map.trajectory_records,
                  map_id.load(), map.maps, map.no_depth_frames, map.relocalisations_refused);
+    // How far the run's poses could be trusted, and why not (docs/pose-health.md).
+    std::fprintf(f, "frames_good=%" PRIu64 "\nframes_degraded=%" PRIu64 "\nframes_unreliable=%" PRIu64 "\n",
+                 frames_by_health[0].load(), frames_by_health[1].load(), frames_by_health[2].load());
+    for (int bit = 0; bit < health_cause::kCount; ++bit)
+      std::fprintf(f, "frames_%s=%" PRIu64 "\n", health_cause::name(static_cast<std::uint16_t>(1u << bit)),
+                   frames_by_cause[static_cast<std::size_t>(bit)].load());
     if (config.modules.semantic) {
       const slam::MapStats m = system->mapStats();
       std::fprintf(f,
