@@ -412,7 +412,7 @@ int main(int argc, char** argv) {
   std::size_t frames = 0, tracked = 0, lost = 0, skipped = 0, initialising = 0, no_depth = 0, relocalised = 0;
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
   std::vector<double> geometry_ms, clustering_ms, objects_ms, semantic_ms;
-  std::vector<eval::StampedLabel> health;  // of the frames with a pose
+  std::vector<eval::StampedLabel> health, causes;  // of the frames with a pose
   std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0, consensus = 0;
   std::size_t semantic_followed = 0;  // features matched to the last segmented keyframe's masks
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
@@ -460,7 +460,10 @@ int main(int argc, char** argv) {
       continue;
     }
     const bool has_pose = slam::hasPose(out->state);
-    if (has_pose) health.push_back({frame->stamp, slam::toString(out->quality.health)});
+    if (has_pose) {
+      health.push_back({frame->stamp, slam::toString(out->quality.health)});
+      causes.push_back({frame->stamp, health_cause::toString(out->quality.causes)});
+    }
     if (frame_log)
       std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d %s %.3f %.3f %.3f %.4f %.3f %d %s\n", i, frame->stamp.toSecondsString().c_str(),
                    slam::toString(out->state), out->track_ms, out->stages.geometry, out->features, out->tracked,
@@ -709,14 +712,19 @@ int main(int argc, char** argv) {
         std::printf("              over %zu maps, each aligned on its own (%zu poses of maps too short to align left "
                     "out)\n",
                     ev->maps, ev->unaligned);
-      if (auto drift = eval::driftByLabel(*ev, health, eval::poseHealthDriftOptions()); drift) {
-        const char* lead = "health:       ";
-        for (const eval::LabelDrift& d : *drift) {
+      // How far off each health level's poses were, then the same poses by what
+      // lowered their health (a pose under each of its causes).
+      const auto print = [](const char* lead, const std::vector<eval::LabelDrift>& drift) {
+        for (const eval::LabelDrift& d : drift) {
           std::printf("%s%s %zu poses: drift over 1/3 s median %.4f m, p90 %.4f m, max %.4f m, %.1f %% over 2 cm\n", lead,
                       d.label.c_str(), d.poses, d.median_m, d.p90_m, d.max_m, 100.0 * d.share_over_bound);
           lead = "              ";
         }
-      }
+      };
+      if (auto drift = eval::driftByLabel(*ev, health, eval::poseHealthDriftOptions()); drift) print("health:       ", *drift);
+      const eval::DriftOptions cause_options = eval::healthCauseDriftOptions();
+      if (auto drift = eval::driftPerPose(*ev, causes, cause_options); drift)
+        print("causes:       ", eval::summariseDrift(eval::splitLabels(*drift), cause_options));
     } else {
       std::fprintf(stderr, "stillpoint-replay: evaluation failed: %s\n", ev.error().c_str());
     }

@@ -130,7 +130,21 @@ TEST_F(ReplayCli, GroundTruthGivesTheDriftOfEachHealthLevel) {
     EXPECT_LT(std::stod(m[4]), 0.01) << line;
   }
   EXPECT_GE(lines, 1) << describe(r);
-  EXPECT_EQ(poses, 10) << describe(r);
+  EXPECT_EQ(poses, 10) << describe(r);  // The same poses by what lowered their health: at least each pose once.
+  const std::regex cause("(none|few_inliers|view_moving|poor_conditioning|high_reprojection|fallback_evidence|"
+                         "masks_late|recovering) ([0-9]+) poses: drift over 1/3 s median [0-9.]+ m, p90 [0-9.]+ m, "
+                         "max [0-9.]+ m, [0-9.]+ % over 2 cm");
+  const std::size_t at = r.out.find("\ncauses:       ");
+  ASSERT_NE(at, std::string::npos) << describe(r);
+  std::istringstream rest(r.out.substr(at + 1));
+  int counted = 0;
+  for (std::string line; std::getline(rest, line) && (counted == 0 || line.rfind("              ", 0) == 0);) {
+    std::smatch m;
+    const std::string after_lead = line.substr(14);
+    ASSERT_TRUE(std::regex_match(after_lead, m, cause)) << line;
+    counted += std::stoi(m[2]);
+  }
+  EXPECT_GE(counted, 10) << describe(r);
 }
 
 TEST_F(ReplayCli, HelpPrintsUsageAndExitsZero) {
