@@ -1,6 +1,7 @@
 // stillpoint-replay: runs the SLAM pipeline over a recorded TUM-layout
 // sequence, writes the trajectory and prints a summary whose last line is
 // machine-readable.
+#include <Eigen/Eigenvalues>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/videoio.hpp>
@@ -9,6 +10,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cerrno>
 #include <climits>
 #include <cstdio>
@@ -76,8 +78,12 @@ constexpr const char* kUsage =
     "  1 geometry, 2 semantic, 3 both).\n"
     "--frame-log writes one line per frame: 'index timestamp state track_ms geometry_ms features\n"
     "in_pose geometry_dynamic semantic_dynamic keyframe(0|1) health dynamic_share outlier_share\n"
-    "reprojection_rms_px conditioning mask_age_s masks_found_movers health_causes' (health: good, degraded,\n"
-    "unreliable, lost; health_causes: what lowered it, names joined by '+', or none;\n"
+    "reprojection_rms_px conditioning mask_age_s masks_found_movers health_causes position_sigma_m\n"
+    "rotation_sigma_deg covariance' (health: good, degraded, unreliable, lost; health_causes: what\n"
+    "lowered it, names joined by '+', or none; position_sigma_m and rotation_sigma_deg: the standard\n"
+    "deviations along the pose covariance's weakest direction; covariance: its upper triangle row by\n"
+    "row, 21 numbers joined by ',', position [m] then rotation [rad] about the map's axes, all 0\n"
+    "without a pose;\n"
     "docs/pose-health.md) (state: ok, relocalised, new_map, lost, no_depth, initialising, or skipped\n"
     "for a frame that could not be read or tracked) (mask_age_s: seconds from the image of the newest\n"
     "semantic masks to the frame, inf when none is near the camera, -1 when not known;\n"
@@ -219,6 +225,31 @@ Stats stats(std::vector<double> v) {
   return s;
 }
 
+// The standard deviation along the worst direction of the covariance's
+// position (first = 0) or rotation (first = 3) block.
+double largestSigma(const Eigen::Matrix<double, 6, 6>& covariance, int first) {
+  const Eigen::Matrix3d block = covariance.block<3, 3>(first, first);
+  return std::sqrt(std::max(0.0, Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(block, Eigen::EigenvaluesOnly).eigenvalues()(2)));
+}
+
+// The covariance's upper triangle, row by row, joined by commas (one column).
+std::string covarianceColumn(const Eigen::Matrix<double, 6, 6>& covariance) {
+  std::string column;
+  char number[32];
+  for (int r = 0; r < 6; ++r)
+    for (int c = r; c < 6; ++c) {
+      std::snprintf(number, sizeof number, "%s%.4g", column.empty() ? "" : ",", covariance(r, c));
+      column += number;
+    }
+  return column;
+}
+
+// The frame log's line of a frame that could not be read or tracked.
+void logSkipped(std::FILE* log, std::size_t index, Timestamp stamp) {
+  std::fprintf(log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0 -1 0 none 0 0 %s\n", index,
+               stamp.toSecondsString().c_str(), covarianceColumn(Eigen::Matrix<double, 6, 6>::Zero()).c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -339,7 +370,7 @@ int main(int argc, char** argv) {
     }
     std::fputs("# index timestamp state track_ms geometry_ms features in_pose geometry_dynamic semantic_dynamic "
                "keyframe health dynamic_share outlier_share reprojection_rms_px conditioning mask_age_s masks_found_movers "
-               "health_causes\n",
+               "health_causes position_sigma_m rotation_sigma_deg covariance\n",
                frame_log);
   }
   std::FILE* objects_out = nullptr;
@@ -424,7 +455,7 @@ int main(int argc, char** argv) {
     if (!frame) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, frame.error().c_str());
       ++skipped;
-      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0 -1 0 none\n", i, data->stamp(i).toSecondsString().c_str());
+      if (frame_log) logSkipped(frame_log, i, data->stamp(i));
       continue;
     }
     if (frames == 0) first_stamp = frame->stamp;
@@ -456,7 +487,7 @@ int main(int argc, char** argv) {
     if (!out) {
       std::fprintf(stderr, "stillpoint-replay: skipping frame %zu: %s\n", i, out.error().c_str());
       ++skipped;
-      if (frame_log) std::fprintf(frame_log, "%zu %s skipped 0 0 0 0 0 0 0 lost 0 0 0 0 -1 0 none\n", i, frame->stamp.toSecondsString().c_str());
+      if (frame_log) logSkipped(frame_log, i, frame->stamp);
       continue;
     }
     const bool has_pose = slam::hasPose(out->state);
@@ -465,12 +496,13 @@ int main(int argc, char** argv) {
       causes.push_back({frame->stamp, health_cause::toString(out->quality.causes)});
     }
     if (frame_log)
-      std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d %s %.3f %.3f %.3f %.4f %.3f %d %s\n", i, frame->stamp.toSecondsString().c_str(),
+      std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d %s %.3f %.3f %.3f %.4f %.3f %d %s %.3g %.3g %s\n", i, frame->stamp.toSecondsString().c_str(),
                    slam::toString(out->state), out->track_ms, out->stages.geometry, out->features, out->tracked,
                    out->geometry.dynamic_features, out->semantic_features, out->new_keyframe ? 1 : 0, slam::toString(out->quality.health),
                    out->quality.dynamic_share, out->quality.outlier_share, out->quality.reprojection_rms_px,
                    out->quality.conditioning, out->quality.mask_age_s, out->quality.masks_found_movers ? 1 : 0,
-                   health_cause::toString(out->quality.causes).c_str());
+                   health_cause::toString(out->quality.causes).c_str(), largestSigma(out->quality.covariance, 0),
+                   largestSigma(out->quality.covariance, 3) * 180 / M_PI, covarianceColumn(out->quality.covariance).c_str());
     if (objects_out)
       for (const slam::DynamicObject& o : out->objects)
         std::fprintf(objects_out, "%s %u %s %d %.4f %.4f %.4f %.4f %.4f %.4f %.4f %.4f %.4f %d %d\n",

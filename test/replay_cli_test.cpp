@@ -332,6 +332,35 @@ TEST_F(ReplayCli, CorruptPngIsSkippedAndEmptyDepthIsNoDepth) {
   const std::string log = test::readFile(frame_log);
   EXPECT_TRUE(contains(log, "\n3 ") && contains(log, " skipped ")) << log;
   EXPECT_TRUE(contains(log, "\n6 ") && contains(log, " no_depth ")) << log;
+  // Every line has the header's columns; a pose has a covariance, a frame
+  // without one (skipped, no depth) all zeros.
+  std::istringstream lines(log);
+  std::string line;
+  std::size_t columns = 0;
+  int posed = 0;
+  while (std::getline(lines, line)) {
+    std::istringstream in(line);
+    std::vector<std::string> fields{std::istream_iterator<std::string>(in), std::istream_iterator<std::string>()};
+    if (line.starts_with("#")) {
+      columns = fields.size() - 1;
+      continue;
+    }
+    ASSERT_EQ(fields.size(), columns) << line;
+    std::vector<double> covariance;
+    std::istringstream numbers(fields.back());
+    for (std::string n; std::getline(numbers, n, ',');) covariance.push_back(std::stod(n));
+    ASSERT_EQ(covariance.size(), 21u) << line;
+    const bool has_pose = fields[2] == "ok" || fields[2] == "relocalised" || fields[2] == "new_map";
+    posed += has_pose;
+    if (has_pose) {
+      EXPECT_GT(std::stod(fields[fields.size() - 3]), 0) << line;  // position_sigma_m
+      EXPECT_GT(covariance[0], 0) << line;                          // the x variance
+    } else {
+      EXPECT_TRUE(std::all_of(covariance.begin(), covariance.end(), [](double v) { return v == 0; })) << line;
+    }
+  }
+  EXPECT_EQ(columns, 21u);
+  EXPECT_GT(posed, 0);
 }
 
 TEST_F(ReplayCli, EveryFrameBadExitsOne) {

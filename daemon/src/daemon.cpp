@@ -371,6 +371,7 @@ void Daemon::Impl::trackingLoop() {
       const Eigen::Vector3d t = out->T_w_c.translation();
       pose.position = {t.x(), t.y(), t.z()};
       pose.orientation = {q.x(), q.y(), q.z(), q.w()};
+      Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(pose.covariance.data()) = out->quality.covariance;
     }
     publisher->publishPose(pose);
     if (has_pose) publisher->publishObjects(toIpc(out->objects, pose));

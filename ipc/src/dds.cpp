@@ -487,14 +487,9 @@ class Ros2Transport final : public Transport {
       odo.header = m.header;
       odo.child_frame_id = const_cast<char*>(child_frame_id_.c_str());
       odo.pose.pose = m.pose;
-      // The pose health as a covariance: a standard deviation per state, the
-      // same on every axis (the health does not say which direction is weak).
-      const double sigma_m = pose.health == PoseHealth::kGood ? 0.01 : pose.health == PoseHealth::kDegraded ? 0.05 : 0.25;
-      const double sigma_rad = pose.health == PoseHealth::kGood ? 0.01 : pose.health == PoseHealth::kDegraded ? 0.05 : 0.25;
-      for (int k = 0; k < 3; ++k) {
-        odo.pose.covariance[k * 7] = sigma_m * sigma_m;
-        odo.pose.covariance[(k + 3) * 7] = sigma_rad * sigma_rad;
-      }
+      const Eigen::Matrix<double, 6, 6> covariance = childCovarianceInMap(
+          X_, T, Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(pose.covariance.data()));
+      Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(odo.pose.covariance) = covariance;
       odo.twist.covariance[0] = -1.0;  // REP convention: the twist is not measured
       if (dds_return_t rc = dds_write(odometry_writer_, &odo); rc != DDS_RETCODE_OK)
         return Error{ddsError("write ROS 2 odometry", rc)};
@@ -724,6 +719,21 @@ Eigen::Isometry3d opticalInChild(const std::array<double, 7>& e) {
   X.linear() = Eigen::Quaterniond(e[6], e[3], e[4], e[5]).normalized().toRotationMatrix() * C;
   X.translation() = Eigen::Vector3d(e[0], e[1], e[2]);
   return X;
+}
+
+Eigen::Matrix<double, 6, 6> childCovarianceInMap(const Eigen::Isometry3d& X, const Eigen::Isometry3d& T,
+                                                 const Eigen::Matrix<double, 6, 6>& covariance) {
+  // P = X T X^-1 with T's centre c + dc and rotation exp(dr) R: P's rotation
+  // turns by X_R dr, its origin moves by X_R (dc + dr x R u), u = X^-1's
+  // translation (the child's origin seen from the optical frame).
+  const Eigen::Vector3d a = T.linear() * X.inverse().translation();
+  Eigen::Matrix3d skew;
+  skew << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
+  Eigen::Matrix<double, 6, 6> G = Eigen::Matrix<double, 6, 6>::Zero();
+  G.block<3, 3>(0, 0) = X.linear();
+  G.block<3, 3>(0, 3) = -X.linear() * skew;
+  G.block<3, 3>(3, 3) = X.linear();
+  return G * covariance * G.transpose();
 }
 
 Result<std::unique_ptr<Transport>> makeRos2Transport(const Ros2Options& options) {

@@ -95,7 +95,7 @@ bool PoseMessage::operator==(const PoseMessage& o) const {
          dynamic_rejected_features == o.dynamic_rejected_features && keyframes == o.keyframes && map_id == o.map_id &&
          health == o.health && same(dynamic_share, o.dynamic_share) &&
          same(reprojection_rms_px, o.reprojection_rms_px) && same(conditioning, o.conditioning) &&
-         health_causes == o.health_causes && same(mask_age_s, o.mask_age_s);
+         health_causes == o.health_causes && same(mask_age_s, o.mask_age_s) && covariance == o.covariance;
 }
 
 Status validate(const PoseMessage& pose) {

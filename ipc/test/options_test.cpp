@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <random>
 
 #include "stillpoint/ipc/options.hpp"
 #include "stillpoint/ipc/ros2_frames.hpp"
@@ -126,6 +127,45 @@ TEST(Ros2Frames, APitchedCameraOnADrivingRobotGivesTheBaseItsOwnMotion) {
   // The camera's own body frame (identity extrinsic): optical z forward is x.
   const Eigen::Isometry3d camera = childInMap(opticalInChild({0, 0, 0, 0, 0, 0, 1}), T);
   EXPECT_TRUE(camera.translation().isApprox(Eigen::Vector3d(std::sqrt(3.0) / 2, 0, 0.5), 1e-12));
+}
+
+// The odometry's covariance follows the pose into the ROS frames: poses drawn
+// with a known covariance (stillpoint's order: centre, then rotation about the
+// map's axes) and carried through childInMap spread as childCovarianceInMap says.
+TEST(Ros2Frames, TheCovarianceFollowsThePoseIntoTheRosFrames) {
+  const double half = 0.5 * 30.0 * M_PI / 180.0;
+  const Eigen::Isometry3d X = opticalInChild({0.2, 0.1, 0.5, 0.0, std::sin(half), 0.0, std::cos(half)});
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::AngleAxisd(0.7, Eigen::Vector3d(0.2, 1, 0.3).normalized()).toRotationMatrix();
+  T.translation() = Eigen::Vector3d(0.4, -0.5, 2.0);
+  Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+  A.diagonal() << 0.01, 0.02, 0.005, 0.02, 0.01, 0.03;
+  A(0, 4) = 0.004;  // a position error that comes with a rotation error
+  const Eigen::Matrix<double, 6, 6> covariance = A * A.transpose();
+  const Eigen::Matrix<double, 6, 6> expected = childCovarianceInMap(X, T, covariance);
+  const Eigen::Isometry3d P = childInMap(X, T);
+  std::mt19937 rng(5);
+  std::normal_distribution<double> unit(0.0, 1.0);
+  Eigen::Matrix<double, 6, 6> spread = Eigen::Matrix<double, 6, 6>::Zero();
+  const int draws = 20000;
+  for (int k = 0; k < draws; ++k) {
+    Eigen::Matrix<double, 6, 1> n;
+    for (int i = 0; i < 6; ++i) n(i) = unit(rng);
+    const Eigen::Matrix<double, 6, 1> e = A * n;
+    Eigen::Isometry3d Te = T;
+    Te.translation() += e.head<3>();
+    Te.linear() = Eigen::AngleAxisd(e.tail<3>().norm(), e.tail<3>().normalized()).toRotationMatrix() * T.linear();
+    const Eigen::Isometry3d Pe = childInMap(X, Te);
+    Eigen::Matrix<double, 6, 1> d;
+    d.head<3>() = Pe.translation() - P.translation();
+    const Eigen::AngleAxisd turn(Pe.linear() * P.linear().transpose());
+    d.tail<3>() = turn.angle() * turn.axis();
+    spread += d * d.transpose() / draws;
+  }
+  for (int r = 0; r < 6; ++r)
+    for (int c = 0; c < 6; ++c)
+      EXPECT_NEAR(spread(r, c), expected(r, c), 0.05 * std::sqrt(expected(r, r) * expected(c, c)) + 1e-7)
+          << "(" << r << ", " << c << ")";
 }
 
 TEST(Ros2Frames, ABadExtrinsicIsRefused) {

@@ -335,7 +335,24 @@ def main():
             qy = math.copysign(math.sqrt(max(0.0, 1 - Ro[0][0] + Ro[1][1] - Ro[2][2])) / 2, Ro[0][2] - Ro[2][0])
             qz = math.copysign(math.sqrt(max(0.0, 1 - Ro[0][0] - Ro[1][1] + Ro[2][2])) / 2, Ro[1][0] - Ro[0][1])
             f.write(f"{m.header.stamp.sec}.{m.header.stamp.nanosec:09d} {po[0]} {po[1]} {po[2]} {qx} {qy} {qz} {qw}\n")
-    # Odometry and tf: one per pose, the same pose, the health as a covariance.
+    # Odometry and tf: one per pose, the same pose. The odometry's covariance is
+    # symmetric and positive definite (Cholesky), and on the static excerpt its
+    # position standard deviations lie between 0.1 mm and 5 cm.
+    def covariance_ok(c):
+        a = [[c[6 * i + j] for j in range(6)] for i in range(6)]
+        if any(abs(a[i][j] - a[j][i]) > 1e-9 * (abs(a[i][i]) + abs(a[j][j])) for i in range(6) for j in range(6)):
+            return False
+        low = [[0.0] * 6 for _ in range(6)]
+        for i in range(6):
+            for j in range(i + 1):
+                v = a[i][j] - sum(low[i][k] * low[j][k] for k in range(j))
+                if i == j:
+                    if not v > 0:
+                        return False
+                    low[i][i] = math.sqrt(v)
+                else:
+                    low[i][j] = v / low[j][j]
+        return all(1e-4 < math.sqrt(a[k][k]) < 0.05 for k in range(3))
     odom_bad = tf_bad = 0
     for m in poses:
         key = (m.header.stamp.sec, m.header.stamp.nanosec)
@@ -344,7 +361,7 @@ def main():
         if (o is None or o.header.frame_id != "map" or o.child_frame_id != "camera_link"
                 or (o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.position.z) != (p.x, p.y, p.z)
                 or (o.pose.pose.orientation.w, o.pose.pose.orientation.x) != (q.w, q.x)
-                or not all(o.pose.covariance[k * 7] > 0 for k in range(6)) or o.twist.covariance[0] != -1.0):
+                or not covariance_ok(o.pose.covariance) or o.twist.covariance[0] != -1.0):
             odom_bad += 1
         if (t is None or t.header.frame_id != "map" or t.child_frame_id != "camera_link"
                 or (t.transform.translation.x, t.transform.translation.y, t.transform.translation.z) != (p.x, p.y, p.z)

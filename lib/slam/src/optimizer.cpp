@@ -363,6 +363,27 @@ SE3 minimisePose(const PoseProblem& problem, const std::vector<char>& active, co
 
 }  // namespace
 
+Eigen::Matrix<double, 6, 6> poseInformation(const PoseProblem& problem, const SE3& T_c_w) {
+  PoseLinearisation lin;
+  linearisePose(problem, std::vector<char>(problem.points_w.size(), 1), T_c_w, false, true, &lin);
+  return lin.H;
+}
+
+Eigen::Matrix<double, 6, 6> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& information, const SE3& T_c_w,
+                                                double pixel_sigma) {
+  // T_c_w's left perturbation exp([w, v]) moves the centre by -R_wc v and
+  // turns R_wc by exp(-R_wc w).
+  Eigen::Matrix<double, 6, 6> H = information / (pixel_sigma * pixel_sigma);
+  H.diagonal() += (Eigen::Matrix<double, 6, 1>() << 1, 1, 1, 0.01, 0.01, 0.01).finished();
+  const Eigen::Matrix<double, 6, 6> cov_wv = H.ldlt().solve(Eigen::Matrix<double, 6, 6>::Identity());
+  const Mat3 R_wc = T_c_w.linear().transpose();
+  Eigen::Matrix<double, 6, 6> G = Eigen::Matrix<double, 6, 6>::Zero();
+  G.block<3, 3>(0, 3) = -R_wc;
+  G.block<3, 3>(3, 0) = -R_wc;
+  const Eigen::Matrix<double, 6, 6> cov = G * cov_wv * G.transpose();
+  return 0.5 * (cov + cov.transpose());
+}
+
 double truncatedPoseCost(const PoseProblem& problem, const SE3& T_c_w, double cap, int* inliers, double stop_at) {
   double sum = 0;
   int under = 0;

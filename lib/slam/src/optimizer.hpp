@@ -101,6 +101,20 @@ int optimizeFramePose(Frame* frame, const SE3* prior = nullptr,
 // right coordinate, level sigma).
 Observation observationOf(const Frame& f, int i);
 
+// The Gauss-Newton information J^T J of T_c_w over every observation of the
+// problem and its prior (no robust weights), for a left perturbation
+// exp([w, v]) * T_c_w, rotation first: the inverse of the pose's covariance
+// when an observation's level-0 pixel error has a sigma of one pixel.
+Eigen::Matrix<double, 6, 6> poseInformation(const PoseProblem& problem, const SE3& T_c_w);
+
+// The covariance of the camera's pose in the map from poseInformation's
+// information of T_c_w, for observations whose level-0 pixel error has the
+// sigma `pixel_sigma`: the camera's centre [m], then its rotation about the
+// map's axes [rad] (a small rotation r turns R_w_c into exp(r) R_w_c). A weak
+// prior (1 rad, 10 m) keeps a direction the information leaves free finite.
+Eigen::Matrix<double, 6, 6> poseCovarianceInMap(const Eigen::Matrix<double, 6, 6>& information, const SE3& T_c_w,
+                                                double pixel_sigma);
+
 // Squared, sigma-normalised reprojection error of a point seen in a camera.
 double reprojectionChi2(const CameraModel& camera, const SE3& T_c_w, const Vec3& p_w, const Observation& obs,
                         bool* behind = nullptr);

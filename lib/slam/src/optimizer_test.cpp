@@ -125,6 +125,70 @@ TEST(PoseOptimisation, AgreesWithCeresReference) {
   EXPECT_EQ(ours.inliers, ceres.inliers);
 }
 
+// The covariance poseCovarianceInMap predicts is the spread of the poses the
+// optimisation finds under that noise: a camera turned half a radian, a
+// narrow strip of points, most without depth, pixel noise of half a pixel at the points' own levels, 400 draws.
+TEST(PoseCovariance, PredictsTheSpreadOfTheOptimisedPose) {
+  std::mt19937 rng(11);
+  const CameraModel cam = testCamera();
+  const SE3 T_true = pose(0.1, 0.5, -0.2, 0.3, -0.1, 0.4);
+  const double sigma = 0.5;
+  std::uniform_real_distribution<double> x(-0.15, 0.15), y(-1.0, 1.0), z(3.0, 5.0);
+  std::uniform_int_distribution<int> level(0, 3);
+  PoseProblem truth;
+  truth.camera = &cam;
+  while (truth.points_w.size() < 60) {
+    const Vec3 p_c(x(rng), y(rng), z(rng));
+    const Vec2 uv = cam.project(p_c);
+    Observation o{uv.x(), uv.y(), -1, 1.0 / std::pow(1.2, level(rng))};
+    if (truth.points_w.size() % 10 == 0) o.u_right = o.u - cam.bf() / p_c.z();
+    truth.points_w.push_back(T_true.inverse() * p_c);
+    truth.observations.push_back(o);
+  }
+  const Eigen::Matrix<double, 6, 6> predicted =
+      poseCovarianceInMap(poseInformation(truth, T_true), T_true, sigma);
+  const SE3 T_w_c_true = T_true.inverse();
+  std::normal_distribution<double> unit(0.0, 1.0);
+  std::vector<Eigen::Matrix<double, 6, 1>> errors;
+  for (int draw = 0; draw < 400; ++draw) {
+    PoseProblem noisy = truth;
+    for (Observation& o : noisy.observations) {
+      const double s = sigma / o.inv_sigma;  // the level's pixel sigma
+      o.u += s * unit(rng);
+      o.v += s * unit(rng);
+      if (o.u_right >= 0) o.u_right += s * unit(rng);
+    }
+    const PoseResult r = optimizePose(noisy, T_true);
+    ASSERT_EQ(r.inliers, 60);
+    const SE3 T_w_c = r.T_c_w.inverse();
+    Eigen::Matrix<double, 6, 1> e;
+    e.head<3>() = T_w_c.translation() - T_w_c_true.translation();
+    e.tail<3>() = logSO3(T_w_c.linear() * T_w_c_true.linear().transpose());
+    errors.push_back(e);
+  }
+  Eigen::Matrix<double, 6, 6> spread = Eigen::Matrix<double, 6, 6>::Zero();
+  double nees = 0;
+  for (const auto& e : errors) {
+    spread += e * e.transpose() / static_cast<double>(errors.size());
+    nees += e.dot(predicted.ldlt().solve(e)) / static_cast<double>(errors.size());
+  }
+  for (int k = 0; k < 6; ++k) {
+    EXPECT_GT(spread(k, k), 0.75 * predicted(k, k)) << "state " << k;
+    EXPECT_LT(spread(k, k), 1.33 * predicted(k, k)) << "state " << k;
+  }
+  // Six degrees of freedom: the normalised squared error averages 6 when the
+  // correlations are right too (its standard error over 400 draws: 0.17).
+  EXPECT_NEAR(nees, 6.0, 0.6);
+  // The same covariance left in the camera's axes does not fit: the test
+  // tells the frames apart.
+  Eigen::Matrix<double, 6, 6> B = Eigen::Matrix<double, 6, 6>::Zero();
+  B.topLeftCorner<3, 3>() = B.bottomRightCorner<3, 3>() = T_true.linear();
+  const Eigen::Matrix<double, 6, 6> in_camera = B * predicted * B.transpose();
+  double nees_camera = 0;
+  for (const auto& e : errors) nees_camera += e.dot(in_camera.ldlt().solve(e)) / static_cast<double>(errors.size());
+  EXPECT_GT(nees_camera, 8.0);
+}
+
 // The motion model's prior: weighed against the observations by its sigma.
 // Exact observations of pose A, a prior at B 2 mm away: a tight prior gives
 // B, a loose one A, one of the observations' strength a pose in between.

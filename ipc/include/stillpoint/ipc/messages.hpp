@@ -61,6 +61,12 @@ struct PoseMessage {
   // Seconds from the image of the newest semantic masks to the frame; infinity
   // when no keyframe near the camera has any, -1 when not known (the module off).
   float mask_age_s = -1;
+  // The pose's covariance (docs/pose-health.md, "The covariance"), row-major
+  // 6 x 6 as geometry_msgs/PoseWithCovariance has it: the camera's position [m],
+  // then its rotation about the map's x, y and z axes [rad]. All zero: not
+  // known (no pose). In process and on ROS 2 only: the other wire formats
+  // carry the health.
+  std::array<double, 36> covariance{};
 
   // Equal fields; NaN equals NaN (a message without a pose).
   bool operator==(const PoseMessage& o) const;

@@ -19,4 +19,10 @@ inline Eigen::Isometry3d childInMap(const Eigen::Isometry3d& optical_in_child, c
   return optical_in_child * T * optical_in_child.inverse();
 }
 
+// The covariance of a pose of stillpoint's (position, then rotation about the
+// axes of the first optical frame; PoseMessage::covariance) as the covariance
+// of childInMap(optical_in_child, T) in the ROS map frame, the same order.
+Eigen::Matrix<double, 6, 6> childCovarianceInMap(const Eigen::Isometry3d& optical_in_child, const Eigen::Isometry3d& T,
+                                                 const Eigen::Matrix<double, 6, 6>& covariance);
+
 }  // namespace stillpoint::ipc

@@ -60,6 +60,11 @@ struct PoseQuality {
   // level is better than the one reported but has not held for
   // kRecoveryFrames yet. 0 for a good pose and for no pose.
   std::uint16_t causes = 0;
+  // The pose's covariance in the map: the camera's centre [m], then its
+  // rotation about the map's x, y and z axes [rad] (a small rotation
+  // exp(r) R), from the inliers' information (docs/pose-health.md, "The
+  // covariance"). Zero when the frame has no pose.
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
 };
 
 // Where one frame's tracking time went (milliseconds).
