@@ -39,11 +39,20 @@ constexpr const char* kUsage =
     "  drift  translation error of the motion over the last --drift-window\n"
     "         seconds (default 0.333, 10 frames at 30 Hz) up to the pose, in\n"
     "         its map [m]; poses without a pose that far back in their map\n"
-    "         are not counted\n"    "When the frame log has the health_causes column, one more line per cause\n"
+    "         are not counted\n"
+    "When the frame log has the health_causes column, one more line per cause\n"
     "(none, few_inliers, view_moving, ...: docs/pose-health.md), a pose counted\n"
     "under each of its causes:\n"
     "  cause=<name> poses=<n> drift_median_m=<v> drift_p90_m=<v> drift_max_m=<v>\n"
     "  over_2cm=<share>\n"
+    "When it has the covariance column, one more line per pose health level\n"
+    "and one for all poses, saying how well the poses' covariances cover that\n"
+    "drift (docs/pose-health.md, \"The covariance\"):\n"
+    "  covariance=<level|all> poses=<n> position_within_95=<share>\n"
+    "  position_median=<v> rotation_within_95=<share> rotation_median=<v>\n"
+    "  within_95  share of drifts inside the covariance's 95 % ellipsoid\n"
+    "  median     median squared drift over the covariance, over a\n"
+    "             Gaussian's: 1 as wide as it should be, above 1 too narrow\n"
     "\n"
     "options:\n"
     "  --plot OUT.png  also write a top view and ATE-over-time plot\n"
@@ -124,6 +133,7 @@ int main(int argc, char** argv) {
   const auto result = evaluate(*gt, *est, options);
   if (!result) return inputError(result.error());
   std::vector<LabelDrift> drift, by_cause;
+  std::vector<CovarianceCoverage> coverage;
   if (!frame_log.empty()) {
     const auto health = readLabelColumn(frame_log, "health");
     if (!health) return inputError(health.error());
@@ -142,6 +152,15 @@ int main(int argc, char** argv) {
       const auto per_pose = driftPerPose(*result, *causes, cause_options);
       if (!per_pose) return inputError(per_pose.error());
       by_cause = summariseDrift(splitLabels(*per_pose), cause_options);
+    }
+    const auto has_covariance = namesColumn(frame_log, "covariance");
+    if (!has_covariance) return inputError(has_covariance.error());
+    if (*has_covariance) {
+      const auto covariances = readCovarianceColumn(frame_log);
+      if (!covariances) return inputError(covariances.error());
+      const auto per_pose = normalisedDriftPerPose(*result, *est, *covariances, *health, drift_options);
+      if (!per_pose) return inputError(per_pose.error());
+      coverage = summariseCoverage(*per_pose, drift_options);
     }
   }
 
@@ -169,6 +188,11 @@ int main(int argc, char** argv) {
   for (const LabelDrift& d : by_cause) {
     std::printf("cause=%s poses=%zu drift_median_m=%.6f drift_p90_m=%.6f drift_max_m=%.6f over_2cm=%.4f\n",
                 d.label.c_str(), d.poses, d.median_m, d.p90_m, d.max_m, d.share_over_bound);
+  }
+  for (const CovarianceCoverage& c : coverage) {
+    std::printf("covariance=%s poses=%zu position_within_95=%.4f position_median=%.3f rotation_within_95=%.4f "
+                "rotation_median=%.3f\n",
+                c.label.c_str(), c.poses, c.position_within, c.position_median, c.rotation_within, c.rotation_median);
   }
   return 0;
 }

@@ -206,6 +206,54 @@ TEST_F(EvalCli, FrameLogGivesTheDriftOfEachHealthCause) {
   EXPECT_LT(r.out.find("health=unreliable"), r.out.find("cause=none"));
 }
 
+// The frame log's covariance against the drift: the pose jumps 5 cm at frame
+// 30; the covariance of frames 30-36 says 5 cm (per axis) or, in a second
+// log, 1 mm like every other frame's. A bad covariance field is named.
+TEST_F(EvalCli, FrameLogSaysHowWellTheCovarianceCoversTheDrift) {
+  writeFile(est_, trajectoryText(0.7, 1.5, -2.0, 30));
+  const auto frameLog = [](double jump_sigma_m) {
+    std::string log = "# index timestamp state health covariance\n";
+    for (int k = 0; k < 60; ++k) {
+      const bool jump = k >= 30 && k <= 36;
+      const double v = jump ? jump_sigma_m * jump_sigma_m : 1e-6;
+      std::string covariance;
+      for (int r = 0; r < 6; ++r)
+        for (int c = r; c < 6; ++c) {
+          if (!covariance.empty()) covariance += ',';
+          covariance += std::to_string(r == c ? v : 0.0);
+        }
+      log += std::to_string(k) + " " + std::to_string(1000.0 + 0.05 * k) + " ok " +
+             (jump ? "unreliable " : "good ") + covariance + "\n";
+    }
+    return log;
+  };
+  const std::regex line(
+      "\ncovariance=(unreliable|all) poses=([0-9]+) position_within_95=([0-9.]+) position_median=([0-9.]+) "
+      "rotation_within_95=([0-9.]+) rotation_median=([0-9.]+)");
+  const RunResult wide = eval({gt_, est_, "--frame-log", writeScratch("wide.txt", frameLog(0.05))});
+  ASSERT_EQ(wide.exit_code, 0) << describe(wide);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(wide.out, m, line)) << describe(wide);
+  EXPECT_EQ(m[1], "unreliable");
+  EXPECT_EQ(m[2], "7");
+  EXPECT_EQ(std::stod(m[3]), 1.0) << wide.out;  // 5 cm inside a 5 cm ellipsoid
+  EXPECT_NE(wide.out.find("covariance=good poses="), std::string::npos) << wide.out;
+  EXPECT_NE(wide.out.find("covariance=all poses=53 "), std::string::npos) << wide.out;
+
+  const RunResult narrow = eval({gt_, est_, "--frame-log", writeScratch("narrow.txt", frameLog(0.001))});
+  ASSERT_EQ(narrow.exit_code, 0) << describe(narrow);
+  ASSERT_TRUE(std::regex_search(narrow.out, m, line)) << describe(narrow);
+  EXPECT_EQ(std::stod(m[3]), 0.0) << narrow.out;  // 5 cm far outside 1 mm
+  EXPECT_GT(std::stod(m[4]), 100.0) << narrow.out;
+
+  std::string bad = frameLog(0.05);
+  bad.replace(bad.find(" ok good ") + 9, 3, "x,0");
+  const RunResult malformed = eval({gt_, est_, "--frame-log", writeScratch("bad.txt", bad)});
+  EXPECT_EQ(malformed.exit_code, 1) << describe(malformed);
+  EXPECT_NE(malformed.err.find("bad.txt"), std::string::npos) << describe(malformed);
+  EXPECT_NE(malformed.err.find("covariance"), std::string::npos) << describe(malformed);
+}
+
 TEST_F(EvalCli, MissingGroundTruthFileIsNamed) {
   const std::string missing = (scratch_ / "no_groundtruth.txt").string();
   const RunResult r = eval({missing, est_});

@@ -9,7 +9,9 @@
 #include <numeric>
 #include <sstream>
 #include <tuple>
+#include <utility>
 
+#include <Eigen/Cholesky>
 #include <Eigen/SVD>
 
 #include "stillpoint/core/health_causes.hpp"
@@ -329,45 +331,150 @@ std::vector<LabelledDrift> splitLabels(const std::vector<LabelledDrift>& poses, 
   return out;
 }
 
+namespace {
+
+template <typename T>
+std::vector<T> sortedByStamp(std::vector<T> v) {
+  std::sort(v.begin(), v.end(), [](const T& a, const T& b) { return a.stamp < b.stamp; });
+  return v;
+}
+
+// The element of `sorted` nearest to t within max_dt_ns (the later of two
+// as near), or none.
+template <typename T>
+const T* nearestInTime(const std::vector<T>& sorted, Timestamp t, std::int64_t max_dt_ns) {
+  const auto it =
+      std::lower_bound(sorted.begin(), sorted.end(), t, [](const T& x, Timestamp s) { return x.stamp < s; });
+  const T* best = nullptr;
+  std::int64_t best_dt = max_dt_ns + 1;
+  for (auto c : {it, it == sorted.begin() ? it : it - 1}) {
+    if (c == sorted.end()) continue;
+    const std::int64_t d = std::abs(c->stamp.nanoseconds() - t.nanoseconds());
+    if (d < best_dt) best_dt = d, best = &*c;
+  }
+  return best;
+}
+
+// Every matched pose j with the pose i it drifted from: the newest pose of
+// the same map at least a window back (less the association slack), if
+// within two windows (a gap makes no pair).
+std::vector<std::pair<std::size_t, std::size_t>> driftPairs(const EvalResult& result, const DriftOptions& options) {
+  const Trajectory& est = result.est_aligned;
+  const std::int64_t window_ns = secondsToNs(options.window_s), max_dt_ns = secondsToNs(options.max_dt_s);
+  std::vector<std::pair<std::size_t, std::size_t>> pairs;
+  for (std::size_t j = 0; j < est.size() && j < result.gt_matched.size(); ++j) {
+    const std::int64_t latest = est[j].stamp.nanoseconds() - window_ns + max_dt_ns;
+    for (std::size_t i = j; i-- > 0 && est[i].stamp.nanoseconds() >= est[j].stamp.nanoseconds() - 2 * window_ns;) {
+      if (est[i].map_id != est[j].map_id || est[i].stamp.nanoseconds() > latest) continue;
+      pairs.emplace_back(i, j);
+      break;
+    }
+  }
+  return pairs;
+}
+
+// E_ij = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j).
+SE3 driftError(const EvalResult& result, std::size_t i, std::size_t j) {
+  const Trajectory& est = result.est_aligned;
+  const Trajectory& gt = result.gt_matched;
+  return (gt[i].T_w_c.inverse() * gt[j].T_w_c).inverse() * (est[i].T_w_c.inverse() * est[j].T_w_c);
+}
+
+}  // namespace
+
 Result<std::vector<LabelledDrift>> driftPerPose(const EvalResult& result, const std::vector<StampedLabel>& labels,
                                                 const DriftOptions& options) {
   if (Status status = options.validate(); !status) return Error{status.error()};
-  std::vector<StampedLabel> sorted = labels;
-  std::sort(sorted.begin(), sorted.end(),
-            [](const StampedLabel& a, const StampedLabel& b) { return a.stamp < b.stamp; });
+  const auto sorted = sortedByStamp(labels);
   const std::int64_t max_dt_ns = secondsToNs(options.max_dt_s);
-  const auto labelAt = [&](Timestamp t) -> std::string {
-    const auto it = std::lower_bound(sorted.begin(), sorted.end(), t,
-                                     [](const StampedLabel& l, Timestamp s) { return l.stamp < s; });
-    std::int64_t best = max_dt_ns + 1;
-    std::string label = "-";
-    for (auto c : {it, it == sorted.begin() ? it : it - 1}) {
-      if (c == sorted.end()) continue;
-      const std::int64_t d = std::abs(c->stamp.nanoseconds() - t.nanoseconds());
-      if (d < best) best = d, label = c->label;
-    }
-    return label;
-  };
-
-  const Trajectory& est = result.est_aligned;
-  const Trajectory& gt = result.gt_matched;
-  const std::int64_t window_ns = secondsToNs(options.window_s);
   std::vector<LabelledDrift> poses;
-  for (std::size_t j = 0; j < est.size() && j < gt.size(); ++j) {
-    // The newest pose of the same map at least a window back (less the
-    // association slack), if within two windows: a gap makes no pair.
-    const std::int64_t latest = est[j].stamp.nanoseconds() - window_ns + max_dt_ns;
-    std::size_t from = j;
-    for (std::size_t i = j; i-- > 0 && est[i].stamp.nanoseconds() >= est[j].stamp.nanoseconds() - 2 * window_ns;) {
-      if (est[i].map_id != est[j].map_id || est[i].stamp.nanoseconds() > latest) continue;
-      from = i;
-      break;
-    }
-    if (from == j) continue;
-    const SE3 error = (gt[from].T_w_c.inverse() * gt[j].T_w_c).inverse() * (est[from].T_w_c.inverse() * est[j].T_w_c);
-    poses.push_back({labelAt(est[j].stamp), error.translation().norm()});
+  for (const auto& [from, j] : driftPairs(result, options)) {
+    const StampedLabel* label = nearestInTime(sorted, result.est_aligned[j].stamp, max_dt_ns);
+    poses.push_back({label ? label->label : "-", driftError(result, from, j).translation().norm()});
   }
   return poses;
+}
+
+Result<std::vector<NormalisedDrift>> normalisedDriftPerPose(const EvalResult& result, const Trajectory& estimate,
+                                                            const std::vector<StampedCovariance>& covariances,
+                                                            const std::vector<StampedLabel>& labels,
+                                                            const DriftOptions& options) {
+  if (Status status = options.validate(); !status) return Error{status.error()};
+  const auto sorted_labels = sortedByStamp(labels);
+  const auto sorted = sortedByStamp(covariances);
+  const std::int64_t max_dt_ns = secondsToNs(options.max_dt_s);
+  const auto covarianceAt = [&](Timestamp t) -> const Eigen::Matrix<double, 6, 6>* {
+    const StampedCovariance* c = nearestInTime(sorted, t, max_dt_ns);
+    return c && !c->covariance.isZero() ? &c->covariance : nullptr;
+  };
+  // The estimate's own pose at t (what the covariance describes).
+  const auto rawAt = [&](Timestamp t) -> const SE3* {
+    const auto it = std::lower_bound(estimate.begin(), estimate.end(), t,
+                                     [](const StampedPose& p, Timestamp s) { return p.stamp < s; });
+    return it != estimate.end() && it->stamp == t ? &it->T_w_c : nullptr;
+  };
+  std::vector<NormalisedDrift> poses;
+  for (const auto& [from, j] : driftPairs(result, options)) {
+    const Timestamp t = result.est_aligned[j].stamp;
+    const auto* S_i = covarianceAt(result.est_aligned[from].stamp);
+    const auto* S_j = covarianceAt(t);
+    const SE3* P_i = rawAt(result.est_aligned[from].stamp);
+    const SE3* P_j = rawAt(t);
+    if (!S_i || !S_j || !P_i || !P_j) continue;
+    const SE3 error = driftError(result, from, j);
+    // To first order, in the map's axes: the translation drift is
+    // dc_j - dc_i + [c_j - c_i]x dr_i (pose i's turn swings the way to j),
+    // the rotation drift dr_j - dr_i; camera j's axes turn both into E's.
+    const Vec3 way = P_j->translation() - P_i->translation();
+    Mat3 swing;
+    swing << 0, -way.z(), way.y(), way.z(), 0, -way.x(), -way.y(), way.x(), 0;
+    Eigen::Matrix<double, 3, 6> J_i;
+    J_i << -Mat3::Identity(), swing;
+    const Mat3 R = P_j->linear();
+    const Mat3 position =
+        R.transpose() * (S_j->topLeftCorner<3, 3>() + J_i * *S_i * J_i.transpose()) * R;
+    const Mat3 rotation = R.transpose() * (S_i->bottomRightCorner<3, 3>() + S_j->bottomRightCorner<3, 3>()) * R;
+    const Vec3 d = error.translation();
+    const Eigen::AngleAxisd turn(error.linear());
+    const Vec3 r = turn.angle() * turn.axis();
+    const StampedLabel* label = nearestInTime(sorted_labels, t, max_dt_ns);
+    poses.push_back({label ? label->label : "-", d.dot(position.ldlt().solve(d)), r.dot(rotation.ldlt().solve(r))});
+  }
+  return poses;
+}
+
+std::vector<CovarianceCoverage> summariseCoverage(const std::vector<NormalisedDrift>& poses,
+                                                  const DriftOptions& options) {
+  constexpr double kChi2Three95 = 7.815, kChi2ThreeMedian = 2.366;
+  std::map<std::string, std::vector<const NormalisedDrift*>> by_label;
+  for (const NormalisedDrift& p : poses) by_label[p.label].push_back(&p);
+  std::vector<std::string> names;
+  for (const std::string& name : options.order)
+    if (by_label.count(name) && std::find(names.begin(), names.end(), name) == names.end()) names.push_back(name);
+  for (const auto& [name, members] : by_label)
+    if (std::find(names.begin(), names.end(), name) == names.end()) names.push_back(name);
+  for (const NormalisedDrift& p : poses) by_label["all"].push_back(&p);
+  if (!poses.empty()) names.push_back("all");
+
+  std::vector<CovarianceCoverage> out;
+  for (const std::string& name : names) {
+    const auto& members = by_label[name];
+    CovarianceCoverage c;
+    c.label = name;
+    c.poses = members.size();
+    std::vector<double> position, rotation;
+    for (const NormalisedDrift* p : members) position.push_back(p->position), rotation.push_back(p->rotation);
+    const auto within = [&](const std::vector<double>& v) {
+      return static_cast<double>(std::count_if(v.begin(), v.end(), [&](double x) { return x < kChi2Three95; })) /
+             static_cast<double>(v.size());
+    };
+    c.position_within = within(position);
+    c.rotation_within = within(rotation);
+    c.position_median = quantile(position, 0.5) / kChi2ThreeMedian;
+    c.rotation_median = quantile(rotation, 0.5) / kChi2ThreeMedian;
+    out.push_back(c);
+  }
+  return out;
 }
 
 std::vector<LabelDrift> summariseDrift(const std::vector<LabelledDrift>& poses, const DriftOptions& options) {

@@ -373,5 +373,58 @@ TEST(DriftByLabel, PosesWithoutALabelNearbyAreCountedApart) {
   EXPECT_NE(driftByLabel(*result, labels, bad).error().find("window_s"), std::string::npos);
 }
 
+// Poses drawn about the truth with known covariances (position, then rotation
+// about the map's axes, in an estimate's map that is turned and shifted from
+// the ground truth's), each pose's own, some much weaker along one axis: the
+// normalised drifts are chi-square with 3 degrees of freedom, so about 95 %
+// lie within the ellipsoid and their median is a chi-square's. Covariances
+// four times too small read as too narrow.
+TEST(CovarianceCoverage, CovariancesThatDescribeTheNoiseCoverItsDrift) {
+  std::mt19937 rng(21);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 60.0);
+  std::normal_distribution<double> unit(0.0, 1.0);
+  Trajectory est;
+  std::vector<StampedCovariance> covariances, too_small;
+  std::vector<StampedLabel> labels;
+  for (std::size_t k = 0; k < gt.size(); ++k) {
+    Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+    A.diagonal() << 0.003, 0.002, k % 2 ? 0.02 : 0.004, 0.002, 0.004, k % 3 ? 0.001 : 0.01;
+    A(1, 3) = 0.002;
+    Eigen::Matrix<double, 6, 1> n;
+    for (int i = 0; i < 6; ++i) n(i) = unit(rng);
+    const Eigen::Matrix<double, 6, 1> e = A * n;
+    SE3 T = knownTransform().inverse() * gt[k].T_w_c;  // in the estimate's map
+    T.translation() += e.head<3>();
+    T.linear() = expSO3(e.tail<3>()) * T.linear();
+    est.push_back({gt[k].stamp, T});
+    covariances.push_back({gt[k].stamp, A * A.transpose()});
+    too_small.push_back({gt[k].stamp, A * A.transpose() / 16.0});
+    labels.push_back({gt[k].stamp, k % 2 ? "degraded" : "good"});
+  }
+  covariances[5].covariance.setZero();  // a frame without a pose
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+  const auto poses = normalisedDriftPerPose(*result, est, covariances, labels, poseHealthDriftOptions());
+  ASSERT_TRUE(poses.ok()) << poses.error();
+  EXPECT_EQ(poses->size(), gt.size() - 10 - 1);  // a window back, and frame 15's pair starts at frame 5
+  const auto coverage = summariseCoverage(*poses, poseHealthDriftOptions());
+  ASSERT_EQ(coverage.size(), 3u);
+  EXPECT_EQ(coverage[0].label, "good");
+  EXPECT_EQ(coverage[1].label, "degraded");
+  EXPECT_EQ(coverage[2].label, "all");
+  EXPECT_EQ(coverage[2].poses, poses->size());
+  for (const CovarianceCoverage& c : coverage) {
+    EXPECT_NEAR(c.position_within, 0.95, 0.025) << c.label;
+    EXPECT_NEAR(c.rotation_within, 0.95, 0.025) << c.label;
+    EXPECT_NEAR(c.position_median, 1.0, 0.12) << c.label;
+    EXPECT_NEAR(c.rotation_median, 1.0, 0.12) << c.label;
+  }
+  const auto narrow = normalisedDriftPerPose(*result, est, too_small, labels);
+  ASSERT_TRUE(narrow.ok()) << narrow.error();
+  const CovarianceCoverage all = summariseCoverage(*narrow).back();
+  EXPECT_NEAR(all.position_median, 16.0, 2.0);
+  EXPECT_LT(all.position_within, 0.5);
+}
+
 }  // namespace
 }  // namespace stillpoint::eval

@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <sstream>
 #include <string_view>
@@ -19,11 +20,12 @@ Error lineError(const std::string& path, std::size_t line, const std::string& wh
   return Error{path + ":" + std::to_string(line) + ": " + what};
 }
 
-// Splits on spaces, tabs and commas (the TUM tools accept all three).
-std::vector<std::string_view> splitFields(std::string_view line) {
+// Splits on spaces, tabs and commas (the TUM tools accept all three); a
+// table of whitespace-separated columns keeps commas within a field.
+std::vector<std::string_view> splitFields(std::string_view line, bool commas = true) {
   std::vector<std::string_view> fields;
   std::size_t i = 0;
-  const auto is_sep = [](char c) { return c == ' ' || c == '\t' || c == ',' || c == '\r'; };
+  const auto is_sep = [commas](char c) { return c == ' ' || c == '\t' || (commas && c == ',') || c == '\r'; };
   while (i < line.size()) {
     while (i < line.size() && is_sep(line[i])) ++i;
     const std::size_t start = i;
@@ -64,7 +66,7 @@ bool isBlankOrComment(std::string_view line) {
 
 // The column names of a header comment line ("# index timestamp ...").
 std::vector<std::string_view> headerNames(std::string_view line) {
-  return splitFields(line.substr(line.find('#') + 1));
+  return splitFields(line.substr(line.find('#') + 1), false);
 }
 
 }  // namespace
@@ -166,7 +168,7 @@ Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const
       continue;
     }
     if (!header) return lineError(path, line_number, "a row before the header comment that names the columns");
-    const auto fields = splitFields(line);
+    const auto fields = splitFields(line, false);
     if (fields.size() < needed) {
       return lineError(path, line_number, "expected at least " + std::to_string(needed) + " fields, found " +
                                               std::to_string(fields.size()));
@@ -178,6 +180,30 @@ Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const
   if (in.bad()) return Error{path + ": read error after line " + std::to_string(line_number)};
   if (!header) return Error{path + ": no header comment naming the columns"};
   return labels;
+}
+
+Result<std::vector<StampedCovariance>> readCovarianceColumn(const std::string& path) {
+  const auto fields = readLabelColumn(path, "covariance");
+  if (!fields) return Error{fields.error()};
+  std::vector<StampedCovariance> out;
+  out.reserve(fields->size());
+  for (const StampedLabel& field : *fields) {
+    std::vector<double> values;
+    std::istringstream numbers(field.label);
+    for (std::string number; std::getline(numbers, number, ',');) {
+      char* end = nullptr;
+      const double value = std::strtod(number.c_str(), &end);
+      if (number.empty() || *end != '\0' || !std::isfinite(value)) break;
+      values.push_back(value);
+    }
+    if (values.size() != 21 || !numbers.eof())
+      return Error{path + ": frame " + field.stamp.toSecondsString() + ": the covariance is not 21 numbers joined by ','"};
+    StampedCovariance c{field.stamp};
+    for (int r = 0, k = 0; r < 6; ++r)
+      for (int col = r; col < 6; ++col, ++k) c.covariance(r, col) = c.covariance(col, r) = values[k];
+    out.push_back(c);
+  }
+  return out;
 }
 
 Status writeTumTrajectory(const std::string& path, const Trajectory& trajectory) {

@@ -24,6 +24,9 @@ constexpr float kDegradedRmsPx = 2.0f;
 // that information predicts and 13 times the rotation's (median over 19
 // sequences with movers, docs/pose-health.md, "The covariance").
 constexpr double kPositionSigmaScale = 8, kRotationSigmaScale = 13;
+// An unreliable pose may follow a mover, which its inliers cannot show: its
+// covariance gains the spread of such poses' drift over 1/3 s (per axis).
+constexpr double kUnreliablePositionSigmaM = 0.05, kUnreliableRotationSigmaRad = 0.03;
 // With the semantic module as the only judge of what moves, masks whose image
 // is old no longer say where the movers are, and the keyframes waiting for
 // theirs hold their points back (infinity: none near the camera has any):
@@ -140,6 +143,10 @@ PoseQuality Tracker::measureQuality(bool ok) {
     better_frames_ = 0;
   }
   q.health = health_;
+  if (q.health == PoseHealth::kUnreliable) {
+    q.covariance.diagonal().head<3>().array() += kUnreliablePositionSigmaM * kUnreliablePositionSigmaM;
+    q.covariance.diagonal().tail<3>().array() += kUnreliableRotationSigmaRad * kUnreliableRotationSigmaRad;
+  }
   q.causes = health_ == raw ? causes : static_cast<std::uint16_t>(causes | health_cause::kRecovering);
   return q;
 }

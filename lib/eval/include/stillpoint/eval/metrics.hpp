@@ -176,4 +176,36 @@ std::vector<LabelDrift> summariseDrift(const std::vector<LabelledDrift>& poses, 
 // once under each), for labels that name a set.
 std::vector<LabelledDrift> splitLabels(const std::vector<LabelledDrift>& poses, char separator = '+');
 
+// How well pose covariances cover the drift (docs/pose-health.md, "The
+// covariance"): for every pose j that driftPerPose pairs with a pose i, the
+// drift's translation and rotation (of E_ij, in camera j's axes), each
+// normalised by the covariance the two poses' covariances give it to first
+// order (`estimate`: the unaligned trajectory they belong to; pose i's
+// rotation error swings the way from i to j, so it adds to the translation's):
+// d^T S^-1 d, chi-square with 3 degrees of freedom where the covariances are
+// right. Poses without a covariance (all zero, or none within
+// max_dt_s) are left out; a pose takes the label nearest in time ("-": none).
+struct NormalisedDrift {
+  std::string label;
+  double position = 0.0;
+  double rotation = 0.0;
+};
+Result<std::vector<NormalisedDrift>> normalisedDriftPerPose(const EvalResult& result, const Trajectory& estimate,
+                                                            const std::vector<StampedCovariance>& covariances,
+                                                            const std::vector<StampedLabel>& labels,
+                                                            const DriftOptions& options = {});
+
+// Per label (options.order first, as summariseDrift), then "all": the share of
+// normalised drifts within the 95 % ellipsoid (under 7.815) and their median
+// over a chi-square's (2.366): 1 when the covariances are as wide as they
+// should be, above 1 when too narrow.
+struct CovarianceCoverage {
+  std::string label;
+  std::size_t poses = 0;
+  double position_within = 0.0, position_median = 0.0;
+  double rotation_within = 0.0, rotation_median = 0.0;
+};
+std::vector<CovarianceCoverage> summariseCoverage(const std::vector<NormalisedDrift>& poses,
+                                                  const DriftOptions& options = {});
+
 }  // namespace stillpoint::eval

@@ -46,6 +46,17 @@ Result<std::vector<StampedLabel>> readLabelColumn(const std::string& path, const
 // column was added does not). Errors: the file cannot be read, no header.
 Result<bool> namesColumn(const std::string& path, const std::string& column);
 
+// A pose covariance per timestamp: the frame log's `covariance` column (its
+// upper triangle row by row, 21 numbers joined by ','; position, then
+// rotation about the map's axes). All zero: the frame had no pose.
+struct StampedCovariance {
+  Timestamp stamp;
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+};
+// Reads that column (readLabelColumn's errors, and a field that is not 21
+// finite numbers, named with its timestamp).
+Result<std::vector<StampedCovariance>> readCovarianceColumn(const std::string& path);
+
 // Writes a TUM trajectory: timestamps with Timestamp::toSecondsString()
 // (microseconds), numbers with 9 significant digits, quaternion sign chosen so
 // that qw >= 0.
