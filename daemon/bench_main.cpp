@@ -222,6 +222,7 @@ struct RunResult {
   Result<eval::EvalResult> eval = Error{"not evaluated"};
   std::vector<eval::LabelledDrift> drift;  // each pose's health and drift
   std::vector<eval::LabelledDrift> cause_drift;  // each pose's drift under each of its health causes
+  std::vector<eval::NormalisedDrift> covered;     // each pose's health and drift over its covariance
 };
 
 // Runs argv with stdout and stderr into files; returns the wait status, or -1.
@@ -418,6 +419,9 @@ void runOnce(const Args& args, const std::string& replay, const SequenceArg& seq
   for (const FrameRecord& f : r->log)
     if (!f.health.empty()) health.push_back({Timestamp::fromSeconds(f.t), f.health});
   if (auto drift = eval::driftPerPose(*r->eval, health); drift) r->drift = std::move(*drift);
+  if (auto covariances = eval::readCovarianceColumn((dir / "frames.txt").string()); covariances)
+    if (auto covered = eval::normalisedDriftPerPose(*r->eval, r->est, *covariances, health); covered)
+      r->covered = std::move(*covered);
   std::vector<eval::StampedLabel> causes;
   for (const FrameRecord& f : r->log)
     if (!f.causes.empty()) causes.push_back({Timestamp::fromSeconds(f.t), f.causes});
@@ -672,20 +676,25 @@ bool writeReport(const Args& args, const std::string& command, const std::string
   md << "How far off the poses of each health level were, over all sequences and runs of a module set: the "
         "translation error of the motion over the last 1/3 s up to the pose (10 frames at 30 Hz; "
         "`stillpoint-eval --frame-log`), which a consumer trusting the level would have taken in.\n\n";
+  // The module sets, and one module set's per-pose values over all its runs.
+  std::vector<std::string> module_sets;
+  for (const Group& g : groups)
+    if (std::find(module_sets.begin(), module_sets.end(), g.label) == module_sets.end())
+      module_sets.push_back(g.label);
+  const auto pooled = [&groups]<typename T>(const std::string& label, std::vector<T> RunResult::*values) {
+    std::vector<T> all;
+    for (const Group& g : groups)
+      if (g.label == label)
+        for (const RunResult* r : g.runs) all.insert(all.end(), (r->*values).begin(), (r->*values).end());
+    return all;
+  };
   // One table per labelling of the poses: by health level, and by what lowered it.
   const auto driftTable = [&](const char* what, const eval::DriftOptions& drift_options,
                               std::vector<eval::LabelledDrift> RunResult::*drift) {
     md << "| Modules | " << what << " | Poses | Median [m] | p90 [m] | Max [m] | Over 2 cm |\n";
     md << "|---|---|---|---|---|---|---|\n";
-    std::vector<std::string> labels;
-    for (const Group& g : groups)
-      if (std::find(labels.begin(), labels.end(), g.label) == labels.end()) labels.push_back(g.label);
-    for (const std::string& label : labels) {
-      std::vector<eval::LabelledDrift> pooled;
-      for (const Group& g : groups)
-        if (g.label == label)
-          for (const RunResult* r : g.runs) pooled.insert(pooled.end(), (r->*drift).begin(), (r->*drift).end());
-      for (const eval::LabelDrift& d : eval::summariseDrift(pooled, drift_options))
+    for (const std::string& label : module_sets) {
+      for (const eval::LabelDrift& d : eval::summariseDrift(pooled(label, drift), drift_options))
         md << "| " << label << " | " << d.label << " | " << d.poses << " | " << fmt(d.median_m, 4) << " | "
            << fmt(d.p90_m, 4) << " | " << fmt(d.max_m, 4) << " | " << fmt(100.0 * d.share_over_bound, 1) << " % |\n";
     }
@@ -696,6 +705,20 @@ bool writeReport(const Args& args, const std::string& command, const std::string
   md << "The same poses by what lowered their health (`health_causes`, [pose-health.md](../pose-health.md)): a pose "
         "counts under each of its causes, and `none` holds the good ones.\n\n";
   driftTable("Cause", eval::healthCauseDriftOptions(), &RunResult::cause_drift);
+  md << "## How well the pose covariance covers the drift\n\n";
+  md << "The same drift against the covariance the poses carry ([pose-health.md](../pose-health.md), \"The "
+        "covariance\"; `stillpoint-eval --frame-log` per run): the share of drifts inside the covariance's 95 % "
+        "ellipsoid, and the median squared drift over the covariance, over a Gaussian's (1: as wide as it should be, "
+        "above 1: too narrow), translation and rotation apart, per health level and for all poses.\n\n";
+  md << "| Modules | Health | Poses | Position within | Position median | Rotation within | Rotation median |\n";
+  md << "|---|---|---|---|---|---|---|\n";
+  for (const std::string& label : module_sets)
+    for (const eval::CovarianceCoverage& c :
+         eval::summariseCoverage(pooled(label, &RunResult::covered), eval::poseHealthDriftOptions()))
+      md << "| " << label << " | " << c.label << " | " << c.poses << " | " << fmt(100.0 * c.position_within, 1)
+         << " % | " << fmt(c.position_median, 2) << " | " << fmt(100.0 * c.rotation_within, 1) << " % | "
+         << fmt(c.rotation_median, 2) << " |\n";
+  md << "\n";
 
   md << "## Runtime\n\n";
   md << "Per the paper's Table IV: the semantic part per segmented keyframe (its own thread), the geometry part "

@@ -22,8 +22,8 @@ report=$out/report.md csv=$out/results.csv
 for f in "$report" "$csv"; do [[ -s $f ]] || fail "$f missing or empty"; done
 grep -qx '<!-- bench-summary: begin -->' "$report" && grep -qx '<!-- bench-summary: end -->' "$report" \
   || fail "report without the summary markers"
-for section in '## Accuracy' '## Pose health' '## What lowered the pose health' '## Runtime' '## Published figures' \
-    '## Plots'; do
+for section in '## Accuracy' '## Pose health' '## What lowered the pose health' \
+    '## How well the pose covariance covers the drift' '## Runtime' '## Published figures' '## Plots'; do
   grep -qx "$section.*" "$report" || fail "report without '$section'"
 done
 grep -Eq '^\| host speed: ORB extraction[^|]*\| at start [0-9]+\.[0-9] ms; at end [0-9]+\.[0-9] ms \|$' "$report" \
@@ -48,6 +48,16 @@ for m in none geometry semantic geometry+semantic; do
   good=$(awk -F'|' -v m=" $m " '$2 == m && $3 == " good " {print $4 + 0}' <<< "$health_rows")
   none=$(awk -F'|' -v m=" $m " '$2 == m && $3 == " none " {print $4 + 0}' <<< "$cause_rows")
   [[ ${good:-0} -eq ${none:-0} ]] || fail "$m: ${good:-0} good poses but ${none:-0} without a cause"
+done
+# The covariance's coverage: per level, then all, with shares and medians;
+# the levels' poses add up to all's, and every module set has poses.
+cover_rows=$(awk '/^## How well the pose covariance/{f=1;next} /^## /{f=0} f && /^\| [a-z+]+ \| /' "$report")
+odd=$(grep -Ev '^\| [a-z+]+ \| (good|degraded|unreliable|all) \| [0-9]+ \| [0-9.]+ % \| [0-9.]+ \| [0-9.]+ % \| [0-9.]+ \|$' <<< "$cover_rows")
+[[ -z $odd ]] || fail "covariance rows not of a level with its numbers: $odd"
+for m in none geometry semantic geometry+semantic; do
+  levels=$(awk -F'|' -v m=" $m " '$2 == m && $3 != " all " {n += $4} END {print n + 0}' <<< "$cover_rows")
+  all=$(awk -F'|' -v m=" $m " '$2 == m && $3 == " all " {print $4 + 0}' <<< "$cover_rows")
+  [[ ${all:-0} -gt 0 && $levels -eq ${all:-0} ]] || fail "$m: covariance rows' poses $levels, all ${all:-none}"
 done
 # The runtime table's last column: the newest semantic masks' age (median, p90) where the module ran.
 runtime_rows=$(awk '/^## Runtime/{f=1;next} /^## /{f=0} f && /^\| `/' "$report")
