@@ -1,7 +1,9 @@
 // LCM transport. Types come from msg/*.lcm through lcm-gen at build time.
 #include <lcm/lcm-cpp.hpp>
 
+#include <algorithm>
 #include <cstring>
+#include <iterator>
 #include <string>
 #include <string_view>
 
@@ -36,6 +38,7 @@ stillpoint_lcm::pose_t toLcm(const PoseMessage& p) {
   m.conditioning = p.conditioning;
   m.health_causes = static_cast<std::int16_t>(p.health_causes);
   m.mask_age_s = p.mask_age_s;
+  std::copy(p.covariance.begin(), p.covariance.end(), m.covariance);
   return m;
 }
 
@@ -77,6 +80,7 @@ Result<PoseMessage> fromLcm(const stillpoint_lcm::pose_t& m) {
   p.conditioning = m.conditioning;
   p.health_causes = static_cast<std::uint16_t>(m.health_causes);
   p.mask_age_s = m.mask_age_s;
+  std::copy(std::begin(m.covariance), std::end(m.covariance), p.covariance.begin());
   return p;
 }
 

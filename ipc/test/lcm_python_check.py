@@ -44,7 +44,7 @@ def expected_pose(k):
     s = math.sin(half)
     map_id = 0xC0FFEE0000000000 | (k // 100)
     return {
-        "schema_version": 3,
+        "schema_version": 4,
         "sensor_stamp_ns": 1700000000123456789 + k * 33333333,
         "frame_counter": k,
         "position": [math.sin(a) * 3.14159265358979, -math.ldexp(float(k), -7) / 3.0, 1.0 / (k + 3.0)],
@@ -60,6 +60,8 @@ def expected_pose(k):
         "conditioning": f32(1.0 / (k + 2)),
         "health_causes": int16((k * 0x2F1B) & 0xFFFF),  # LCM int16 carries the unsigned bits
         "mask_age_s": math.inf if k % 3 == 0 else -1.0 if k % 3 == 1 else f32(f32(0.1) * k),
+        # float division, correctly rounded: the double quotient rounded once to single precision
+        "covariance": [f32((-1.0 if i % 2 else 1.0) * (k + 1) / (3 * i + 7)) for i in range(21)],
     }
 
 

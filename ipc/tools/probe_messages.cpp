@@ -27,6 +27,9 @@ PoseMessage testPose(std::uint64_t k) {
   p.conditioning = 1.0f / static_cast<float>(k + 2);
   p.health_causes = static_cast<std::uint16_t>(k * 0x2F1Bu);  // bit 15 too: unsigned survives signed wire types
   p.mask_age_s = k % 3 == 0 ? std::numeric_limits<float>::infinity() : k % 3 == 1 ? -1.0f : 0.1f * static_cast<float>(k);
+  // Full float mantissas, a sign per entry: an order or precision slip would show.
+  for (std::size_t i = 0; i < p.covariance.size(); ++i)
+    p.covariance[i] = (i % 2 ? -1.0f : 1.0f) * static_cast<float>(k + 1) / static_cast<float>(3 * i + 7);
   return p;
 }
 
@@ -83,7 +86,7 @@ namespace {
 bool same(double a, double b) { return std::memcmp(&a, &b, sizeof(double)) == 0; }
 }  // namespace
 
-std::string diff(const PoseMessage& e, const PoseMessage& g) {
+std::string diff(const PoseMessage& e, const PoseMessage& g, bool covariance) {
   if (e.sensor_stamp != g.sensor_stamp) return "sensor_stamp";
   if (e.frame_counter != g.frame_counter) return "frame_counter";
   for (int i = 0; i < 3; ++i)
@@ -101,6 +104,8 @@ std::string diff(const PoseMessage& e, const PoseMessage& g) {
   if (e.conditioning != g.conditioning) return "conditioning";
   if (e.health_causes != g.health_causes) return "health_causes";
   if (e.mask_age_s != g.mask_age_s) return "mask_age_s";
+  for (std::size_t i = 0; covariance && i < e.covariance.size(); ++i)
+    if (e.covariance[i] != g.covariance[i]) return "covariance[" + std::to_string(i) + "]";
   return {};
 }
 

@@ -35,10 +35,11 @@ const char* toString(PoseHealth health);
 Result<PoseHealth> poseHealthFromInt(std::int64_t value);
 
 // Schema 2 added the pose health, schema 3 what lowered it and the semantic
-// masks' age; a message without a pose carries NaN in position and orientation
-// (nothing a consumer could take for a pose).
+// masks' age, schema 4 the pose's covariance; a message without a pose carries
+// NaN in position and orientation (nothing a consumer could take for a pose).
+// The shared-memory ring keeps its own schema (stillpoint_shm.h).
 struct PoseMessage {
-  static constexpr std::uint32_t kSchemaVersion = 3;
+  static constexpr std::uint32_t kSchemaVersion = 4;
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
   Timestamp sensor_stamp;         // capture time of the frame
@@ -61,12 +62,12 @@ struct PoseMessage {
   // Seconds from the image of the newest semantic masks to the frame; infinity
   // when no keyframe near the camera has any, -1 when not known (the module off).
   float mask_age_s = -1;
-  // The pose's covariance (docs/pose-health.md, "The covariance"), row-major
-  // 6 x 6 as geometry_msgs/PoseWithCovariance has it: the camera's position [m],
-  // then its rotation about the map's x, y and z axes [rad]. All zero: not
-  // known (no pose). In process and on ROS 2 only: the other wire formats
-  // carry the health.
-  std::array<double, 36> covariance{};
+  // The pose's covariance (docs/pose-health.md, "The covariance"): the upper
+  // triangle, row by row, of the 6 x 6 matrix over the camera's position [m]
+  // and its rotation about the map's x, y and z axes [rad], in that order (as
+  // geometry_msgs/PoseWithCovariance orders them). All zero without a pose.
+  // Not in the shared-memory ring, whose slot has no room for it.
+  std::array<float, 21> covariance{};
 
   // Equal fields; NaN equals NaN (a message without a pose).
   bool operator==(const PoseMessage& o) const;

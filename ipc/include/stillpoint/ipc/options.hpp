@@ -56,7 +56,7 @@ struct Ros2Options {
   std::string config;           // Cyclone DDS XML or URI, as for dds
   std::string pose_topic = "rt/stillpoint/pose";  // ROS 2 topic /stillpoint/pose
   std::string frame_id = "map";
-  // nav_msgs/msg/Odometry with a covariance from the pose health (empty: off).
+  // nav_msgs/msg/Odometry with the pose's covariance (empty: off).
   std::string odometry_topic = "rt/stillpoint/odometry";
   // tf2_msgs/msg/TFMessage with frame_id -> child_frame_id (empty: off).
   std::string tf_topic = "rt/tf";
