@@ -444,6 +444,7 @@ int main(int argc, char** argv) {
   std::vector<double> extract_ms, track_ms, initial_ms, local_map_ms, pose_opt_ms, keyframe_ms;
   std::vector<double> geometry_ms, clustering_ms, objects_ms, semantic_ms;
   std::vector<eval::StampedLabel> health, causes;  // of the frames with a pose
+  std::vector<eval::StampedCovariance> covariances;
   std::size_t geometry_frames = 0, geometry_misses = 0, dynamic_clusters = 0, dynamic_features = 0, consensus = 0;
   std::size_t semantic_followed = 0;  // features matched to the last segmented keyframe's masks
   const std::size_t n = args.max_frames > 0 ? std::min<std::size_t>(data->size(), args.max_frames) : data->size();
@@ -494,6 +495,7 @@ int main(int argc, char** argv) {
     if (has_pose) {
       health.push_back({frame->stamp, slam::toString(out->quality.health)});
       causes.push_back({frame->stamp, health_cause::toString(out->quality.causes)});
+      covariances.push_back({frame->stamp, out->quality.covariance});
     }
     if (frame_log)
       std::fprintf(frame_log, "%zu %s %s %.3f %.3f %d %d %d %d %d %s %.3f %.3f %.3f %.4f %.3f %d %s %.3g %.3g %s\n", i, frame->stamp.toSecondsString().c_str(),
@@ -757,6 +759,14 @@ int main(int argc, char** argv) {
       const eval::DriftOptions cause_options = eval::healthCauseDriftOptions();
       if (auto drift = eval::driftPerPose(*ev, causes, cause_options); drift)
         print("causes:       ", eval::summariseDrift(eval::splitLabels(*drift), cause_options));
+      // How well the poses' covariances covered that drift (all poses).
+      if (auto covered = eval::normalisedDriftPerPose(*ev, trajectory, covariances, health); covered && !covered->empty()) {
+        const eval::CovarianceCoverage all = eval::summariseCoverage(*covered).back();
+        std::printf("covariance:   %zu poses: drift within its 95 %% ellipsoid %.1f %% (median %.2f of a Gaussian's), "
+                    "rotation %.1f %% (%.2f)\n",
+                    all.poses, 100.0 * all.position_within, all.position_median, 100.0 * all.rotation_within,
+                    all.rotation_median);
+      }
     } else {
       std::fprintf(stderr, "stillpoint-replay: evaluation failed: %s\n", ev.error().c_str());
     }

@@ -145,6 +145,15 @@ TEST_F(ReplayCli, GroundTruthGivesTheDriftOfEachHealthLevel) {
     counted += std::stoi(m[2]);
   }
   EXPECT_GE(counted, 10) << describe(r);
+  // And how well the covariance covered the drift, over the same 10 poses.
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(r.out, m,
+                                std::regex("\ncovariance:   10 poses: drift within its 95 % ellipsoid ([0-9.]+) % "
+                                           "\\(median ([0-9.]+) of a Gaussian's\\), rotation ([0-9.]+) % "
+                                           "\\(([0-9.]+)\\)\n")))
+      << describe(r);
+  EXPECT_LE(std::stod(m[1]), 100.0);
+  EXPECT_LE(std::stod(m[3]), 100.0);
 }
 
 TEST_F(ReplayCli, HelpPrintsUsageAndExitsZero) {
