@@ -1,7 +1,8 @@
 #pragma once
 // The messages stillpoint publishes to other processes. Every transport carries the
-// same content; each wire format also carries kSchemaVersion so a reader can refuse a
-// schema it does not know.
+// same content (but for the pose's covariance, which the shared-memory ring has no
+// room for); each wire format also carries its schema version so a reader can refuse
+// a schema it does not know.
 #include <array>
 #include <cstdint>
 #include <limits>
