@@ -35,6 +35,9 @@ lines=$(wc -l < "$work/poses.txt")
 with_pose=$(grep -c "state=ok health=[a-z]* map=0 p=\[" "$work/poses.txt")
 [[ $lines -eq 60 ]] || fail "$lines lines, expected 60"
 [[ $with_pose -ge 50 ]] || { head "$work/poses.txt"; fail "only $with_pose of 60 poses tracked with a pose"; }
+# Every pose with its covariance's standard deviations, none of them zero.
+with_sigma=$(grep -cE "state=ok health=[a-z]* map=0 p=\[.* sigma_m=\[0\.0*[1-9][0-9]* 0\.0*[1-9][0-9]* 0\.0*[1-9][0-9]*\]" "$work/poses.txt")
+[[ $with_sigma -eq $with_pose ]] || { head "$work/poses.txt"; fail "$with_sigma of $with_pose poses with a covariance"; }
 # Frames arrive in order.
 awk '{ split($1, a, "="); if (NR > 1 && a[2] <= last) exit 1; last = a[2] }' "$work/poses.txt" || fail "frames out of order"
 echo "PASS: $lines poses read by the Python example, $with_pose tracked; $object_lines frames of objects"

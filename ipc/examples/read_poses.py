@@ -7,7 +7,7 @@ Attaches to /dev/shm/RING (default stillpoint_pose, what stillpointd writes), st
 newest record and prints one line per pose as it arrives: frame, stamp, tracking state, pose
 health and, when the frame has a pose, T_map_camera (position [m], quaternion x y z w). The
 ring's layout and protocol are those of the C reader, ipc/include/stillpoint_shm.h (pose
-schema 3): a record is read between two equal even values of its slot's sequence word, so a
+schema 4): a record is read between two equal even values of its slot's sequence word, so a
 record the writer is overwriting is never returned. Exit status: 0 after N poses, 1 when the
 ring is missing or not a pose ring of this schema, or nothing arrived within S seconds.
 
@@ -25,8 +25,8 @@ import time
 
 MAGIC = 0x48535053  # "SPSH"
 OBJECTS_MAGIC = 0x4F535053  # "SPSO"
-SCHEMA = 3
-HEADER_SIZE, SLOT_SIZE, RECORD_SIZE = 128, 192, 136
+SCHEMA = 4
+HEADER_SIZE, SLOT_SIZE, RECORD_SIZE = 128, 256, 224
 STATES = ["initialising", "ok", "lost", "relocalised", "no_depth", "new_map"]
 HEALTH = ["good", "degraded", "unreliable", "lost"]
 # health_causes bits (SP_CAUSE_* in stillpoint_shm.h), lowest first.
@@ -34,12 +34,12 @@ CAUSES = ["few_inliers", "view_moving", "poor_conditioning", "high_reprojection"
           "masks_late", "recovering"]
 # sp_pose_record: sequence, stamps, frame counter, position[3], orientation[4], state,
 # tracked, rejected, keyframes, map id, health, dynamic share, reprojection RMS, conditioning,
-# health causes, semantic masks' age.
-RECORD = struct.Struct("<QqqQ3d4dIIIIQIfffIf")
+# health causes, semantic masks' age, covariance (upper triangle, 21), padding.
+RECORD = struct.Struct("<QqqQ3d4dIIIIQIfffIf21f4x")
 assert RECORD.size == RECORD_SIZE
 # sp_object_record: sequence, stamps, frame counter, map id, id, index, count, sources, samples,
 # centroid[3], extent[3], velocity[3], has_velocity, label, padding.
-OBJECT = struct.Struct("<QqqQQIHHII3f3f3fI32s8x")
+OBJECT = struct.Struct("<QqqQQIHHII3f3f3fI32s96x")
 assert OBJECT.size == RECORD_SIZE
 SOURCES = {1: "geometry", 2: "semantic", 3: "both"}
 
@@ -128,7 +128,8 @@ def main():
             last_arrival = time.monotonic()
             continue
         (_, stamp_ns, _, frame, px, py, pz, qx, qy, qz, qw, state, tracked, _, _, map_id, health, dynamic,
-         rms, conditioning, causes, mask_age) = r
+         rms, conditioning, causes, mask_age) = r[:22]
+        covariance = r[22:]
         line = (f"frame={frame} t={stamp_ns * 1e-9:.6f} state={STATES[state] if state < len(STATES) else state} "
                 f"health={HEALTH[health] if health < len(HEALTH) else health} map={map_id}")
         if math.isnan(px):
@@ -141,6 +142,8 @@ def main():
                                               for b in range(16) if causes >> b & 1)
             if mask_age >= 0:
                 line += f" mask_age_s={mask_age:.2f}"
+            # The standard deviation of x, y and z: the triangle's diagonal starts rows 0, 1, 2.
+            line += " sigma_m=[" + " ".join(f"{math.sqrt(max(0.0, covariance[k])):.4f}" for k in (0, 6, 11)) + "]"
         print(line, flush=True)
         received += 1
         last_arrival = time.monotonic()

@@ -18,7 +18,7 @@
  *   sp_shm_reader_close(&r);
  *
  * Layout (little-endian, all fields naturally aligned): a 128-byte header, then
- * `capacity` slots of 192 bytes. Record n (1-based, per writer generation) lives in
+ * `capacity` slots of 256 bytes. Record n (1-based, per writer generation) lives in
  * slot n % capacity. Each slot is a seqlock: its `seq` word is 2n-1 while the writer
  * fills it with record n and 2n once complete. A reader copies the payload between two
  * reads of `seq` and keeps the copy only when both reads equal 2n, so it never returns
@@ -26,7 +26,7 @@
  * code then compiles as C99, which has no <stdatomic.h>, and as C++). Payload words are
  * stored with release and loaded with acquire semantics instead of relying on fences:
  * a reader that sees any word of a newer write is then guaranteed to see that write's
- * odd `seq` on its second read. This costs nothing on x86, little on ARM (17 words),
+ * odd `seq` on its second read. This costs nothing on x86, little on ARM (28 words),
  * and ThreadSanitizer understands it (it does not model fences).
  *
  * A restarting writer builds a fresh ring file and renames it over the old name, with
@@ -98,10 +98,10 @@ extern "C" {
 
 #define SP_SHM_MAGIC 0x48535053u /* "SPSH" in little-endian byte order: a pose ring */
 #define SP_SHM_OBJECTS_MAGIC 0x4F535053u /* "SPSO": a dynamic-objects ring (sp_object_record) */
-#define SP_SHM_SCHEMA_VERSION 3u
+#define SP_SHM_SCHEMA_VERSION 4u
 #define SP_SHM_HEADER_SIZE 128u
-#define SP_SHM_SLOT_SIZE 192u
-#define SP_SHM_POSE_WORDS 17
+#define SP_SHM_SLOT_SIZE 256u
+#define SP_SHM_POSE_WORDS 28
 #define SP_SHM_DEFAULT_NAME "stillpoint_pose"
 #define SP_SHM_DEFAULT_OBJECTS_NAME "stillpoint_pose_objects" /* <pose ring name>_objects */
 #define SP_SHM_LABEL_SIZE 32
@@ -136,7 +136,8 @@ enum {
 /* Writer state in the header. */
 enum { SP_SHM_WRITER_RUNNING = 1, SP_SHM_WRITER_CLOSED = 2 };
 
-/* Pose record, schema version 3 (version 3 added health_causes and mask_age_s). Exactly
+/* Pose record, schema version 4 (version 3 added health_causes and mask_age_s, version 4
+ * the covariance). Exactly
  * SP_SHM_POSE_WORDS 64-bit words. A record
  * without a pose (tracking_state not OK, RELOCALISED or NEW_MAP) has NaN in
  * position and orientation. */
@@ -158,9 +159,12 @@ typedef struct sp_pose_record {
   float conditioning;        /* 0..1: how well the inliers pin all six degrees of freedom */
   uint32_t health_causes;    /* SP_CAUSE_* bits: what lowered the health (0: nothing) */
   float mask_age_s;          /* newest semantic masks' age [s]; inf: none near the camera, -1: not known */
+  float covariance[21];      /* the pose's covariance: upper triangle, row by row, over x y z [m] and the
+                                rotation about the map's x y z [rad] (docs/pose-health.md); 0 without a pose */
+  uint32_t reserved;         /* 0 */
 } sp_pose_record;
 
-/* Dynamic-object record, schema version 3 (docs/dynamic-objects.md), in a ring of its
+/* Dynamic-object record, schema version 4 (docs/dynamic-objects.md), in a ring of its
  * own (SP_SHM_OBJECTS_MAGIC; sp_shm_reader_open_objects()). Exactly SP_SHM_POSE_WORDS
  * 64-bit words. Each frame with a pose gives `count` records, index 0..count-1, one per
  * object, or one record with count 0 when nothing moves. Positions in the map frame
@@ -181,13 +185,13 @@ typedef struct sp_object_record {
   float velocity[3];          /* of the centroid [m/s] */
   uint32_t has_velocity;      /* 0 until seen twice */
   char label[SP_SHM_LABEL_SIZE]; /* class ("person") or "unknown", NUL-terminated */
-  uint64_t reserved;          /* 0: pads the record to the pose record's size */
+  uint64_t reserved[12];      /* 0: pads the record to the pose record's size */
 } sp_object_record;
 
 typedef struct sp_shm_slot {
   uint64_t seq; /* 0 empty, 2n-1 writing record n, 2n holds record n */
   uint64_t words[SP_SHM_POSE_WORDS];
-  uint64_t reserved[6];
+  uint64_t reserved[3];
 } sp_shm_slot;
 
 typedef struct sp_shm_header {

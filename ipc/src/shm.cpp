@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
+#include <iterator>
 #include <thread>
 #include <vector>
 
@@ -33,6 +34,7 @@ sp_pose_record toRecord(const PoseMessage& p) {
   r.conditioning = p.conditioning;
   r.health_causes = p.health_causes;
   r.mask_age_s = p.mask_age_s;
+  std::copy(p.covariance.begin(), p.covariance.end(), r.covariance);
   return r;
 }
 
@@ -58,6 +60,7 @@ Result<PoseMessage> fromRecord(const sp_pose_record& r) {
   p.conditioning = r.conditioning;
   p.health_causes = static_cast<std::uint16_t>(r.health_causes);
   p.mask_age_s = r.mask_age_s;
+  std::copy(std::begin(r.covariance), std::end(r.covariance), p.covariance.begin());
   return p;
 }
 

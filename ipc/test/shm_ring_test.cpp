@@ -182,6 +182,7 @@ TEST_F(Ring, ShmTransportAndSubscriberRoundTripAPose) {
   p.dynamic_rejected_features = 17;
   p.keyframes = 9;
   p.map_id = 0xFFFFFFFFFFFFFFFFULL;
+  for (std::size_t i = 0; i < p.covariance.size(); ++i) p.covariance[i] = 1e-6f * static_cast<float>(i + 1);
   ASSERT_TRUE((*t)->publishPose(p).ok());
   auto n = (*sub)->poll(std::chrono::milliseconds(100));
   ASSERT_TRUE(n.ok()) << n.error();

@@ -200,7 +200,7 @@ int runSub(const Args& a) {
     if (p.frame_counter <= last) ++out_of_order;
     last = p.frame_counter;
     if (seen[p.frame_counter]++) ++duplicates;
-    if (std::string d = probe::diff(probe::testPose(p.frame_counter), p, a.transport != "shm"); !d.empty()) {
+    if (std::string d = probe::diff(probe::testPose(p.frame_counter), p); !d.empty()) {
       ++mismatched;
       if (first_problem.empty()) first_problem = "pose " + std::to_string(p.frame_counter) + ": " + d;
     }

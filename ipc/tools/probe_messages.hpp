@@ -16,8 +16,7 @@ ObjectsMessage testObjects(std::uint64_t k);
 std::string diff(const ObjectsMessage& expected, const ObjectsMessage& got);
 // Empty when equal (publish_stamp is ignored: the publisher sets it), else the first
 // differing field.
-// `covariance`: compare it too (the shared-memory ring does not carry it).
-std::string diff(const PoseMessage& expected, const PoseMessage& got, bool covariance = true);
+std::string diff(const PoseMessage& expected, const PoseMessage& got);
 std::string diff(const StatusMessage& expected, const StatusMessage& got);
 
 }  // namespace stillpoint::ipc::probe

@@ -1,8 +1,7 @@
 #pragma once
 // The messages stillpoint publishes to other processes. Every transport carries the
-// same content (but for the pose's covariance, which the shared-memory ring has no
-// room for); each wire format also carries its schema version so a reader can refuse
-// a schema it does not know.
+// same content; each wire format also carries its schema version so a reader can
+// refuse a schema it does not know.
 #include <array>
 #include <cstdint>
 #include <limits>
@@ -38,7 +37,7 @@ Result<PoseHealth> poseHealthFromInt(std::int64_t value);
 // Schema 2 added the pose health, schema 3 what lowered it and the semantic
 // masks' age, schema 4 the pose's covariance; a message without a pose carries
 // NaN in position and orientation (nothing a consumer could take for a pose).
-// The shared-memory ring keeps its own schema (stillpoint_shm.h).
+// The shared-memory ring numbers its own schema (stillpoint_shm.h; 4 has the covariance).
 struct PoseMessage {
   static constexpr std::uint32_t kSchemaVersion = 4;
   static constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -67,7 +66,6 @@ struct PoseMessage {
   // triangle, row by row, of the 6 x 6 matrix over the camera's position [m]
   // and its rotation about the map's x, y and z axes [rad], in that order (as
   // geometry_msgs/PoseWithCovariance orders them). All zero without a pose.
-  // Not in the shared-memory ring, whose slot has no room for it.
   std::array<float, 21> covariance{};
 
   // Equal fields; NaN equals NaN (a message without a pose).
