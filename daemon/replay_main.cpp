@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/covariance.hpp"
 #include "stillpoint/core/log.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/metrics.hpp"
@@ -236,11 +237,10 @@ double largestSigma(const Eigen::Matrix<double, 6, 6>& covariance, int first) {
 std::string covarianceColumn(const Eigen::Matrix<double, 6, 6>& covariance) {
   std::string column;
   char number[32];
-  for (int r = 0; r < 6; ++r)
-    for (int c = r; c < 6; ++c) {
-      std::snprintf(number, sizeof number, "%s%.4g", column.empty() ? "" : ",", covariance(r, c));
-      column += number;
-    }
+  for (double v : upperTriangle<double>(covariance)) {
+    std::snprintf(number, sizeof number, "%s%.4g", column.empty() ? "" : ",", v);
+    column += number;
+  }
   return column;
 }
 

@@ -16,9 +16,9 @@
 #include <vector>
 
 #include "bounded_queue.hpp"
+#include "stillpoint/core/covariance.hpp"
 #include "stillpoint/core/log.hpp"
 #include "stillpoint/eval/trajectory.hpp"
-#include "stillpoint/ipc/covariance.hpp"
 #include "stillpoint/ipc/publisher.hpp"
 #include "stillpoint/platform/openni2_source.hpp"
 #include "stillpoint/platform/replay_source.hpp"
@@ -372,7 +372,7 @@ void Daemon::Impl::trackingLoop() {
       const Eigen::Vector3d t = out->T_w_c.translation();
       pose.position = {t.x(), t.y(), t.z()};
       pose.orientation = {q.x(), q.y(), q.z(), q.w()};
-      pose.covariance = ipc::packCovariance(out->quality.covariance);
+      pose.covariance = upperTriangle<float>(out->quality.covariance);
     }
     publisher->publishPose(pose);
     if (has_pose) publisher->publishObjects(toIpc(out->objects, pose));

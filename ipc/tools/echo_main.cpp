@@ -8,7 +8,7 @@
 #include <sstream>
 #include <string>
 
-#include "stillpoint/ipc/covariance.hpp"
+#include "stillpoint/core/covariance.hpp"
 #include "stillpoint/ipc/options.hpp"
 #include "stillpoint/ipc/transport.hpp"
 
@@ -158,7 +158,7 @@ int main(int argc, char** argv) {
          << " conditioning=" << p.conditioning << " causes=" << health_cause::toString(p.health_causes)
          << " mask_age_s=" << p.mask_age_s;
     // The covariance's standard deviations per axis (0 without a pose).
-    const Eigen::Matrix<double, 6, 1> sigma = unpackCovariance(p.covariance).diagonal().cwiseMax(0.0).cwiseSqrt();
+    const Eigen::Matrix<double, 6, 1> sigma = fromUpperTriangle(p.covariance).diagonal().cwiseMax(0.0).cwiseSqrt();
     line << std::setprecision(4) << " sigma_m=[" << sigma(0) << " " << sigma(1) << " " << sigma(2)
          << "] sigma_rad=[" << sigma(3) << " " << sigma(4) << " " << sigma(5) << "]"
          << std::setprecision(1) << " latency_us=" << (wallNowNs() - static_cast<double>(p.publish_stamp.nanoseconds())) * 1e-3;

@@ -425,18 +425,14 @@ Result<std::vector<NormalisedDrift>> normalisedDriftPerPose(const EvalResult& re
     // To first order, in the map's axes: the translation drift is
     // dc_j - dc_i + [c_j - c_i]x dr_i (pose i's turn swings the way to j),
     // the rotation drift dr_j - dr_i; camera j's axes turn both into E's.
-    const Vec3 way = P_j->translation() - P_i->translation();
-    Mat3 swing;
-    swing << 0, -way.z(), way.y(), way.z(), 0, -way.x(), -way.y(), way.x(), 0;
     Eigen::Matrix<double, 3, 6> J_i;
-    J_i << -Mat3::Identity(), swing;
+    J_i << -Mat3::Identity(), skew(P_j->translation() - P_i->translation());
     const Mat3 R = P_j->linear();
     const Mat3 position =
         R.transpose() * (S_j->topLeftCorner<3, 3>() + J_i * *S_i * J_i.transpose()) * R;
     const Mat3 rotation = R.transpose() * (S_i->bottomRightCorner<3, 3>() + S_j->bottomRightCorner<3, 3>()) * R;
     const Vec3 d = error.translation();
-    const Eigen::AngleAxisd turn(error.linear());
-    const Vec3 r = turn.angle() * turn.axis();
+    const Vec3 r = logSO3(error.linear());
     const StampedLabel* label = nearestInTime(sorted_labels, t, max_dt_ns);
     poses.push_back({label ? label->label : "-", d.dot(position.ldlt().solve(d)), r.dot(rotation.ldlt().solve(r))});
   }

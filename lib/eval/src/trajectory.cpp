@@ -9,6 +9,9 @@
 #include <fstream>
 #include <sstream>
 #include <string_view>
+#include <vector>
+
+#include "stillpoint/core/covariance.hpp"
 
 namespace stillpoint::eval {
 namespace {
@@ -196,12 +199,11 @@ Result<std::vector<StampedCovariance>> readCovarianceColumn(const std::string& p
       if (number.empty() || *end != '\0' || !std::isfinite(value)) break;
       values.push_back(value);
     }
-    if (values.size() != 21 || !numbers.eof())
+    std::array<double, 21> upper{};
+    if (values.size() != upper.size() || !numbers.eof())
       return Error{path + ": frame " + field.stamp.toSecondsString() + ": the covariance is not 21 numbers joined by ','"};
-    StampedCovariance c{field.stamp};
-    for (int r = 0, k = 0; r < 6; ++r)
-      for (int col = r; col < 6; ++col, ++k) c.covariance(r, col) = c.covariance(col, r) = values[k];
-    out.push_back(c);
+    std::copy(values.begin(), values.end(), upper.begin());
+    out.push_back({field.stamp, fromUpperTriangle(upper)});
   }
   return out;
 }

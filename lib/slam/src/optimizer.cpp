@@ -124,9 +124,7 @@ class BundleAdjustmentCost final : public ceres::SizedCostFunction<3, 6, 3> {
     J_p *= s;
     if (jacobians[0]) {
       Eigen::Map<Eigen::Matrix<double, 3, 6, Eigen::RowMajor>> J(jacobians[0]);
-      Mat3 skew;
-      skew << 0, -Rp.z(), Rp.y(), Rp.z(), 0, -Rp.x(), -Rp.y(), Rp.x(), 0;
-      J.leftCols<3>() = -J_p * skew * leftJacobianSO3(w);
+      J.leftCols<3>() = -J_p * skew(Rp) * leftJacobianSO3(w);
       J.rightCols<3>() = J_p;
     }
     if (jacobians[1]) {
@@ -299,10 +297,8 @@ void linearisePose(const PoseProblem& problem, const std::vector<char>& active, 
     J_p.row(1) << 0, cam.fy * inv_z, -cam.fy * p.y() * inv_z2;
     if (stereo) J_p.row(2) << cam.fx * inv_z, 0, -(cam.fx * p.x() - cam.bf()) * inv_z2;
     J_p *= o.inv_sigma;
-    Eigen::Matrix3d skew;
-    skew << 0, -p.z(), p.y(), p.z(), 0, -p.x(), -p.y(), p.x(), 0;
     Eigen::Matrix<double, 3, 6> J;
-    J.leftCols<3>() = -J_p * skew;
+    J.leftCols<3>() = -J_p * skew(p);
     J.rightCols<3>() = J_p;
     const int rows = stereo ? 3 : 2;
     out->H.noalias() += weight * J.topRows(rows).transpose() * J.topRows(rows);

@@ -27,6 +27,13 @@ inline SE3 renormalized(const SE3& T) {
   return out;
 }
 
+// The cross-product matrix: skew(a) * b == a.cross(b).
+inline Mat3 skew(const Vec3& a) {
+  Mat3 S;
+  S << 0, -a.z(), a.y(), a.z(), 0, -a.x(), -a.y(), a.x(), 0;
+  return S;
+}
+
 // Exponential map of so(3): rotation vector -> rotation matrix.
 inline Mat3 expSO3(const Vec3& w) {
   const double theta = w.norm();
