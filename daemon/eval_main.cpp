@@ -31,6 +31,14 @@ constexpr const char* kUsage =
     "  matched        estimate poses associated with a ground-truth pose\n"
     "RPE values are nan when the matched poses span less than 1 s.\n"
     "\n"
+    "An estimate of several maps ('# map N' lines: a SLAM system that started\n"
+    "a new map after a loss) is aligned map by map, each in its own frame, and\n"
+    "one more line says how far off its poses are all taken in one frame, as\n"
+    "a consumer that ignores the map id takes them:\n"
+    "  maps=<n> ate_one_frame_rmse_m=<v> unaligned=<n>\n"
+    "  unaligned      matched poses of maps too short to align on their own\n"
+    "                 (counted in the one-frame error only)\n"
+    "\n"
     "With --frame-log (stillpoint-replay's), one more line per pose health\n"
     "level, good, degraded, unreliable (then any other, '-' for poses with no\n"
     "frame), saying how far its poses were off:\n"
@@ -181,6 +189,9 @@ int main(int argc, char** argv) {
 
   std::printf("ate_rmse_m=%.6f rpe_trans_m_s=%.6f rpe_rot_deg_s=%.6f matched=%zu\n",
               result->ate_rmse_m, result->rpe_trans_m_s, result->rpe_rot_deg_s, result->matched);
+  if (result->maps > 1)
+    std::printf("maps=%zu ate_one_frame_rmse_m=%.6f unaligned=%zu\n", result->maps, result->ate_one_frame_rmse_m,
+                result->unaligned);
   for (const LabelDrift& d : drift) {
     std::printf("health=%s poses=%zu drift_median_m=%.6f drift_p90_m=%.6f drift_max_m=%.6f over_2cm=%.4f\n",
                 d.label.c_str(), d.poses, d.median_m, d.p90_m, d.max_m, d.share_over_bound);

@@ -744,8 +744,8 @@ int main(int argc, char** argv) {
                   ev->ate_rmse_m, ev->rpe_trans_m_s, ev->rpe_rot_deg_s, ev->matched);
       if (ev->maps > 1)
         std::printf("              over %zu maps, each aligned on its own (%zu poses of maps too short to align left "
-                    "out)\n",
-                    ev->maps, ev->unaligned);
+                    "out); all in one frame %.4f m\n",
+                    ev->maps, ev->unaligned, ev->ate_one_frame_rmse_m);
       // How far off each health level's poses were, then the same poses by what
       // lowered their health (a pose under each of its causes).
       const auto print = [](const char* lead, const std::vector<eval::LabelDrift>& drift) {

@@ -128,6 +128,27 @@ TEST_F(EvalCli, DisplacedEstimateGivesMatchingError) {
   EXPECT_NEAR(std::stod(m[1]), 0.01, 0.002) << r.out;
 }
 
+TEST_F(EvalCli, MapsAreAlignedEachOnItsOwnAndInOneFrame) {
+  // The last 20 poses are a second map, 5 cm higher (the trajectory's jump):
+  // each map aligned on its own is exact, in one frame it is not.
+  std::string text = trajectoryText(0.7, 1.5, -2.0, 40);
+  const std::size_t at = text.find("1002.000000");
+  ASSERT_NE(at, std::string::npos);
+  text.insert(at, "# map 1\n");
+  writeFile(est_, text);
+  const RunResult r = eval({gt_, est_});
+  ASSERT_EQ(r.exit_code, 0) << describe(r);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(r.out, m, std::regex("^ate_rmse_m=([0-9.]+) "))) << describe(r);
+  EXPECT_LT(std::stod(m[1]), 1e-5) << r.out;
+  ASSERT_TRUE(std::regex_search(r.out, m, std::regex("\nmaps=2 ate_one_frame_rmse_m=([0-9.]+) unaligned=0\n")))
+      << describe(r);
+  // 40 poses against 20, 5 cm apart: a shift alone leaves sqrt(2/9) * 5 cm
+  // (2.4 cm); the best rigid alignment no more than that, and not nothing.
+  EXPECT_LE(std::stod(m[1]), 0.0236) << r.out;
+  EXPECT_GT(std::stod(m[1]), 0.005) << r.out;
+}
+
 TEST_F(EvalCli, FrameLogGivesTheDriftOfEachHealthLevel) {
   // The pose jumps 5 cm at frame 30, and frames 30-36 (those whose 0.35 s
   // window spans the jump) say `unreliable`; frame 59 is not in the log.

@@ -194,6 +194,16 @@ RpeSummary computeRpe(const Trajectory& est, const Trajectory& gt, double delta_
   return summary;
 }
 
+namespace {
+void matchedPositions(const std::vector<Match>& matches, const Trajectory& est, const Trajectory& gt,
+                      std::vector<Vec3>* est_positions, std::vector<Vec3>* gt_positions) {
+  for (const Match& m : matches) {
+    est_positions->push_back(est[m.est_index].T_w_c.translation());
+    gt_positions->push_back(gt[m.gt_index].T_w_c.translation());
+  }
+}
+}  // namespace
+
 Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
                             const EvalOptions& options) {
   if (Status status = options.validate(); !status) return Error{status.error()};
@@ -225,12 +235,11 @@ Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
       continue;
     }
     std::vector<Vec3> est_positions, gt_positions;
+    matchedPositions(map_matches, est, gt, &est_positions, &gt_positions);
     Trajectory est_matched, gt_matched;
     for (const Match& m : map_matches) {
       est_matched.push_back(est[m.est_index]);
       gt_matched.push_back(gt[m.gt_index]);
-      est_positions.push_back(est[m.est_index].T_w_c.translation());
-      gt_positions.push_back(gt[m.gt_index].T_w_c.translation());
     }
     auto alignment = alignUmeyama(est_positions, gt_positions, options.estimate_scale);
     if (!alignment) return Error{alignment.error()};
@@ -280,6 +289,17 @@ Result<EvalResult> evaluate(const Trajectory& gt, const Trajectory& est,
   result.ate_mean = sum / static_cast<double>(errors.size());
   result.ate_median = quantile(errors, 0.5);
   result.ate_max = *std::max_element(errors.begin(), errors.end());
+  result.ate_one_frame_rmse_m = result.ate_rmse_m;
+  if (by_map.size() > 1) {
+    std::vector<Vec3> est_positions, gt_positions;
+    matchedPositions(matches, est, gt, &est_positions, &gt_positions);
+    auto alignment = alignUmeyama(est_positions, gt_positions, options.estimate_scale);
+    if (!alignment) return Error{alignment.error()};
+    std::vector<double> one_frame;
+    for (std::size_t k = 0; k < est_positions.size(); ++k)
+      one_frame.push_back((alignment->apply(est_positions[k]) - gt_positions[k]).norm());
+    result.ate_one_frame_rmse_m = rms(one_frame);
+  }
   result.rpe_pairs = trans_rates.size();
   result.rpe_trans_m_s = trans_rates.empty() ? std::numeric_limits<double>::quiet_NaN() : rms(trans_rates);
   result.rpe_rot_deg_s = rot_rates.empty() ? std::numeric_limits<double>::quiet_NaN() : rms(rot_rates);

@@ -246,6 +246,9 @@ TEST(Evaluate, AlignsEachMapOnItsOwn) {
   EXPECT_EQ(result->unaligned, 0u);
   EXPECT_LT(result->ate_rmse_m, 1e-9);
   EXPECT_LT(result->rpe_trans_m_s, 1e-9);  // no relative error spans the two maps
+  // Taken in one frame, as a consumer that ignores the map id would, the
+  // second map is far off.
+  EXPECT_GT(result->ate_one_frame_rmse_m, 0.1);
   ASSERT_EQ(result->pose_errors.size(), gt.size());
   for (std::size_t k = 1; k < result->pose_errors.size(); ++k)
     EXPECT_LT(result->pose_errors[k - 1].stamp, result->pose_errors[k].stamp);
@@ -256,6 +259,28 @@ TEST(Evaluate, AlignsEachMapOnItsOwn) {
   ASSERT_TRUE(merged.ok()) << merged.error();
   EXPECT_EQ(merged->maps, 1u);
   EXPECT_GT(merged->ate_rmse_m, 0.1);
+  EXPECT_EQ(merged->ate_one_frame_rmse_m, merged->ate_rmse_m);
+}
+
+TEST(Evaluate, OneFrameErrorOfAMapStartedWhereTheLastLeftOff) {
+  // The second map starts in the first one's frame, 10 cm off along x (what
+  // the camera moved while lost): each map alone is exact, and in one frame
+  // the error is that offset, shared out by the alignment.
+  std::mt19937 rng(13);
+  const Trajectory gt = randomTrajectory(rng, 30.0, 6.0);
+  Trajectory est = gt;
+  const std::size_t half = est.size() / 2;
+  for (std::size_t k = half; k < est.size(); ++k) {
+    est[k].T_w_c.translation() += Vec3(0.1, 0, 0);
+    est[k].map_id = 1;
+  }
+  const auto result = evaluate(gt, est);
+  ASSERT_TRUE(result.ok()) << result.error();
+  EXPECT_LT(result->ate_rmse_m, 1e-9);
+  // The best single alignment splits the offset between the halves (a pure
+  // shift: 5 cm each way), and rotating cannot do better than that.
+  EXPECT_GT(result->ate_one_frame_rmse_m, 0.02);
+  EXPECT_LE(result->ate_one_frame_rmse_m, 0.05 + 1e-9);
 }
 
 TEST(Evaluate, LeavesOutMapsTooShortToAlign) {

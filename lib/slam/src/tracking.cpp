@@ -450,7 +450,13 @@ bool Tracker::startNewMap() {
     // them.
     detector_->forgetHistory();
   }
-  if (!initialise(only)) return false;
+  // The new map starts where the camera was last posed, in the frame of
+  // the map it lost: a consumer's poses go on in about the same frame, off
+  // by how far the camera moved unseen, not from the origin. Not carried on
+  // the motion before the loss: a mover that ends tracking pulls the last
+  // poses first.
+  const SE3 start = trajectory_.last() ? trajectory_.last()->T_c_w() : SE3::Identity();
+  if (!initialise(only, start)) return false;
   state_ = TrackingState::kNewMap;
   young_map_until_frame_ = on_support ? current_.id + options_.geometry.anchor_frames : -1;
   lost_since_.reset();
@@ -982,7 +988,7 @@ void Tracker::updateProbation() {
   }
 }
 
-bool Tracker::initialise(const std::vector<int>* only) {
+bool Tracker::initialise(const std::vector<int>* only, const SE3& start) {
   int with_depth = 0;
   for (float d : current_.depth) with_depth += d > 0;
   if (with_depth < options_.tracking.min_init_features) {
@@ -990,7 +996,7 @@ bool Tracker::initialise(const std::vector<int>* only) {
                              << options_.tracking.min_init_features << " to initialise");
     return false;
   }
-  current_.T_c_w = SE3::Identity();
+  current_.T_c_w = start;
   map_id_ = map_->beginMap();
   auto kf = std::make_unique<KeyFrame>(map_->nextKeyFrameId(), current_);
   kf->origin = true;

@@ -106,9 +106,9 @@ class Tracker {
  private:
   // State machine (tracking.cpp).
   bool trackFrame(bool clusters_pending);
-  // Starts a map at the current frame: from every feature with depth not
-  // flagged, or from `only` these when given.
-  bool initialise(const std::vector<int>* only = nullptr);
+  // Starts a map at the current frame, posed at `start`: from every feature
+  // with depth not flagged, or from `only` these when given.
+  bool initialise(const std::vector<int>* only = nullptr, const SE3& start = SE3::Identity());
   // The semantic module segments the frame a map is about to start from
   // (map_start_masks_), unless the start has waited new_map_after_lost_s for
   // a view its movers do not fill.

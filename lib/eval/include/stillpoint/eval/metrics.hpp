@@ -82,6 +82,11 @@ struct EvalResult {
   double ate_mean = 0.0;
   double ate_median = 0.0;
   double ate_max = 0.0;
+  // ATE of every matched pose, the short maps' too, under one alignment for
+  // all maps: the error a consumer that takes every pose in one frame sees
+  // (a new map's poses are only as good as where it was started). Equal to
+  // ate_rmse_m for one map.
+  double ate_one_frame_rmse_m = 0.0;
   // RPE rates; NaN when no pair spans rpe_delta_s (trajectory too short).
   double rpe_trans_m_s = 0.0;
   double rpe_rot_deg_s = 0.0;
