@@ -277,8 +277,8 @@ TEST(Evaluate, OneFrameErrorOfAMapStartedWhereTheLastLeftOff) {
   const auto result = evaluate(gt, est);
   ASSERT_TRUE(result.ok()) << result.error();
   EXPECT_LT(result->ate_rmse_m, 1e-9);
-  // The best single alignment splits the offset between the halves (a pure
-  // shift: 5 cm each way), and rotating cannot do better than that.
+  // A shift alone splits the offset between the halves (5 cm each way); the
+  // best rigid alignment does no worse, and cannot undo it.
   EXPECT_GT(result->ate_one_frame_rmse_m, 0.02);
   EXPECT_LE(result->ate_one_frame_rmse_m, 0.05 + 1e-9);
 }
