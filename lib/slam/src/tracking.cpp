@@ -265,6 +265,7 @@ bool Tracker::trackFrame(bool clusters_pending) {
     }
     if (!ok) ok = keepPoseOnLastFrame();
     rejected_ = ok && !plausibleMotion();
+    if (rejected_ && refitFromPrediction()) rejected_ = false;
     if (rejected_) ok = false;
     // Rejected again after a frame without a pose: the place recognition's
     // pose, independent of the motion model, decides.
@@ -806,6 +807,20 @@ bool Tracker::keepPoseOnLastFrame() {
     inliers_ = 0;
     return false;
   }
+  starved_ = true;
+  return true;
+}
+
+bool Tracker::refitFromPrediction() {
+  // The fit settled where no camera can be: wrong matches (a mover's, a
+  // repeated texture's) held it. The local map searched again from where
+  // the camera's motion puts it may find the view's own matches; a pose
+  // that then passes is kept, reported unreliable, and maps nothing.
+  if (!has_last_ || !has_velocity_ || !reference_) return false;
+  current_.clearMatches();
+  current_.T_c_w = predictedPose(last_.T_c_w);
+  if (!trackLocalMap(options_.tracking.min_inliers_local_map) || !plausibleMotion()) return false;
+  SP_DEBUG(logger, "frame " << current_.id << ": fitted again from the prediction on " << inliers_ << " inliers");
   starved_ = true;
   return true;
 }

@@ -159,6 +159,7 @@ class Tracker {
   void refreshLastFrame();
   int setAsideCarried();
   bool keepPoseOnLastFrame();  // a young map's frame on its matches to the last frame
+  bool refitFromPrediction();  // a pose plausibleMotion() refused, fitted again from the prediction
   int discardOutliers();
   int timedOptimizePose(const SE3* prior = nullptr);
   // The motion model's pose for current_, from `last` (the last frame's pose).
