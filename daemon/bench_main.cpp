@@ -810,13 +810,13 @@ bool writeReport(const Args& args, const std::string& command, const std::string
 
   std::ofstream csv(out_dir + "/results.csv", std::ios::trunc);
   csv << "sequence,modules,model,run,status,ate_rmse_m,rpe_trans_m_s,rpe_rot_deg_s,maps,ate_one_frame_rmse_m,frames,"
-         "frames_with_pose,"
-         "track_ms_median,track_ms_p95,frames_over_33ms,geometry_ms_median,segment_ms_median,keyframes,"
+         "frames_with_pose,track_ms_median,track_ms_p95,frames_over_33ms,geometry_ms_median,segment_ms_median,keyframes,"
          "keyframes_per_s,segmentations_dropped,trajectory\n";
   for (const RunResult& r : results) {
     csv << csvField(r.sequence) << "," << r.modules << "," << csvField(r.model) << "," << r.run << ","
         << csvField(r.status) << "," << fmt(r.ate, 6) << "," << fmt(r.rpe_trans, 6) << "," << fmt(r.rpe_rot, 6)
-        << "," << r.maps << "," << fmt(r.ate_one_frame, 6) << "," << r.frames << "," << r.frames_with_pose << "," << fmt(r.track_median, 3) << ","
+        << "," << r.maps << "," << fmt(r.ate_one_frame, 6) << "," << r.frames << "," << r.frames_with_pose << ","
+        << fmt(r.track_median, 3) << ","
         << fmt(r.track_p95, 3) << "," << r.over_33ms << "," << fmt(r.geometry_median, 3) << ","
         << fmt(r.segment_median, 3) << "," << r.keyframes << "," << fmt(r.keyframes_per_s, 3) << ","
         << r.segmentations_dropped << "," << csvField(r.dir + "/trajectory.txt") << "\n";

@@ -141,9 +141,9 @@ TEST_F(Recovery, CameraCoveredForTwoSecondsWhileMoving) {
   ASSERT_TRUE(result.ok()) << result.error();
   const auto truth_at = [&](std::size_t i) {
     const Timestamp t = data_->load(i)->stamp;
-    const auto near = std::min_element(gt->begin(), gt->end(), [t](const eval::StampedPose& a, const eval::StampedPose& b) {
-      return std::abs(secondsBetween(a.stamp, t)) < std::abs(secondsBetween(b.stamp, t));
-    });
+    const auto off = [t](const eval::StampedPose& p) { return std::abs(secondsBetween(p.stamp, t)); };
+    const auto near = std::min_element(gt->begin(), gt->end(),
+                                       [&](const eval::StampedPose& a, const eval::StampedPose& b) { return off(a) < off(b); });
     return near->T_w_c.translation();
   };
   const double unseen_m = (truth_at(*new_map_at) - truth_at(kCoverFrom - 1)).norm();
