@@ -26,6 +26,7 @@
 
 #include "bench/published.hpp"
 #include "stillpoint_commit.h"
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/metrics.hpp"
 #include "stillpoint/eval/plot.hpp"
@@ -909,11 +910,4 @@ int benchMain(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  try {
-    return benchMain(argc, argv);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "stillpoint-bench: %s\n", e.what());
-    return 1;
-  }
-}
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-bench", benchMain, argc, argv); }

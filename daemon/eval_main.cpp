@@ -7,6 +7,7 @@
 #include <string_view>
 #include <vector>
 
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/eval/metrics.hpp"
 #include "stillpoint/eval/plot.hpp"
 #include "stillpoint/eval/trajectory.hpp"
@@ -90,7 +91,7 @@ bool parseSeconds(std::string_view text, double* out) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int evalMain(int argc, char** argv) {
   using namespace stillpoint::eval;
 
   std::vector<std::string> positional;
@@ -207,3 +208,5 @@ int main(int argc, char** argv) {
   }
   return 0;
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-eval", evalMain, argc, argv); }

@@ -24,6 +24,7 @@
 #include "stillpoint/core/camera.hpp"
 #include "stillpoint/core/covariance.hpp"
 #include "stillpoint/core/log.hpp"
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/metrics.hpp"
 #include "stillpoint/eval/trajectory.hpp"
@@ -252,7 +253,7 @@ void logSkipped(std::FILE* log, std::size_t index, Timestamp stamp) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int replayMain(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
       std::fputs(kUsage, stdout);
@@ -477,7 +478,11 @@ int main(int argc, char** argv) {
     if (args.known_movers) {
       // Every frame needs its mask: one missing would silently let its movers into the map.
       const auto mask = mover_masks.find(frame->stamp);
-      if (mask != mover_masks.end()) movers = cv::imread(mask->second, cv::IMREAD_UNCHANGED);
+      try {  // a header OpenCV refuses to decode (over 2^30 pixels) throws
+        if (mask != mover_masks.end()) movers = cv::imread(mask->second, cv::IMREAD_UNCHANGED);
+      } catch (const cv::Exception&) {
+        movers.release();
+      }
       if (movers.empty()) {
         std::fprintf(stderr, "stillpoint-replay: --known-movers: no readable mask for frame %zu (%s)\n", i,
                      frame->stamp.toSecondsString().c_str());
@@ -777,3 +782,5 @@ int main(int argc, char** argv) {
               map.segmentation_ms_median, map.semantic_keyframes_dropped);
   return frames > 0 ? 0 : 1;
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-replay", replayMain, argc, argv); }

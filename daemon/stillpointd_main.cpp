@@ -17,6 +17,7 @@
 #include "config.hpp"
 #include "daemon.hpp"
 #include "stillpoint/core/log.hpp"
+#include "stillpoint/core/program.hpp"
 
 namespace {
 
@@ -70,7 +71,7 @@ __attribute__((section(".preinit_array"), used)) void (*const kBlockStopSignals)
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int daemonMain(int argc, char** argv) {
   sigset_t signals = stopSignals();
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);  // already blocked (preinit); kept for clarity
   std::string config_path = "/etc/stillpoint/stillpointd.yaml", log_level;
@@ -177,15 +178,21 @@ int main(int argc, char** argv) {
       }
     }
   });
+  // Joined on every way out, an exception's too (runProgram reports it).
+  struct JoinOnExit {
+    std::atomic<bool>& finished;
+    std::thread& thread;
+    ~JoinOnExit() {
+      finished = true;
+      thread.join();
+    }
+  } join_on_exit{finished, signal_thread};
   if (Status s = service.start(); !s) {
-    finished = true;
-    signal_thread.join();
     std::fprintf(stderr, "stillpointd: %s\n", s.error().c_str());
     return 1;
   }
   started = true;
-  const int rc = service.run();
-  finished = true;
-  signal_thread.join();
-  return rc;
+  return service.run();
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpointd", daemonMain, argc, argv); }

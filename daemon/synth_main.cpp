@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/synth/config.hpp"
 #include "stillpoint/synth/edit.hpp"
 #include "stillpoint/synth/generator.hpp"
@@ -291,7 +292,7 @@ void printReport(const GenerationReport& r, const std::string& out, bool wrote) 
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int synthMain(int argc, char** argv) {
   Args a;
   std::string error;
   if (argc >= 2 && (std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h")) {
@@ -360,3 +361,5 @@ int main(int argc, char** argv) {
   printReport(*report, out, opt.write_images);
   return 0;
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-synth", synthMain, argc, argv); }

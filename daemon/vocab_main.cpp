@@ -11,6 +11,7 @@
 #include <string_view>
 #include <vector>
 
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/dataset/tum_dataset.hpp"
 #include "stillpoint/eval/trajectory.hpp"
 #include "stillpoint/features/orb_extractor.hpp"
@@ -251,11 +252,4 @@ int run(int argc, char** argv) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  try {
-    return run(argc, argv);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "stillpoint-vocab: %s\n", e.what());
-    return kExitBadInput;
-  }
-}
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-vocab", run, argc, argv); }

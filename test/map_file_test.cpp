@@ -41,6 +41,8 @@ void writeBytes(const fs::path& p, const std::string& bytes) {
   std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes;
 }
 
+constexpr std::uint32_t kVersion = 3;  // the format this build writes
+
 // A map file's bytes with another payload: format version, payload size and
 // checksum in the 40-byte header made to match.
 std::string resealed(const std::string& file, const std::string& payload, std::uint32_t version) {
@@ -379,7 +381,10 @@ TEST_F(MapFile, AVersionOneFileIsReadWithoutSightings) {
   const std::string good = readBytes(*map_path_);
   ASSERT_GT(good.size(), 1000u);
   const fs::path old = *scratch_ / "version1.map";
-  writeBytes(old, resealed(good, good.substr(40, good.size() - 40 - 8), 1));  // without the sightings' count
+  // Without the camera's baseline and distortion (48 bytes after the 52 of
+  // size, intrinsics and pyramid) and the sightings' count.
+  const std::string payload = good.substr(40);
+  writeBytes(old, resealed(good, payload.substr(0, 52) + payload.substr(100, payload.size() - 100 - 8), 1));
   auto system = makeSystem(false);
   const Status s = system->loadMap(old.string());
   ASSERT_TRUE(s.ok()) << s.error();
@@ -435,7 +440,7 @@ TEST_F(MapFile, BadFilesAreErrorsNamingTheFile) {
   std::memcpy(&sighting[8], &key, 8);
   std::memcpy(&sighting[16], &seen, 4);
   const fs::path foreign = *scratch_ / "sighting.map";
-  writeBytes(foreign, resealed(good, payload.substr(0, payload.size() - 8) + sighting, 2));
+  writeBytes(foreign, resealed(good, payload.substr(0, payload.size() - 8) + sighting, kVersion));
   const Status s = makeSystem(false)->loadMap(foreign.string());
   ASSERT_FALSE(s.ok());
   EXPECT_NE(s.error().find("bad sighting 0"), std::string::npos) << s.error();
@@ -444,6 +449,16 @@ TEST_F(MapFile, BadFilesAreErrorsNamingTheFile) {
   const Status other = fr1->loadMap(path.string());
   ASSERT_FALSE(other.ok());
   EXPECT_NE(other.error().find("another camera"), std::string::npos) << other.error();
+  // The same intrinsics, another virtual baseline: the features' right
+  // coordinates would be misread.
+  std::string baseline = payload;
+  const double wider = 0.1;
+  std::memcpy(&baseline[52], &wider, 8);
+  const fs::path wide = *scratch_ / "baseline.map";
+  writeBytes(wide, resealed(good, baseline, kVersion));
+  const Status misread = makeSystem(false)->loadMap(wide.string());
+  ASSERT_FALSE(misread.ok());
+  EXPECT_NE(misread.error().find("baseline 0.1000"), std::string::npos) << misread.error();
   // Missing file; localisation without a map.
   EXPECT_FALSE(makeSystem(false)->loadMap((*scratch_ / "none.map").string()).ok());
   auto lonely = makeSystem(true);

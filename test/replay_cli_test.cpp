@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cstdint>
 #include <filesystem>
 #include <regex>
 #include <sstream>
@@ -415,6 +416,26 @@ TEST_F(ReplayCli, KnownMoversWithoutMaskListIsNamed) {
 TEST_F(ReplayCli, KnownMoversMissingMaskStopsTheRun) {
   ASSERT_NO_FATAL_FAILURE(writeMasks(seq_, cv::Size(seq_.camera.width, seq_.camera.height)));
   fs::remove(fs::path(seq_.directory) / "mask" / (seq_.colour_stamps[4].toSecondsString() + ".png"));
+  const RunResult r = replaySequence({"--known-movers"});
+  EXPECT_EQ(r.exit_code, 1) << describe(r);
+  EXPECT_TRUE(contains(r.err, "no readable mask for frame 4")) << describe(r);
+}
+
+// A mask whose PNG header promises more pixels than OpenCV decodes (it
+// throws rather than failing) stops the run as an unreadable one does.
+TEST_F(ReplayCli, KnownMoversMaskTooLargeToDecodeStopsTheRun) {
+  ASSERT_NO_FATAL_FAILURE(writeMasks(seq_, cv::Size(seq_.camera.width, seq_.camera.height)));
+  std::string ihdr("IHDR\0\0\x9c\x40\0\0\x9c\x40\x08\0\0\0\0", 17);  // 40000 x 40000, 8-bit grey
+  std::uint32_t crc = 0xffffffffu;  // CRC-32 of the chunk's type and data, as PNG readers check it
+  for (unsigned char c : ihdr) {
+    crc ^= c;
+    for (int k = 0; k < 8; ++k) crc = (crc >> 1) ^ (0xedb88320u & (0u - (crc & 1u)));
+  }
+  crc = ~crc;
+  std::string png("\x89PNG\r\n\x1a\n\0\0\0\x0d", 12);
+  png += ihdr;
+  for (int shift = 24; shift >= 0; shift -= 8) png += static_cast<char>((crc >> shift) & 0xff);
+  writeFile(fs::path(seq_.directory) / "mask" / (seq_.colour_stamps[4].toSecondsString() + ".png"), png);
   const RunResult r = replaySequence({"--known-movers"});
   EXPECT_EQ(r.exit_code, 1) << describe(r);
   EXPECT_TRUE(contains(r.err, "no readable mask for frame 4")) << describe(r);

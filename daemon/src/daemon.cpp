@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "bounded_queue.hpp"
+#include "source_stamps.hpp"
 #include "stillpoint/core/covariance.hpp"
 #include "stillpoint/core/log.hpp"
 #include "stillpoint/eval/trajectory.hpp"
@@ -293,6 +294,7 @@ void Daemon::Impl::sourceLoop(std::stop_token stop) {
       else SP_WARN(logger, "source: reopen failed: " << s.error());
     }
   };
+  SourceStamps stamps;
   if (waiting_for_camera) {
     log::RateLimiter waiting(30s);
     if (reopen(&waiting)) SP_INFO(logger, "source: camera found: " << source->describe());
@@ -304,6 +306,16 @@ void Daemon::Impl::sourceLoop(std::stop_token stop) {
     if (r.event == platform::SourceEvent::kFrame) {
       ++frames_received;
       backoff = 100ms;
+      bool rebased = false;
+      const std::optional<Timestamp> stamp = stamps.next(frame.stamp, std::chrono::steady_clock::now(), &rebased);
+      if (!stamp) {
+        ++frames_bad;
+        SP_WARN_EVERY(logger, bad_frames, "source: skipping a frame stamped at or before the last one ("
+                                              << frames_bad.load() << " bad frames so far)");
+        continue;
+      }
+      if (rebased) SP_WARN(logger, "source: the camera's clock started again; its stamps go on from the last frame's");
+      frame.stamp = *stamp;
       if (!ready_sent.exchange(true)) {
         notifier.ready();  // the camera delivers: the service is up
         SP_INFO(logger, "first frame received; ready");
@@ -320,6 +332,7 @@ void Daemon::Impl::sourceLoop(std::stop_token stop) {
       SP_WARN(logger, "source: camera gone (" << r.message << "); reconnecting");
       source->close();
       if (reopen(nullptr)) {
+        stamps.reconnected();
         ++reconnects;
         device_gone = false;
         SP_INFO(logger, "source: reconnected");

@@ -9,6 +9,7 @@
 #include <string>
 
 #include "stillpoint/core/covariance.hpp"
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/ipc/options.hpp"
 #include "stillpoint/ipc/transport.hpp"
 
@@ -54,7 +55,7 @@ double wallNowNs() {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int echoMain(int argc, char** argv) {
   std::string transport, config, name, url, dds_config;
   std::int64_t owner = -1;
   long long domain = -1;
@@ -205,3 +206,5 @@ int main(int argc, char** argv) {
   std::cout << std::flush;
   return 0;
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-echo", echoMain, argc, argv); }

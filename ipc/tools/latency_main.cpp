@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "probe_messages.hpp"
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/ipc/publisher.hpp"
 #include "stillpoint/ipc/shm_writer.hpp"
 
@@ -180,7 +181,7 @@ int runPub(Args a, char* self) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int latencyMain(int argc, char** argv) {
   Args a;
   for (int i = 1; i < argc; ++i) {
     const std::string k = argv[i];
@@ -207,3 +208,5 @@ int main(int argc, char** argv) {
   }
   return a.role == "sub" ? runSub(a) : runPub(a, argv[0]);
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("ipc_latency", latencyMain, argc, argv); }

@@ -23,6 +23,7 @@
 
 #include "probe_messages.hpp"
 #include "shm_pattern.h"
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/ipc/publisher.hpp"
 #include "stillpoint/ipc/shm_writer.hpp"
 
@@ -293,8 +294,10 @@ int runShmWriter(int argc, char** argv) {
   return 0;
 }
 
-int main(int argc, char** argv) {
+static int probeMain(int argc, char** argv) {
   if (argc >= 2 && std::string(argv[1]) == "shm-writer") return runShmWriter(argc, argv);
   const Args a = parse(argc, argv);
   return a.role == "pub" ? runPub(a) : runSub(a);
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("ipc_probe", probeMain, argc, argv); }

@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <set>
@@ -49,6 +50,22 @@ Vec2 CameraModel::undistortPixel(const Vec2& px) const {
   return {fx * x.x() + cx, fy * x.y() + cy};
 }
 
+bool CameraModel::radialDistortionInvertible() const {
+  if (!hasDistortion()) return true;
+  // The distorted radius r (1 + k1 r^2 + k2 r^4 + k3 r^6) must grow with r
+  // until it reaches the farthest corner's: undistortPixel has one answer.
+  double corner = 0;
+  for (double u : {0.0, double(width)})
+    for (double v : {0.0, double(height)}) corner = std::max(corner, std::hypot((u - cx) / fx, (v - cy) / fy));
+  const double k1 = dist[0], k2 = dist[1], k3 = dist[4];
+  for (double r = 0; r <= 20; r += 1e-3) {
+    const double r2 = r * r;
+    if (r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) >= corner) return true;
+    if (1 + r2 * (3 * k1 + r2 * (5 * k2 + r2 * 7 * k3)) <= 0) return false;
+  }
+  return false;
+}
+
 Status CameraModel::validate() const {
   auto bad = [&](const std::string& field, const std::string& why) {
     return Error{"camera '" + name + "': field '" + field + "' " + why};
@@ -61,6 +78,8 @@ Status CameraModel::validate() const {
   if (!std::isfinite(cy) || cy < 0 || cy > height) return bad("cy", "must lie inside the image");
   for (double d : dist)
     if (!std::isfinite(d) || std::abs(d) > 100) return bad("distortion", "must be finite and |k| < 100");
+  if (!radialDistortionInvertible())
+    return bad("distortion", "does not map the image one to one (its radial part turns back before the corners)");
   if (!(depth_factor > 0) || !std::isfinite(depth_factor)) return bad("depth_factor", "must be positive");
   if (!(baseline > 0) || baseline > 1) return bad("baseline", "must be in (0, 1] m");
   if (!(min_depth >= 0) || !(max_depth > min_depth)) return bad("max_depth", "must exceed min_depth >= 0");

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 
@@ -42,6 +43,25 @@ TEST(Camera, DistortionMovesPixelsAwayFromCentre) {
   EXPECT_GT((cam.distortPixel(corner) - corner).norm(), 1.0);
   const Vec2 centre(cam.cx, cam.cy);
   EXPECT_LT((cam.distortPixel(centre) - centre).norm(), 1e-9);
+}
+
+// A radial distortion that turns back before the image's corners has no
+// single inverse there (undistortPixel would give any of two answers): such a
+// camera is refused; the TUM lenses are not.
+TEST(Camera, DistortionThatFoldsBackBeforeTheCornersIsRefused) {
+  for (const char* preset : {"fr1", "fr2", "fr3"}) EXPECT_TRUE(cameraPreset(preset)->validate().ok()) << preset;
+  CameraModel cam = *cameraPreset("fr3");
+  cam.dist = {-1, 0, 0, 0, 0};  // r (1 - r^2) turns at r 0.58, radius 0.38; the corners lie at 0.76
+  const Status s = cam.validate();
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().find("one to one"), std::string::npos) << s.error();
+  cam.dist = {-0.1, 0, 0, 0, 0};  // turns at r 1.83: the whole image is one to one
+  EXPECT_TRUE(cam.validate().ok());
+  double worst = 0;
+  for (int v = 0; v <= cam.height; v += 40)
+    for (int u = 0; u <= cam.width; u += 40)
+      worst = std::max(worst, (cam.distortPixel(cam.undistortPixel(Vec2(u, v))) - Vec2(u, v)).norm());
+  EXPECT_LT(worst, 1e-4);
 }
 
 class CameraYaml : public ::testing::Test {

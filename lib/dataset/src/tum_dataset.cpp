@@ -169,14 +169,43 @@ bool pngSize(const std::string& path, std::uint32_t* width, std::uint32_t* heigh
   return true;
 }
 
+// A JPEG's size, from its first frame header (SOFn) before anything is
+// decoded, as pngSize. False when the file is no JPEG or has no such header.
+bool jpegSize(const std::string& path, std::uint32_t* width, std::uint32_t* height) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char b[9];
+  if (!in.read(reinterpret_cast<char*>(b), 2) || b[0] != 0xff || b[1] != 0xd8) return false;
+  for (int segments = 0; segments < 1000 && in.read(reinterpret_cast<char*>(b), 2); ++segments) {
+    if (b[0] != 0xff) return false;
+    while (b[1] == 0xff)  // fill bytes before a marker
+      if (!in.read(reinterpret_cast<char*>(b + 1), 1)) return false;
+    const unsigned char marker = b[1];
+    if (marker == 0x01 || (marker >= 0xd0 && marker <= 0xd7)) continue;  // no length follows
+    if (marker == 0xd9 || marker == 0xda) return false;                 // image data before a frame header
+    if (!in.read(reinterpret_cast<char*>(b + 2), 2)) return false;
+    const int length = b[2] << 8 | b[3];
+    if (length < 2) return false;
+    const bool frame_header = marker >= 0xc0 && marker <= 0xcf && marker != 0xc4 && marker != 0xc8 && marker != 0xcc;
+    if (frame_header) {
+      if (length < 7 || !in.read(reinterpret_cast<char*>(b + 4), 5)) return false;
+      *height = std::uint32_t(b[5]) << 8 | b[6];
+      *width = std::uint32_t(b[7]) << 8 | b[8];
+      return true;
+    }
+    in.seekg(length - 2, std::ios::cur);
+  }
+  return false;
+}
+
 // Images no camera of ours produces: refused before decoding.
 constexpr std::uint64_t kMaxPixels = 8192ull * 8192ull;
 
-// The PNG header's size against the expected one (<= 0: any) and the limit.
+// The PNG or JPEG header's size against the expected one (<= 0: any) and
+// the limit. Other formats go to the decoder (OpenCV's own limit: 2^30 pixels).
 std::optional<std::string> headerSizeError(const std::string& what, const std::string& path, int want_w,
                                            int want_h) {
   std::uint32_t w = 0, h = 0;
-  if (!pngSize(path, &w, &h)) return std::nullopt;
+  if (!pngSize(path, &w, &h) && !jpegSize(path, &w, &h)) return std::nullopt;
   const std::string size = std::to_string(w) + "x" + std::to_string(h);
   if (std::uint64_t(w) * h > kMaxPixels) return what + " " + path + " is " + size + ": larger than any camera's (not decoded)";
   if ((want_w > 0 && w != std::uint32_t(want_w)) || (want_h > 0 && h != std::uint32_t(want_h)))

@@ -249,6 +249,28 @@ TEST_F(TumDatasetTest, OversizedPngsAreRefusedFromTheirHeader) {
   expectLastFrameLoads();
 }
 
+// The same for a JPEG colour image: its frame header's size is read before
+// decoding, past the segments before it; a real JPEG of the camera's size
+// loads.
+TEST_F(TumDatasetTest, OversizedJpegsAreRefusedFromTheirHeader) {
+  std::string bomb("\xff\xd8\xff\xe0\0\x10JFIF\0\x01\x01\0\0\x01\0\x01\0\0", 20);  // SOI, APP0
+  bomb += std::string("\xff\xff\xc0\0\x11\x08\x4e\x20\x4e\x20\x03", 11);         // fill byte, SOF0
+  bomb += std::string(64, '\0');
+  writeFile(rgbFile(0), bomb);
+  expectLoadFails(0, rgbFile(0), "is 20000x20000: larger than any camera's", SkipReason::kWrongSize);
+
+  std::vector<unsigned char> jpeg;
+  ASSERT_TRUE(cv::imencode(".jpg", cv::Mat(kHeight + 2, kWidth, CV_8UC3, cv::Scalar(40, 90, 160)), jpeg));
+  writeFile(rgbFile(1), std::string(jpeg.begin(), jpeg.end()));
+  expectLoadFails(1, rgbFile(1), "is 40x32; expected 40x30", SkipReason::kWrongSize,
+                  {.expected_width = kWidth, .expected_height = kHeight});
+  ASSERT_TRUE(cv::imencode(".jpg", cv::Mat(kHeight, kWidth, CV_8UC3, cv::Scalar(40, 90, 160)), jpeg));
+  writeFile(rgbFile(1), std::string(jpeg.begin(), jpeg.end()));
+  const auto frame = openOrDie({.expected_width = kWidth, .expected_height = kHeight}).load(1);
+  ASSERT_TRUE(frame.ok()) << frame.error();
+  EXPECT_EQ(frame->bgr.size(), cv::Size(kWidth, kHeight));
+}
+
 TEST_F(TumDatasetTest, EightBitDepthIsRejected) {
   writePng(depthFile(0), cv::Mat(kHeight, kWidth, CV_8UC1, cv::Scalar(100)));
   expectLoadFails(0, depthFile(0), "expected 16-bit single channel", SkipReason::kUnreadableDepth);

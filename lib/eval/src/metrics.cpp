@@ -53,13 +53,13 @@ std::size_t closestIndex(const Trajectory& trajectory, std::size_t n, Timestamp 
 
 }  // namespace
 
+// Time spans in seconds are compared in nanoseconds (int64): 10^6 s keeps
+// every sum and difference with a stamp far inside its range.
+constexpr double kMaxSpanS = 1e6;
+
 Status EvalOptions::validate() const {
-  if (!std::isfinite(max_dt_s) || max_dt_s < 0.0) {
-    return Error{"EvalOptions.max_dt_s must be a finite value >= 0"};
-  }
-  if (!std::isfinite(rpe_delta_s) || rpe_delta_s <= 0.0) {
-    return Error{"EvalOptions.rpe_delta_s must be a finite value > 0"};
-  }
+  if (!(max_dt_s >= 0.0 && max_dt_s <= kMaxSpanS)) return Error{"EvalOptions.max_dt_s must be in [0, 1e6] s"};
+  if (!(rpe_delta_s > 0.0 && rpe_delta_s <= kMaxSpanS)) return Error{"EvalOptions.rpe_delta_s must be in (0, 1e6] s"};
   if (min_matches < 3) return Error{"EvalOptions.min_matches must be >= 3"};
   return Status::success();
 }
@@ -316,9 +316,9 @@ double quantile(std::vector<double> values, double q) {
 }
 
 Status DriftOptions::validate() const {
-  if (!std::isfinite(window_s) || window_s <= 0.0) return Error{"DriftOptions.window_s must be a finite value > 0"};
+  if (!(window_s > 0.0 && window_s <= kMaxSpanS)) return Error{"DriftOptions.window_s must be in (0, 1e6] s"};
   if (!std::isfinite(bound_m) || bound_m < 0.0) return Error{"DriftOptions.bound_m must be a finite value >= 0"};
-  if (!std::isfinite(max_dt_s) || max_dt_s < 0.0) return Error{"DriftOptions.max_dt_s must be a finite value >= 0"};
+  if (!(max_dt_s >= 0.0 && max_dt_s <= kMaxSpanS)) return Error{"DriftOptions.max_dt_s must be in [0, 1e6] s"};
   return Status::success();
 }
 

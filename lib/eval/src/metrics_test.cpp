@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <random>
 
@@ -306,6 +307,12 @@ TEST(Evaluate, RejectsBadOptions) {
   options.rpe_delta_s = 0.0;
   EXPECT_NE(options.validate().error().find("rpe_delta_s"), std::string::npos);
   options = EvalOptions{};
+  options.max_dt_s = 1e10;  // finite, but overflows a stamp in nanoseconds
+  EXPECT_NE(options.validate().error().find("max_dt_s"), std::string::npos);
+  options = EvalOptions{};
+  options.rpe_delta_s = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_NE(options.validate().error().find("rpe_delta_s"), std::string::npos);
+  options = EvalOptions{};
   options.min_matches = 2;
   EXPECT_FALSE(options.validate().ok());
   EXPECT_TRUE(EvalOptions{}.validate().ok());
@@ -395,6 +402,8 @@ TEST(DriftByLabel, PosesWithoutALabelNearbyAreCountedApart) {
 
   DriftOptions bad;
   bad.window_s = 0.0;
+  EXPECT_NE(driftByLabel(*result, labels, bad).error().find("window_s"), std::string::npos);
+  bad.window_s = 1e10;
   EXPECT_NE(driftByLabel(*result, labels, bad).error().find("window_s"), std::string::npos);
 }
 

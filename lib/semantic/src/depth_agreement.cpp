@@ -35,7 +35,7 @@ Result<std::vector<InstanceDepth>> applyDepthAgreement(const cv::Mat& depth, con
         if (m[x] && zr[x] > 0 && std::isfinite(zr[x])) values.push_back(zr[x]);
     }
     out[k].depth_pixels = int(values.size());
-    if (out[k].depth_pixels < options.min_depth_pixels) continue;
+    if (values.empty() || out[k].depth_pixels < options.min_depth_pixels) continue;
     std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
     const float median = values[values.size() / 2];
     out[k].median_m = median;

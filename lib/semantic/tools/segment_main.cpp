@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/semantic/depth_agreement.hpp"
 #include "stillpoint/semantic/person_second_opinion.hpp"
 #include "stillpoint/semantic/segmenter.hpp"
@@ -117,7 +118,7 @@ cv::Mat overlay(const cv::Mat& bgr, const Segmentation& seg) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int segmentMain(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
   fs::path card_path, person_card_path, out_dir, tum_dir;
   bool recommended = false, use_depth = false;
@@ -274,3 +275,5 @@ int main(int argc, char** argv) {
   std::printf("\n");
   return 0;
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-segment", segmentMain, argc, argv); }

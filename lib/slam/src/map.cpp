@@ -14,7 +14,7 @@ Eigen::Vector3i placeCell(const Vec3& p) { return (p / kPlaceCell).array().floor
 
 std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
   const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x3ffff; };  // 18 bits each
-  return (static_cast<std::uint64_t>(map_id & 0xff) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
+  return (static_cast<std::uint64_t>(map_id & kPlaceMapMask) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
 }
 
 bool nearPlace(const std::unordered_set<std::uint64_t>& places, std::uint32_t map_id, const Vec3& p) {
@@ -78,7 +78,7 @@ bool StaticSightings::seenStanding(std::uint32_t map_id, const Vec3& p, int min,
 void StaticSightings::moveMap(std::uint32_t from, std::uint32_t to, const SE3& T_to_from) {
   std::vector<std::pair<std::uint64_t, Cell>> moved;
   for (auto it = cells_.begin(); it != cells_.end();) {
-    if (mapOf(it->first) != (from & 0xff)) {
+    if (mapOf(it->first) != (from & kPlaceMapMask)) {
       ++it;
       continue;
     }

@@ -179,8 +179,10 @@ class KeyFrame {
 
 // Places in a map's world are kept by 10 cm cell (StaticSightings, where the
 // last masks were: Tracker::recentlyMasked): the cell holding p, and one key
-// per cell and map (the low 8 bits of the map id, 18 bits per coordinate).
+// per cell and map (the low 10 bits of the map id, 18 bits per coordinate:
+// a map 1024 maps after another shares its keys).
 constexpr double kPlaceCell = 0.1;  // m
+constexpr std::uint32_t kPlaceMapMask = 0x3ff;
 Eigen::Vector3i placeCell(const Vec3& p);
 std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& cell);
 // Whether the cell of p, or one of its 26 neighbours, is among `places`.

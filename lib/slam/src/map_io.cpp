@@ -1,6 +1,7 @@
 #include "map_io.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -10,6 +11,7 @@
 #include <limits>
 #include <type_traits>
 #include <unordered_map>
+#include <vector>
 
 #include "stillpoint/core/checksum.hpp"
 
@@ -98,6 +100,8 @@ Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& level
   for (double v : {camera.fx, camera.fy, camera.cx, camera.cy}) w.put<double>(v);
   w.put<std::int32_t>(levels.levels);
   w.put<double>(levels.scale_factor);
+  w.put<double>(camera.baseline);
+  for (double d : camera.dist) w.put<double>(d);
   w.put<std::int64_t>(map.next_point_id_);
   w.put<std::int64_t>(map.next_keyframe_id_);
   w.put<std::int64_t>(map.next_frame_id_);
@@ -209,8 +213,8 @@ Status loadMap(const std::string& path, const CameraModel& camera, const LevelIn
   header.get(&payload_size);
   header.get(&checksum);
   header.get(&reserved64);
-  if (version != kMapFormatVersion && version != 1)
-    return error("format version " + std::to_string(version) + ", this build reads version " +
+  if (version < 1 || version > kMapFormatVersion)
+    return error("format version " + std::to_string(version) + ", this build reads versions 1 to " +
                  std::to_string(kMapFormatVersion));
   if (payload_size != file.size() - kHeaderSize)
     return error("truncated or padded: the header says " + std::to_string(payload_size) + " bytes of map, the file has " +
@@ -240,6 +244,24 @@ Status loadMap(const std::string& path, const CameraModel& camera, const LevelIn
   if (num_levels != levels.levels || std::abs(scale - levels.scale_factor) > 1e-9)
     return error("made with another ORB pyramid (" + std::to_string(num_levels) + " levels): set orb.num_levels and "
                  "orb.scale_factor as when it was made");
+  if (version >= 3) {
+    // The features hold depth as a right coordinate (u - fx baseline / z) and
+    // undistorted positions: another baseline or lens would misread them.
+    double baseline = 0;
+    std::array<double, 5> dist{};
+    r.get(&baseline);
+    for (double& d : dist) r.get(&d);
+    if (r.failed()) return error("truncated camera record");
+    bool same = std::abs(baseline - camera.baseline) <= 1e-9;
+    for (std::size_t k = 0; k < dist.size(); ++k) same = same && std::abs(dist[k] - camera.dist[k]) <= 1e-9;
+    if (!same) {
+      char text[256];
+      std::snprintf(text, sizeof(text),
+                    "made with another camera (baseline %.4f m, distortion %.4f %.4f %.4f %.4f %.4f)", baseline,
+                    dist[0], dist[1], dist[2], dist[3], dist[4]);
+      return error(text);
+    }
+  }
   std::int64_t next_point = 0, next_keyframe = 0, next_frame = 0;
   std::uint32_t maps_started = 0, active = 0;
   r.get(&next_point);
@@ -386,6 +408,20 @@ Status loadMap(const std::string& path, const CameraModel& camera, const LevelIn
       return error("keyframe " + std::to_string(keyframes[k]->id) + " has a bad parent");
     keyframes[k]->parent = parent;
     parent->children.push_back(keyframes[k].get());
+  }
+  // The parents must form a tree: a cycle would leave culling and the poses
+  // expressed through culled keyframes (PoseAnchor) walking it forever.
+  {
+    std::unordered_map<const KeyFrame*, int> state;  // 1: on the chain being walked, 2: reaches a root
+    for (const auto& kf : keyframes) {
+      std::vector<const KeyFrame*> chain;
+      for (const KeyFrame* a = kf.get(); a && state[a] != 2; a = a->parent) {
+        if (state[a] == 1) return error("keyframe " + std::to_string(a->id) + " has a bad parent (a cycle)");
+        state[a] = 1;
+        chain.push_back(a);
+      }
+      for (const KeyFrame* a : chain) state[a] = 2;
+    }
   }
   for (const auto& kf : keyframes) kf->updateConnections();
   for (auto& [id, p] : points) {

@@ -8,14 +8,16 @@
 //   header, 40 bytes: magic "STPMAP\r\n", u32 format version, u32 reserved (0),
 //                     u64 payload bytes, u64 FNV-1a 64 of the payload, u64 reserved (0)
 //   payload: camera (width, height, fx, fy, cx, cy), ORB pyramid (levels,
-//            scale factor), id counters, maps started and the active map,
+//            scale factor), (version 3) the camera's virtual baseline and
+//            distortion, id counters, maps started and the active map,
 //            then the points (id, position) and the keyframes (id, map,
 //            origin, stamp, T_c_w, parent, thumbnail, features: keypoint,
 //            undistorted position, depth, virtual right u, descriptor,
 //            point id or -1, dynamic cause, colour when the frame had one),
 //            then (version 2) the sightings (cell key, static and moving
 //            counts, first and last static stamp).
-// Version 1 files (no sightings) are read too. A file that is truncated,
+// Version 1 files (no sightings) and version 2 files (no baseline and
+// distortion: not checked) are read too. A file that is truncated,
 // corrupt, of another version or for another
 // camera is an error naming the file and what is wrong; the reader checks
 // every count and index against the bytes that remain, never trusts them.
@@ -26,7 +28,7 @@
 
 namespace stillpoint::slam {
 
-inline constexpr std::uint32_t kMapFormatVersion = 2;
+inline constexpr std::uint32_t kMapFormatVersion = 3;
 
 // Writes the map (caller holds the map's lock, shared at least).
 Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& levels, const std::string& path);

@@ -2,11 +2,13 @@
 // expressed through them (trajectory records) still resolve and still follow
 // the keyframes that remain.
 #include "map.hpp"
+#include "map_io.hpp"
 #include "test_helpers.hpp"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <memory>
 #include <vector>
 
@@ -134,6 +136,52 @@ TEST_F(CulledKeyFrames, StayUnlinkedWhenTheirConnectionsAreUpdatedLate) {
   EXPECT_EQ(map_.releaseCulledKeyFrames(), 1u);
   kf2_->updateConnections();
   EXPECT_EQ(kf2_->bestNeighbours(5), std::vector<KeyFrame*>{kf0_});
+}
+
+// A map file whose spanning tree has a cycle (a corrupt or hand-edited file
+// with a valid checksum) is refused: culling and the poses expressed through
+// culled keyframes would walk the cycle forever.
+TEST_F(CulledKeyFrames, AFileWhoseParentsFormACycleIsRefused) {
+  CameraModel camera;
+  camera.fx = camera.fy = 500;
+  camera.cx = 320;
+  camera.cy = 240;
+  const std::string dir = ::testing::TempDir();
+  const std::string tree = dir + "/stillpoint_tree.map", cycle = dir + "/stillpoint_cycle.map";
+  map_.beginMap();  // as tracking does before its first keyframe, and the frames' ids
+  for (int k = 0; k < 3; ++k) map_.nextFrameId();
+  ASSERT_TRUE(saveMap(map_, camera, testing::oneLevel(), tree).ok());
+  kf0_->parent = kf2_;  // 0 -> 2 -> 1 -> 0
+  ASSERT_TRUE(saveMap(map_, camera, testing::oneLevel(), cycle).ok());
+  kf0_->parent = nullptr;
+
+  Map loaded;
+  const Status good = loadMap(tree, camera, testing::oneLevel(), &loaded);
+  ASSERT_TRUE(good.ok()) << good.error();
+  EXPECT_EQ(loaded.keyFrame(2)->parent, loaded.keyFrame(1));
+  Map refused;
+  const Status bad = loadMap(cycle, camera, testing::oneLevel(), &refused);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.error().find("cycle"), std::string::npos) << bad.error();
+  std::remove(tree.c_str());
+  std::remove(cycle.c_str());
+}
+
+// A place's key names its map: maps started hundreds of losses apart keep
+// their sightings apart, and a merge moves only its own map's cells.
+TEST(StaticSightings, KeepTheMapsOfALongRunApart) {
+  const Eigen::Vector3i cell(3, -2, 7);
+  EXPECT_NE(placeKey(0, cell), placeKey(256, cell));
+  EXPECT_NE(placeKey(1, cell), placeKey(513, cell));
+  EXPECT_EQ(StaticSightings::mapOf(placeKey(700, cell)), 700u);
+  StaticSightings sightings;
+  const Vec3 p(0.35, -0.15, 0.75);
+  for (int k = 0; k < 3; ++k)
+    sightings.add(300, Timestamp::fromNanoseconds(k * 1'000'000'000LL), {p}, {});
+  EXPECT_TRUE(sightings.seenStanding(300, p, 3, 1.0));
+  EXPECT_FALSE(sightings.seenStanding(44, p, 1, 0.0)) << "300 & 0xff";
+  sightings.moveMap(44, 45, SE3::Identity());
+  EXPECT_TRUE(sightings.seenStanding(300, p, 3, 1.0));
 }
 
 TEST(MapPoint, ReferenceIsDroppedWithItsObservation) {

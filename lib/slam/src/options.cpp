@@ -14,9 +14,10 @@ namespace stillpoint::slam {
 
 Status TrackingOptions::validate() const {
   if (min_init_features < 20) return Error{"tracking.min_init_features must be >= 20"};
-  if (min_inliers_local_map < 6) return Error{"tracking.min_inliers_local_map must be >= 6"};
-  if (min_inliers_after_reloc < min_inliers_local_map)
-    return Error{"tracking.min_inliers_after_reloc must be >= tracking.min_inliers_local_map"};
+  // A relocalised pose needs at least the support of a tracked one
+  // (min_inliers_after_reloc, a tuned constant): the YAML key's range says so.
+  if (min_inliers_local_map < 6 || min_inliers_local_map > min_inliers_after_reloc)
+    return Error{"tracking.min_inliers_local_map must be in [6, " + std::to_string(min_inliers_after_reloc) + "]"};
   if (!(close_depth_baselines > 0)) return Error{"tracking.close_depth_baselines must be > 0"};
   if (local_keyframes_max < 1) return Error{"tracking.local_keyframes_max must be >= 1"};
   if (relocalisation_candidates < 1) return Error{"tracking.relocalisation_candidates must be >= 1"};
@@ -180,7 +181,7 @@ void visitFields(SlamOptions& o, Visitor&& v) {
   v("orb", "num_features", o.orb.num_features, "keypoints per frame over all pyramid levels, 50..20000");
   v("orb", "num_levels", o.orb.num_levels, "scale pyramid levels, 1..16");
   v("orb", "scale_factor", o.orb.scale_factor, "scale between pyramid levels, (1, 2]");
-  v("tracking", "min_inliers_local_map", o.tracking.min_inliers_local_map, "map inliers to accept a tracked pose, >= 6");
+  v("tracking", "min_inliers_local_map", o.tracking.min_inliers_local_map, "map inliers to accept a tracked pose, 6..50");
   v("tracking", "relocalisation_candidates", o.tracking.relocalisation_candidates,
     "keyframes tried per lost frame: the newest N, then N older ones in turn");
   v("tracking", "trajectory_records", o.tracking.trajectory_records,

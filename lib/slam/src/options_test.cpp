@@ -70,7 +70,7 @@ TEST(SlamOptionsValidate, EachOutOfRangeValueNamesItsField) {
       {"orb.cell_size", [](SlamOptions& o) { o.orb.cell_size = 4; }},
       {"tracking.min_init_features", [](SlamOptions& o) { o.tracking.min_init_features = 19; }},
       {"tracking.min_inliers_local_map", [](SlamOptions& o) { o.tracking.min_inliers_local_map = 5; }},
-      {"tracking.min_inliers_after_reloc", [](SlamOptions& o) { o.tracking.min_inliers_after_reloc = 10; }},
+      {"tracking.min_inliers_local_map", [](SlamOptions& o) { o.tracking.min_inliers_local_map = 51; }},  // > relocalisation's
       {"tracking.close_depth_baselines", [](SlamOptions& o) { o.tracking.close_depth_baselines = 0; }},
       {"tracking.local_keyframes_max", [](SlamOptions& o) { o.tracking.local_keyframes_max = 0; }},
       {"tracking.relocalisation_candidates", [](SlamOptions& o) { o.tracking.relocalisation_candidates = 0; }},

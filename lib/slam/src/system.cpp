@@ -164,6 +164,7 @@ struct SlamSystem::Impl {
   std::string semantic_model;
   std::atomic<int> semantic_no_colour{0};
   std::atomic<std::size_t> no_depth_frames{0};
+  std::optional<Timestamp> last_stamp;  // of the last frame track() took (the tracking thread's)
   // The last frame made a keyframe in a young map (MappingOptions::young_map_keyframes):
   // local mapping finishes it before the next frame is tracked.
   bool young_map_wait = false;
@@ -412,6 +413,13 @@ Result<TrackOutput> SlamSystem::trackChecked(const RgbdInput& input) {
       return Error{"movers mask must be CV_8UC1 or CV_16UC1"};
     if (input.movers.size() != expected) return Error{"movers mask size differs from the camera's"};
   }
+
+  // Time runs forward: the motion model, the lost-for timer and the
+  // trajectory's order all rest on it.
+  if (s.last_stamp && input.stamp <= *s.last_stamp)
+    return Error{"frame stamped " + input.stamp.toSecondsString() + " s, not after the last frame's (" +
+                 s.last_stamp->toSecondsString() + " s)"};
+  s.last_stamp = input.stamp;
 
   const auto t0 = std::chrono::steady_clock::now();
   if (depthShare(input.depth_m, s.camera) < s.options.tracking.min_depth_share) {

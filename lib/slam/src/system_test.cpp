@@ -149,6 +149,25 @@ TEST_F(SlamSystemInputTest, BadInputIsAnErrorAndTheSystemKeepsTracking) {
   EXPECT_LT(degrees(online.max_rotation), 0.2);
 }
 
+// A frame stamped at or before the last one (a repeated frame, a camera
+// clock that went back) is an error that leaves the system as it was.
+TEST_F(SlamSystemInputTest, AFrameNotAfterTheLastOneIsAnError) {
+  auto system = makeSystem(camera_);
+  ASSERT_TRUE(system);
+  ASSERT_TRUE(system->track(frames_[0]).ok());
+  ASSERT_TRUE(system->track(frames_[1]).ok());
+  for (std::size_t again : {std::size_t{1}, std::size_t{0}}) {
+    const auto out = system->track(frames_[again]);
+    ASSERT_FALSE(out.ok()) << "frame " << again;
+    EXPECT_TRUE(contains(out.error(), "not after the last frame's")) << out.error();
+  }
+  const auto next = system->track(frames_[2]);
+  ASSERT_TRUE(next.ok()) << next.error();
+  EXPECT_EQ(next->state, TrackingState::kOk);
+  system->finish();
+  EXPECT_EQ(system->trajectory().size(), 3u);
+}
+
 TEST_F(SlamSystemInputTest, TrackAfterFinishIsAnError) {
   auto system = makeSystem(camera_);
   ASSERT_TRUE(system);
@@ -172,6 +191,8 @@ TEST_F(SlamSystemInputTest, FramesWithoutDepthSaySoAndDoNotInitialise) {
   no_depth.depth_m = cv::Mat();  // allowed: a frame with no depth image at all
   RgbdInput out_of_range = frames_[0];
   out_of_range.depth_m = cv::Mat(frames_[0].depth_m.size(), CV_32FC1, cv::Scalar(camera_.max_depth + 1));
+  no_depth.stamp = Timestamp::fromNanoseconds(frames_[0].stamp.nanoseconds() + 1000);  // each a frame of its own
+  out_of_range.stamp = Timestamp::fromNanoseconds(frames_[0].stamp.nanoseconds() + 2000);
   for (const RgbdInput* input : {&zero_depth, &no_depth, &out_of_range}) {
     const auto out = system->track(*input);
     ASSERT_TRUE(out.ok()) << out.error();

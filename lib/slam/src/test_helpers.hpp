@@ -56,6 +56,7 @@ inline std::unique_ptr<KeyFrame> handMadeKeyFrame(std::int64_t id, int n, const 
   f.depth.assign(n, 1.0f);
   f.u_right.assign(n, -1.0f);
   f.descriptors = cv::Mat::zeros(n, 32, CV_8U);
+  f.dynamic.assign(n, DynamicCause{});
   f.clearMatches();
   return std::make_unique<KeyFrame>(id, f);
 }

@@ -26,6 +26,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "stillpoint/core/camera.hpp"
+#include "stillpoint/core/program.hpp"
 #include "stillpoint/platform/openni2_source.hpp"
 
 namespace {
@@ -151,7 +152,7 @@ int dump(const std::string& in, const fs::path& dir, const std::string& camera_s
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int oniMain(int argc, char** argv) {
   const std::string command = argc > 1 ? argv[1] : "";
   if (command == "record" && (argc == 4 || argc == 5)) return record(argv[2], std::atoi(argv[3]), argc == 5 ? argv[4] : "");
   if (command == "dump" && argc == 5) return dump(argv[2], argv[3], argv[4]);
@@ -160,3 +161,5 @@ int main(int argc, char** argv) {
                "       stillpoint-oni dump IN.oni OUT_DIR CAMERA\n");
   return 2;
 }
+
+int main(int argc, char** argv) { return stillpoint::runProgram("stillpoint-oni", oniMain, argc, argv); }

@@ -24,6 +24,8 @@ struct CameraModel {
   double min_depth = 0.1;   // and below this
 
   bool hasDistortion() const;
+  // Whether the radial distortion maps the image one to one (validate()).
+  bool radialDistortionInvertible() const;
   double bf() const { return fx * baseline; }
 
   // Projects a point in camera coordinates (z > 0) onto the undistorted image.

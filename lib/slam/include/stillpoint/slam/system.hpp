@@ -71,8 +71,8 @@ class SlamSystem {
   SlamSystem(const SlamSystem&) = delete;
   SlamSystem& operator=(const SlamSystem&) = delete;
 
-  // Bad input (wrong size/type, empty images) returns an Error and leaves the
-  // system unchanged.
+  // Bad input (wrong size/type, empty images, a stamp not after the last
+  // frame's) returns an Error and leaves the system unchanged.
   Result<TrackOutput> track(const RgbdInput& input);
   // Drains local mapping and stops its thread; tracking may not be called after.
   // Keyframes still waiting for segmentation are segmented first, unless
