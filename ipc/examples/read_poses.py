@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Reads stillpoint's poses from the shared-memory ring, in plain Python (no packages).
 
-    read_poses.py [--name RING] [--count N] [--timeout S] [--objects]
+    read_poses.py [--name RING] [--count N] [--timeout S] [--objects] [--owner USER|UID]
 
 Attaches to /dev/shm/RING (default stillpoint_pose, what stillpointd writes), starts at the
 newest record and prints one line per pose as it arrives: frame, stamp, tracking state, pose
@@ -9,7 +9,9 @@ health and, when the frame has a pose, T_map_camera (position [m], quaternion x 
 ring's layout and protocol are those of the C reader, ipc/include/stillpoint_shm.h (pose
 schema 4): a record is read between two equal even values of its slot's sequence word, so a
 record the writer is overwriting is never returned. Exit status: 0 after N poses, 1 when the
-ring is missing or not a pose ring of this schema, or nothing arrived within S seconds.
+ring is missing or not a pose ring of this schema, or nothing arrived within S seconds. As the C
+reader, it reads only a regular file owned by --owner (default: the user running it; name the
+daemon's user, e.g. stillpoint, when it runs as another one) whose size is its header's.
 
 With --objects it reads the dynamic-objects ring next to it (RING_objects) instead: one line per
 frame with a pose, the frame's objects in the map frame (id, label, which module found it,
@@ -19,6 +21,8 @@ import argparse
 import math
 import mmap
 import os
+import pwd
+import stat
 import struct
 import sys
 import time
@@ -44,10 +48,30 @@ assert OBJECT.size == RECORD_SIZE
 SOURCES = {1: "geometry", 2: "semantic", 3: "both"}
 
 
-def open_ring(name, magic=MAGIC):
-    path = "/dev/shm/" + name
-    fd = os.open(path, os.O_RDONLY)
+def owner_uid(owner):
+    """The uid of a user name or number (None: the user running this)."""
+    if owner is None:
+        return os.geteuid()
+    if owner.isdigit():
+        return int(owner)
     try:
+        return pwd.getpwnam(owner).pw_uid
+    except KeyError:
+        raise ValueError(f"no user {owner}") from None
+
+
+def open_ring(name, magic=MAGIC, owner=None):
+    path = "/dev/shm/" + name
+    # Never follow a link or wait on a FIFO planted at the name; only the owner's ring counts.
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{path} is not a regular file")
+        if st.st_uid != owner_uid(owner):
+            raise ValueError(f"{path} belongs to uid {st.st_uid}, not to the ring's owner (--owner)")
+        if st.st_size < HEADER_SIZE:
+            raise ValueError(f"{path} is not a stillpoint ring (too short)")
         ring = mmap.mmap(fd, 0, prot=mmap.PROT_READ)
     finally:
         os.close(fd)
@@ -56,7 +80,8 @@ def open_ring(name, magic=MAGIC):
         raise ValueError(f"{path} is not a stillpoint {'pose' if magic == MAGIC else 'objects'} ring")
     if schema != SCHEMA:
         raise ValueError(f"{path} has pose schema {schema}; this reader knows {SCHEMA}")
-    if (header_size, record_size, slot_size) != (HEADER_SIZE, RECORD_SIZE, SLOT_SIZE) or capacity & (capacity - 1):
+    if ((header_size, record_size, slot_size) != (HEADER_SIZE, RECORD_SIZE, SLOT_SIZE) or capacity < 1
+            or capacity & (capacity - 1) or len(ring) != HEADER_SIZE + capacity * SLOT_SIZE):
         raise ValueError(f"{path} has an inconsistent layout")
     return ring, capacity
 
@@ -83,16 +108,17 @@ def main():
     parser.add_argument("--count", type=int, default=0, help="exit after N poses (0: run until interrupted)")
     parser.add_argument("--timeout", type=float, default=10.0, help="give up when nothing arrives for S seconds")
     parser.add_argument("--objects", action="store_true", help="read the dynamic objects (RING_objects) instead")
+    parser.add_argument("--owner", help="the user the ring must belong to (default: the user running this)")
     args = parser.parse_args()
     try:
         ring, capacity = open_ring(args.name + "_objects" if args.objects else args.name,
-                                   OBJECTS_MAGIC if args.objects else MAGIC)
-    except (OSError, ValueError) as e:
+                                   OBJECTS_MAGIC if args.objects else MAGIC, args.owner)
+    except (OSError, ValueError, struct.error) as e:
         print(f"read_poses: {e}", file=sys.stderr)
         return 1
     next_n = max(1, write_count(ring))
     received, last_arrival = 0, time.monotonic()
-    frame_objects, frame_open = [], False
+    frame_objects, frame_open, open_frame = [], False, None
     while args.count == 0 or received < args.count:
         newest = write_count(ring)
         if next_n > newest:
@@ -103,17 +129,20 @@ def main():
             continue
         if newest - next_n >= capacity:
             next_n = newest - capacity + 1  # we fell a lap behind: skip what was overwritten
+            frame_open = False  # a frame's records may be among the skipped
         r = try_read(ring, capacity, next_n, OBJECT if args.objects else RECORD)
         next_n += 1
         if r is None:
+            frame_open = False  # overwritten while we looked
             continue
         if args.objects:
             (_, stamp_ns, _, frame, map_id, oid, index, count, sources, samples, cx, cy, cz, ex, ey, ez, vx, vy, vz,
              has_velocity, label) = r
             if index == 0:
-                frame_objects, frame_open = [], True
-            elif not frame_open:
-                continue  # joined in the middle of a frame's records
+                frame_objects, frame_open, open_frame = [], True, frame
+            elif not frame_open or frame != open_frame or index != len(frame_objects):
+                frame_open = False  # joined in the middle of a frame's records, or missed some of them
+                continue
             if count > 0:
                 speed = f"{math.sqrt(vx * vx + vy * vy + vz * vz):.2f}" if has_velocity else "?"
                 name = label.split(b"\0")[0].decode(errors="replace")

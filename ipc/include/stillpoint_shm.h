@@ -249,6 +249,7 @@ typedef struct sp_shm_reader {
   uint32_t found_mode;     /* st_mode of the file refused with SP_SHM_ERR_NOT_REGULAR or _OWNER */
   uint32_t found_uid;      /* its owner */
   uint32_t magic;          /* the kind of ring it reads: SP_SHM_MAGIC (poses) or SP_SHM_OBJECTS_MAGIC */
+  uint32_t restart_pending; /* a restarted writer's ring could not be attached yet */
 } sp_shm_reader;
 
 static inline const char* sp_shm_strerror(int code) {
@@ -427,20 +428,25 @@ static inline int sp_shm_reader_attach(sp_shm_reader* r) {
 
 /* Opens the ring `name` (in /dev/shm). start: SP_SHM_START_LATEST returns only records
  * published from now on, SP_SHM_START_OLDEST the oldest still in the ring first. */
-static inline int sp_shm_reader_open(sp_shm_reader* r, const char* name, int start) {
+static inline int sp_shm_reader_open_kind(sp_shm_reader* r, const char* name, int start, uint32_t magic) {
   int rc;
   sp_shm_reader_detach(r);
+  r->magic = magic;
+  r->restart_pending = 0;
   rc = sp_shm_make_path(name, r->path, sizeof(r->path));
   if (rc != SP_SHM_OK) return rc;
   r->start_mode = start;
   return sp_shm_reader_attach(r);
 }
 
+static inline int sp_shm_reader_open(sp_shm_reader* r, const char* name, int start) {
+  return sp_shm_reader_open_kind(r, name, start, SP_SHM_MAGIC);
+}
+
 /* Opens the dynamic-objects ring `name` (SP_SHM_DEFAULT_OBJECTS_NAME unless configured);
  * read it with sp_shm_reader_next_object(). */
 static inline int sp_shm_reader_open_objects(sp_shm_reader* r, const char* name, int start) {
-  r->magic = SP_SHM_OBJECTS_MAGIC;
-  return sp_shm_reader_open(r, name, start);
+  return sp_shm_reader_open_kind(r, name, start, SP_SHM_OBJECTS_MAGIC);
 }
 
 static inline void sp_shm_reader_close(sp_shm_reader* r) { sp_shm_reader_detach(r); }
@@ -453,20 +459,34 @@ static inline int sp_shm_reader_writer_closed(const sp_shm_reader* r) {
 
 /* Reattaches when the name now points at a different file (a restarted writer).
  * Returns SP_SHM_RESTARTED when it did, SP_SHM_OK when nothing changed. A missing file
- * keeps the old mapping (the writer may be restarting). */
+ * keeps the old mapping (the writer may be restarting). A restarted writer's ring that
+ * cannot be attached yet is attached on a later call, which then says SP_SHM_RESTARTED.
+ * A ring file shorter than the mapping (truncated under the reader) is detached with
+ * SP_SHM_ERR_LAYOUT before a read of it faults. */
 static inline int sp_shm_reader_check_restart(sp_shm_reader* r) {
   struct stat st;
   int rc;
-  if (r->base == NULL) { /* opened before the ring existed: attaching is not a restart */
+  if (r->base == NULL) { /* opened before the ring existed, or after a restart that failed to attach */
     rc = sp_shm_reader_attach(r);
-    return rc == SP_SHM_OK ? SP_SHM_EMPTY : rc;
+    if (rc != SP_SHM_OK) return rc;
+    if (!r->restart_pending) return SP_SHM_EMPTY;
+    r->restart_pending = 0;
+    r->restarts++;
+    return SP_SHM_RESTARTED;
+  }
+  if (fstat(r->fd, &st) == 0 && (size_t)st.st_size < r->map_size) {
+    sp_shm_reader_detach(r);
+    return SP_SHM_ERR_LAYOUT;
   }
   if (lstat(r->path, &st) != 0) return SP_SHM_OK;
   if ((uint64_t)st.st_ino == r->ino && (uint64_t)st.st_dev == r->dev) return SP_SHM_OK;
   sp_shm_reader_detach(r);
   r->start_mode = SP_SHM_START_OLDEST; /* a new stream: deliver it from its start */
   rc = sp_shm_reader_attach(r);
-  if (rc != SP_SHM_OK) return rc;
+  if (rc != SP_SHM_OK) {
+    r->restart_pending = 1;
+    return rc;
+  }
   r->restarts++;
   return SP_SHM_RESTARTED;
 }
@@ -573,6 +593,7 @@ static inline int sp_shm_reader_latest(sp_shm_reader* r, sp_pose_record* out) {
   const sp_shm_header* h;
   uint64_t newest;
   int attempt;
+  if (r->magic != SP_SHM_MAGIC) return SP_SHM_ERR_NOT_A_RING;
   if (r->base == NULL) return r->path[0] == '\0' ? SP_SHM_ERR_NOT_OPEN : sp_shm_reader_check_restart(r);
   h = sp_shm_reader_header(r);
   for (attempt = 0; attempt < 16; ++attempt) {

@@ -258,22 +258,35 @@ class LcmSubscriber final : public Subscriber {
   // One raw callback per message type: a message that does not decode as
   // Wire (another schema on our channel) or does not convert becomes poll()'s
   // error; a good one goes to the handler the member pointer names.
+  // Nothing may cross liblcm's C dispatcher: the generated decoder throws
+  // (std::length_error, std::bad_alloc) on a count or string length its
+  // bytes cannot hold, and so may the caller's handler; either is poll()'s
+  // error.
   template <typename Wire, auto handler>
-  static void onRaw(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) {
-    Wire m;
-    if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
+  static void onRaw(const lcm::ReceiveBuffer* rbuf, const std::string& channel, LcmSubscriber* self) noexcept {
+    const auto cannot = [&](const std::string& why) {
       const std::string type = Wire::getTypeName();
       const char* article = std::string_view("aeiou").find(type.front()) == std::string_view::npos ? "a " : "an ";
-      self->error_ = "lcm: cannot decode " + (article + type) + " on " + channel + " (different schema?)";
-      return;
+      self->error_ = "lcm: cannot decode " + (article + type) + " on " + channel + why;
+    };
+    try {
+      Wire m;
+      if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
+        cannot(" (different schema?)");
+        return;
+      }
+      auto message = fromLcm(m);
+      if (!message) {
+        self->error_ = message.error();
+        return;
+      }
+      ++self->handled_;
+      if (self->*handler) (self->*handler)(*message);
+    } catch (const std::exception& e) {
+      cannot(std::string(": ") + e.what());
+    } catch (...) {
+      cannot(": unknown error");
     }
-    auto message = fromLcm(m);
-    if (!message) {
-      self->error_ = message.error();
-      return;
-    }
-    ++self->handled_;
-    if (self->*handler) (self->*handler)(*message);
   }
   LcmOptions options_;
   lcm::LCM lcm_;

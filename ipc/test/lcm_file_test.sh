@@ -24,4 +24,32 @@ fi
 grep -Eq "cannot decode a (pose_t on STILLPOINT_STATUS|status_t on STILLPOINT_POSE)" "$work/swapped.out" \
   || { echo "FAIL: unclear error for a schema mismatch:"; cat "$work/swapped.out"; exit 1; }
 echo "schema mismatch reported: $(grep -m1 decode "$work/swapped.out")"
+# A status whose thread count its bytes cannot hold (-1): the generated decoder
+# throws on it, and that must be a clear error, not an abort. The log is the
+# probe's with its first status made so (LCM log events: sync word, event
+# number, time, channel and data lengths, channel, data; big-endian).
+python3 - "$log" "$work/bad_count.lcmlog" <<'PY' || { echo "FAIL: writing the bad log"; exit 1; }
+import struct, sys
+data = open(sys.argv[1], "rb").read()
+at = 0
+while at < len(data):
+    sync, number, utime, clen, dlen = struct.unpack_from(">IqqII", data, at)
+    assert sync == 0xEDA1DA01, "not an LCM log"
+    channel = data[at + 28:at + 28 + clen]
+    body = bytearray(data[at + 28 + clen:at + 28 + clen + dlen])
+    if channel == b"STILLPOINT_STATUS":
+        struct.pack_into(">h", body, 60, -1)  # num_threads, after 52 bytes of fields and 8 of fingerprint
+        out = struct.pack(">IqqII", sync, 0, utime, clen, len(body)) + channel + bytes(body)
+        open(sys.argv[2], "wb").write(out)
+        break
+    at += 28 + clen + dlen
+else:
+    sys.exit("no status in the log")
+PY
+"$bin/stillpoint-echo" --lcm --url "file://$work/bad_count.lcmlog?speed=0" --seconds 5 >"$work/bad_count.out" 2>&1
+rc=$?
+[ "$rc" -eq 1 ] || { echo "FAIL: a status with a bad count gave exit status $rc:"; cat "$work/bad_count.out"; exit 1; }
+grep -q "cannot decode a status_t on STILLPOINT_STATUS" "$work/bad_count.out" \
+  || { echo "FAIL: unclear error for a bad count:"; cat "$work/bad_count.out"; exit 1; }
+echo "bad count reported: $(grep -m1 decode "$work/bad_count.out")"
 echo "PASS"

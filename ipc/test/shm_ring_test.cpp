@@ -106,6 +106,48 @@ TEST_F(Ring, WriterRestartIsDetectedAndTheNewStreamRead) {
   EXPECT_EQ(out.frame_counter, 100u);
 }
 
+// A restarted writer whose ring cannot be attached at first (here another
+// file stands at the name for a moment) is still reported as a restart once
+// its ring can be read.
+TEST_F(Ring, ARestartAttachedLateIsStillARestart) {
+  auto w1 = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w1.ok());
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+  (*w1)->write(record(1));
+  sp_pose_record out;
+  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  w1.value().reset();
+  const std::string path = "/dev/shm/" + name_;
+  ::unlink(path.c_str());
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL, 0600);
+  ASSERT_GE(fd, 0);
+  ASSERT_EQ(::write(fd, "not a ring", 10), 10);
+  ::close(fd);
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_EMPTY);  // the new file is no ring: not attached
+  ::unlink(path.c_str());
+  auto w2 = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w2.ok()) << w2.error();
+  (*w2)->write(record(100));
+  EXPECT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_RESTARTED);
+  EXPECT_EQ(reader_.restarts, 1u);
+  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  EXPECT_EQ(out.frame_counter, 100u);
+}
+
+// A ring file cut short under the reader is let go before a read of the
+// missing part would fault (SIGBUS).
+TEST_F(Ring, ARingTruncatedUnderTheReaderIsLetGo) {
+  auto w = ShmPoseWriter::create(name_, 8);
+  ASSERT_TRUE(w.ok());
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+  ASSERT_EQ(::truncate(("/dev/shm/" + name_).c_str(), SP_SHM_HEADER_SIZE), 0);  // the header alone
+  sp_pose_record out;
+  int rc = SP_SHM_EMPTY;
+  for (int k = 0; k < 100 && rc == SP_SHM_EMPTY; ++k) rc = sp_shm_reader_next(&reader_, &out);
+  EXPECT_EQ(rc, SP_SHM_ERR_LAYOUT);
+  EXPECT_EQ(reader_.base, nullptr);
+}
+
 TEST_F(Ring, ReaderOpenedBeforeTheWriterAttachesLater) {
   sp_pose_record out;
   EXPECT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_OLDEST), SP_SHM_ERR_NO_RING);
@@ -242,7 +284,11 @@ TEST_F(Ring, ShmTransportAndSubscriberRoundTripObjects) {
   ASSERT_EQ(sp_shm_reader_open_objects(&reader_, name_.c_str(), SP_SHM_START_OLDEST), SP_SHM_ERR_NOT_A_RING);
   ASSERT_EQ(sp_shm_reader_open_objects(&reader_, (name_ + "_objects").c_str(), SP_SHM_START_OLDEST), SP_SHM_OK);
   EXPECT_EQ(sp_shm_reader_next(&reader_, &pose), SP_SHM_ERR_NOT_A_RING);
+  EXPECT_EQ(sp_shm_reader_latest(&reader_, &pose), SP_SHM_ERR_NOT_A_RING);
   ASSERT_EQ(sp_shm_reader_next_object(&reader_, &object), SP_SHM_OK);
+  // The same reader opened on the pose ring reads poses again.
+  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_OLDEST), SP_SHM_OK);
+  EXPECT_EQ(sp_shm_reader_next_object(&reader_, &object), SP_SHM_ERR_NOT_A_RING);
 }
 
 }  // namespace

@@ -47,12 +47,13 @@ std::optional<Timestamp> Timestamp::parseSeconds(std::string_view text) {
 }
 
 std::string Timestamp::toSecondsString() const {
-  const std::int64_t abs_ns = ns_ < 0 ? -ns_ : ns_;
-  // Round to microseconds.
-  const std::int64_t us = (abs_ns + 500) / 1000;
+  // The magnitude unsigned: every int64 has one (INT64_MIN's too), and
+  // rounding to microseconds cannot overflow it.
+  const std::uint64_t abs_ns = ns_ < 0 ? 0 - static_cast<std::uint64_t>(ns_) : static_cast<std::uint64_t>(ns_);
+  const std::uint64_t us = abs_ns / 1000 + (abs_ns % 1000 >= 500 ? 1 : 0);
   char buf[48];
-  std::snprintf(buf, sizeof(buf), "%s%lld.%06lld", ns_ < 0 ? "-" : "",
-                static_cast<long long>(us / 1'000'000), static_cast<long long>(us % 1'000'000));
+  std::snprintf(buf, sizeof(buf), "%s%llu.%06llu", ns_ < 0 ? "-" : "",
+                static_cast<unsigned long long>(us / 1'000'000), static_cast<unsigned long long>(us % 1'000'000));
   return buf;
 }
 

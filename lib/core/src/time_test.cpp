@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
+
 namespace stillpoint {
 namespace {
 
@@ -10,6 +12,17 @@ TEST(Timestamp, ParsesTumSecondsExactly) {
   ASSERT_TRUE(t.has_value());
   EXPECT_EQ(t->nanoseconds(), 1341841873273798000LL);
   EXPECT_EQ(t->toSecondsString(), "1341841873.273798");
+}
+
+// Any stamp a message may carry prints, rounded to microseconds: the
+// extremes of int64 too (a sender's garbage must not overflow the printer).
+TEST(Timestamp, EveryStampPrints) {
+  EXPECT_EQ(Timestamp::fromNanoseconds(-1'500).toSecondsString(), "-0.000002");
+  EXPECT_EQ(Timestamp::fromNanoseconds(1'499).toSecondsString(), "0.000001");
+  EXPECT_EQ(Timestamp::fromNanoseconds(std::numeric_limits<std::int64_t>::max()).toSecondsString(),
+            "9223372036.854776");
+  EXPECT_EQ(Timestamp::fromNanoseconds(std::numeric_limits<std::int64_t>::min()).toSecondsString(),
+            "-9223372036.854776");
 }
 
 TEST(Timestamp, RejectsMalformed) {
