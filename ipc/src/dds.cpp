@@ -95,6 +95,7 @@ Result<PoseMessage> fromDds(const stillpoint_dds_Pose& m) {
   p.health_causes = m.health_causes;
   p.mask_age_s = m.mask_age_s;
   std::copy(std::begin(m.covariance), std::end(m.covariance), p.covariance.begin());
+  if (Status v = validate(p); !v) return Error{"dds: " + v.error()};
   return p;
 }
 
@@ -155,6 +156,7 @@ Result<StatusMessage> fromDds(const stillpoint_dds_Status& m) {
     const auto& q = m.queues[i];
     s.queues.push_back({std::string(q.name, strnlen(q.name, sizeof(q.name))), q.depth, q.capacity, q.dropped});
   }
+  if (Status v = validate(s); !v) return Error{"dds: " + v.error()};
   return s;
 }
 

@@ -81,6 +81,7 @@ Result<PoseMessage> fromLcm(const stillpoint_lcm::pose_t& m) {
   p.health_causes = static_cast<std::uint16_t>(m.health_causes);
   p.mask_age_s = m.mask_age_s;
   std::copy(std::begin(m.covariance), std::end(m.covariance), p.covariance.begin());
+  if (Status v = validate(p); !v) return Error{"lcm: " + v.error()};
   return p;
 }
 

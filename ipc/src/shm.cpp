@@ -61,6 +61,7 @@ Result<PoseMessage> fromRecord(const sp_pose_record& r) {
   p.health_causes = static_cast<std::uint16_t>(r.health_causes);
   p.mask_age_s = r.mask_age_s;
   std::copy(std::begin(r.covariance), std::end(r.covariance), p.covariance.begin());
+  if (Status v = validate(p); !v) return Error{"shm: " + v.error()};
   return p;
 }
 

@@ -109,8 +109,9 @@ class WriterProcess {
       (void)!::write(fds[1], line.data(), line.size());
       ::close(fds[1]);
       if (!w) ::_exit(1);
-      sp_pose_record r{};
+      sp_pose_record r{};  // a pose at the origin, as subscribers accept it
       r.orientation[3] = 1.0;
+      r.tracking_state = SP_TRACKING_OK;
       while (!g_stop) {
         (*w)->write(r);
         ::usleep(1000);

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <cstring>
+#include <utility>
 
 #include "stillpoint/ipc/shm_writer.hpp"
 #include "stillpoint/ipc/transport.hpp"
@@ -230,6 +231,31 @@ TEST_F(Ring, ShmTransportAndSubscriberRoundTripAPose) {
   ASSERT_TRUE(n.ok()) << n.error();
   ASSERT_EQ(got.size(), 1u);
   EXPECT_EQ(got[0], p);
+}
+
+// A record that says "pose" without one (NaN position, a quaternion that is
+// not a unit one) is refused by the subscriber, as by the LCM and DDS ones:
+// nothing a consumer could take for a pose.
+TEST_F(Ring, ShmSubscriberRefusesAPoseThatIsNone) {
+  ShmOptions o;
+  o.name = name_;
+  auto t = makeShmTransport(o);
+  ASSERT_TRUE(t.ok()) << t.error();
+  PoseMessage no_position, long_quaternion;
+  no_position.state = long_quaternion.state = TrackingState::kOk;
+  no_position.orientation = {0.0, 0.0, 0.0, 1.0};
+  long_quaternion.position = {1.0, 2.0, 3.0};
+  long_quaternion.orientation = {0.0, 0.0, 0.0, 2.0};
+  const std::pair<PoseMessage, const char*> cases[] = {{no_position, "position is not finite"},
+                                                       {long_quaternion, "not a unit quaternion"}};
+  for (const auto& [pose, why] : cases) {
+    auto sub = makeShmSubscriber(o);  // from the newest record on
+    ASSERT_TRUE(sub.ok()) << sub.error();
+    ASSERT_TRUE((*t)->publishPose(pose).ok());
+    auto n = (*sub)->poll(std::chrono::milliseconds(100));
+    ASSERT_FALSE(n.ok()) << why;
+    EXPECT_NE(n.error().find(why), std::string::npos) << n.error();
+  }
 }
 
 // Objects travel in their own ring, one record per object: frames with

@@ -17,6 +17,10 @@ PoseMessage testPose(std::uint64_t k) {
   const double ax[3] = {0.267261241912424, 0.534522483824849, 0.801783725737273};  // unit axis
   p.orientation = {ax[0] * std::sin(half), ax[1] * std::sin(half), ax[2] * std::sin(half), std::cos(half)};
   p.state = static_cast<TrackingState>(k % 4);
+  if (!hasPose(p.state)) {  // initialising, lost: no pose, as every decoder insists
+    p.position.fill(std::numeric_limits<double>::quiet_NaN());
+    p.orientation.fill(std::numeric_limits<double>::quiet_NaN());
+  }
   p.tracked_features = static_cast<std::uint32_t>(400 + k % 700);
   p.dynamic_rejected_features = static_cast<std::uint32_t>(k % 37);
   p.keyframes = static_cast<std::uint32_t>(k / 10);
