@@ -2,7 +2,8 @@
 # The consumer kit's plain-Python reader (ipc/examples/read_poses.py) reads the
 # poses stillpointd writes to the shared-memory ring while it replays the real
 # excerpt: every line has a state and a health, and tracked frames a pose; with
-# --objects it reads the dynamic-objects ring beside it, one line per frame.
+# --objects it reads the dynamic-objects ring beside it, one line per frame; a
+# writer restarted under it is followed to its new ring.
 # Skips (77) without python3 or the excerpt.
 # usage: consumer_kit_test.sh BIN_DIR SOURCE_DIR DATA_DIR WORK_DIR
 set -uo pipefail
@@ -40,4 +41,20 @@ with_sigma=$(grep -cE "state=ok health=[a-z]* map=0 p=\[.* sigma_m=\[0\.0*[1-9][
 [[ $with_sigma -eq $with_pose ]] || { head "$work/poses.txt"; fail "$with_sigma of $with_pose poses with a covariance"; }
 # Frames arrive in order.
 awk '{ split($1, a, "="); if (NR > 1 && a[2] <= last) exit 1; last = a[2] }' "$work/poses.txt" || fail "frames out of order"
-echo "PASS: $lines poses read by the Python example, $with_pose tracked; $object_lines frames of objects"
+# A restarted writer (a new ring at the name): the reader goes on with it.
+probe_ring="sp_probe_kit$$"
+"$bin/ipc_probe" pub --transport shm --suffix "_kit$$" --count 200 --rate 200 > /dev/null 2>&1 &
+first=$!
+for _ in $(seq 1 100); do [[ -e /dev/shm/$probe_ring ]] && break; sleep 0.02; done
+python3 "$src/ipc/examples/read_poses.py" --name "$probe_ring" --count 250 --timeout 10 > "$work/restart.txt" \
+  2> "$work/restart.err" &
+reader=$!
+wait $first
+"$bin/ipc_probe" pub --transport shm --suffix "_kit$$" --count 200 --rate 200 > /dev/null 2>&1 ||
+  fail "the second probe failed"
+wait $reader || { cat "$work/restart.err"; fail "read_poses.py did not go on after the writer restarted"; }
+grep -q "the writer restarted" "$work/restart.err" || { cat "$work/restart.err"; fail "no restart reported"; }
+[[ $(grep -c "^frame=1 " "$work/restart.txt") -eq 1 ]] || fail "the new ring was not read from its first record"
+rm -f "/dev/shm/$probe_ring" "/dev/shm/$probe_ring.lock"
+echo "PASS: $lines poses read by the Python example, $with_pose tracked; $object_lines frames of objects;" \
+  "a restarted writer followed"

@@ -11,7 +11,8 @@ schema 4): a record is read between two equal even values of its slot's sequence
 record the writer is overwriting is never returned. Exit status: 0 after N poses, 1 when the
 ring is missing or not a pose ring of this schema, or nothing arrived within S seconds. As the C
 reader, it reads only a regular file owned by --owner (default: the user running it; name the
-daemon's user, e.g. stillpoint, when it runs as another one) whose size is its header's.
+daemon's user, e.g. stillpoint, when it runs as another one) whose size is its header's. When the
+daemon restarts (a new ring at the name), it goes on with the new ring from its first record.
 
 With --objects it reads the dynamic-objects ring next to it (RING_objects) instead: one line per
 frame with a pose, the frame's objects in the map frame (id, label, which module found it,
@@ -73,6 +74,7 @@ def open_ring(name, magic=MAGIC, owner=None):
         if st.st_size < HEADER_SIZE:
             raise ValueError(f"{path} is not a stillpoint ring (too short)")
         ring = mmap.mmap(fd, 0, prot=mmap.PROT_READ)
+        identity = (st.st_dev, st.st_ino)
     finally:
         os.close(fd)
     ring_magic, schema, header_size, record_size, slot_size, capacity = struct.unpack_from("<IHHIII", ring, 0)
@@ -83,7 +85,16 @@ def open_ring(name, magic=MAGIC, owner=None):
     if ((header_size, record_size, slot_size) != (HEADER_SIZE, RECORD_SIZE, SLOT_SIZE) or capacity < 1
             or capacity & (capacity - 1) or len(ring) != HEADER_SIZE + capacity * SLOT_SIZE):
         raise ValueError(f"{path} has an inconsistent layout")
-    return ring, capacity
+    return ring, capacity, identity
+
+
+def replaced(name, identity):
+    """Whether another file than the one read now stands at the ring's name (a restarted writer)."""
+    try:
+        st = os.lstat("/dev/shm/" + name)
+    except OSError:
+        return False  # gone for now: the writer may be restarting
+    return (st.st_dev, st.st_ino) != identity
 
 
 def write_count(ring):
@@ -110,21 +121,33 @@ def main():
     parser.add_argument("--objects", action="store_true", help="read the dynamic objects (RING_objects) instead")
     parser.add_argument("--owner", help="the user the ring must belong to (default: the user running this)")
     args = parser.parse_args()
+    name = args.name + "_objects" if args.objects else args.name
+    magic = OBJECTS_MAGIC if args.objects else MAGIC
     try:
-        ring, capacity = open_ring(args.name + "_objects" if args.objects else args.name,
-                                   OBJECTS_MAGIC if args.objects else MAGIC, args.owner)
+        ring, capacity, identity = open_ring(name, magic, args.owner)
     except (OSError, ValueError, struct.error) as e:
         print(f"read_poses: {e}", file=sys.stderr)
         return 1
     next_n = max(1, write_count(ring))
-    received, last_arrival = 0, time.monotonic()
+    received, last_arrival, last_look = 0, time.monotonic(), time.monotonic()
     frame_objects, frame_open, open_frame = [], False, None
     while args.count == 0 or received < args.count:
         newest = write_count(ring)
         if next_n > newest:
-            if time.monotonic() - last_arrival > args.timeout:
+            now = time.monotonic()
+            if now - last_arrival > args.timeout:
                 print(f"read_poses: nothing for {args.timeout} s", file=sys.stderr)
                 return 1
+            if now - last_look > 0.2:  # idle: now and then look for a restarted writer
+                last_look = now
+                if replaced(name, identity):
+                    try:
+                        ring, capacity, identity = open_ring(name, magic, args.owner)
+                    except (OSError, ValueError, struct.error):
+                        continue  # not ready yet: look again
+                    print("read_poses: the writer restarted; reading its new ring", file=sys.stderr)
+                    next_n, frame_open = 1, False
+                    continue
             time.sleep(0.002)
             continue
         if newest - next_n >= capacity:
