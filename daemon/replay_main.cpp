@@ -478,16 +478,14 @@ static int replayMain(int argc, char** argv) {
     if (args.known_movers) {
       // Every frame needs its mask: one missing would silently let its movers into the map.
       const auto mask = mover_masks.find(frame->stamp);
-      try {  // a header OpenCV refuses to decode (over 2^30 pixels) throws
-        if (mask != mover_masks.end()) movers = cv::imread(mask->second, cv::IMREAD_UNCHANGED);
-      } catch (const cv::Exception&) {
-        movers.release();
-      }
-      if (movers.empty()) {
-        std::fprintf(stderr, "stillpoint-replay: --known-movers: no readable mask for frame %zu (%s)\n", i,
-                     frame->stamp.toSecondsString().c_str());
+      auto read = mask != mover_masks.end() ? dataset::readImageFile("mover mask", mask->second, cv::IMREAD_UNCHANGED)
+                                            : Result<cv::Mat>(Error{"none in mask.txt"});
+      if (!read) {
+        std::fprintf(stderr, "stillpoint-replay: --known-movers: no readable mask for frame %zu (%s): %s\n", i,
+                     frame->stamp.toSecondsString().c_str(), read.error().c_str());
         return 1;
       }
+      movers = std::move(*read);
     }
     auto out = (*system)->track({frame->stamp, frame->gray, frame->depth_m, frame->bgr, movers});
     if (!out) {

@@ -421,8 +421,9 @@ TEST_F(ReplayCli, KnownMoversMissingMaskStopsTheRun) {
   EXPECT_TRUE(contains(r.err, "no readable mask for frame 4")) << describe(r);
 }
 
-// A mask whose PNG header promises more pixels than OpenCV decodes (it
-// throws rather than failing) stops the run as an unreadable one does.
+// A mask whose PNG header promises more pixels than OpenCV decodes (decoding
+// it would throw) is refused from its header, as frames are, and stops the
+// run as an unreadable one does.
 TEST_F(ReplayCli, KnownMoversMaskTooLargeToDecodeStopsTheRun) {
   ASSERT_NO_FATAL_FAILURE(writeMasks(seq_, cv::Size(seq_.camera.width, seq_.camera.height)));
   std::string ihdr("IHDR\0\0\x9c\x40\0\0\x9c\x40\x08\0\0\0\0", 17);  // 40000 x 40000, 8-bit grey

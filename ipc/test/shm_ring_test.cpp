@@ -39,6 +39,16 @@ class Ring : public testing::Test {
     (void)ShmPoseWriter::remove(name_);
     (void)ShmPoseWriter::remove(name_ + "_objects");
   }
+  // A writer that published record 1, which the reader read from its start,
+  // and then stopped cleanly.
+  void readFromAWriterThatStops() {
+    auto w = ShmPoseWriter::create(name_, 8);
+    ASSERT_TRUE(w.ok());
+    ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
+    (*w)->write(record(1));
+    sp_pose_record out;
+    ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
+  }
   std::string name_;
   sp_shm_reader reader_;
 };
@@ -87,14 +97,9 @@ TEST_F(Ring, OverrunSkipsToTheOldestSurvivorAndCountsTheLoss) {
 }
 
 TEST_F(Ring, WriterRestartIsDetectedAndTheNewStreamRead) {
-  auto w1 = ShmPoseWriter::create(name_, 8);
-  ASSERT_TRUE(w1.ok());
-  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
-  (*w1)->write(record(1));
-  sp_pose_record out;
-  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
-  w1.value().reset();
+  ASSERT_NO_FATAL_FAILURE(readFromAWriterThatStops());
   EXPECT_EQ(sp_shm_reader_writer_closed(&reader_), 1);
+  sp_pose_record out;
   auto w2 = ShmPoseWriter::create(name_, 8);
   ASSERT_TRUE(w2.ok()) << w2.error();
   EXPECT_EQ((*w2)->generation(), 2u);
@@ -111,13 +116,8 @@ TEST_F(Ring, WriterRestartIsDetectedAndTheNewStreamRead) {
 // file stands at the name for a moment) is still reported as a restart once
 // its ring can be read.
 TEST_F(Ring, ARestartAttachedLateIsStillARestart) {
-  auto w1 = ShmPoseWriter::create(name_, 8);
-  ASSERT_TRUE(w1.ok());
-  ASSERT_EQ(sp_shm_reader_open(&reader_, name_.c_str(), SP_SHM_START_LATEST), SP_SHM_OK);
-  (*w1)->write(record(1));
+  ASSERT_NO_FATAL_FAILURE(readFromAWriterThatStops());
   sp_pose_record out;
-  ASSERT_EQ(sp_shm_reader_next(&reader_, &out), SP_SHM_OK);
-  w1.value().reset();
   const std::string path = "/dev/shm/" + name_;
   ::unlink(path.c_str());
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL, 0600);

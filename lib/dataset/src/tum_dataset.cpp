@@ -384,4 +384,9 @@ Result<RgbdFrame> TumDataset::load(std::size_t i, SkipReason* reason) const {
   return frame;
 }
 
+Result<cv::Mat> readImageFile(const std::string& what, const std::string& path, int flags) {
+  if (auto e = headerSizeError(what, path, 0, 0)) return Error{*e};
+  return readExisting(what, path, flags);
+}
+
 }  // namespace stillpoint::dataset

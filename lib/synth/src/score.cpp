@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
-#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -11,6 +10,8 @@
 #include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
+
+#include "stillpoint/dataset/tum_dataset.hpp"
 
 namespace stillpoint::synth {
 namespace {
@@ -220,13 +221,10 @@ Result<SequenceScoreReport> scoreSequence(const std::string& sequence_dir, const
     if (it == masks.end()) {
       return Error{features_path + ": timestamp " + stamp.toSecondsString() + " is not in " + list.string()};
     }
-    cv::Mat mask;
-    try {
-      mask = cv::imread(it->second, cv::IMREAD_UNCHANGED);
-    } catch (const std::exception& e) {
-      return Error{"cannot read mask " + it->second + ": " + e.what()};
-    }
-    if (mask.empty() || mask.type() != CV_16UC1) return Error{"mask " + it->second + " is missing or not 16-bit"};
+    Result<cv::Mat> read = dataset::readImageFile("mask", it->second, cv::IMREAD_UNCHANGED);
+    if (!read) return Error{read.error()};
+    const cv::Mat& mask = *read;
+    if (mask.type() != CV_16UC1) return Error{"mask " + it->second + " is not 16-bit"};
     std::span<const std::uint16_t> still_ids;
     if (min_speed_m_s > 0) {
       auto st = still.find(stamp);

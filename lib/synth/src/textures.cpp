@@ -2,11 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
-#include <exception>
-#include <filesystem>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+
+#include "stillpoint/dataset/tum_dataset.hpp"
 
 namespace stillpoint::synth {
 namespace {
@@ -171,28 +171,12 @@ cv::Mat makeTexture(TextureStyle style, int width, int height, std::uint64_t see
   return cv::Mat(height, width, CV_8UC3, cv::Scalar(128, 128, 128));
 }
 
-namespace {
-
-// Reads an image with `flags`; `what` names the file's role in errors.
-Result<cv::Mat> readImage(const std::string& path, int flags, const std::string& what) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) return Error{what + " file '" + path + "' does not exist"};
-  cv::Mat img;
-  try {
-    img = cv::imread(path, flags);
-  } catch (const std::exception& e) {
-    return Error{what + " file '" + path + "': " + e.what()};
-  }
-  if (img.empty()) return Error{what + " file '" + path + "' is not a readable image"};
-  return img;
+Result<cv::Mat> loadPhoto(const std::string& path) {
+  return dataset::readImageFile("texture", path, cv::IMREAD_COLOR);
 }
 
-}  // namespace
-
-Result<cv::Mat> loadPhoto(const std::string& path) { return readImage(path, cv::IMREAD_COLOR, "texture"); }
-
 Result<cv::Mat> loadMask(const std::string& path) {
-  Result<cv::Mat> img = readImage(path, cv::IMREAD_GRAYSCALE, "mask");
+  Result<cv::Mat> img = dataset::readImageFile("mask", path, cv::IMREAD_GRAYSCALE);
   if (img.ok() && cv::countNonZero(*img >= 128) == 0)
     return Error{"mask file '" + path + "' keeps no pixel (none >= 128)"};
   return img;

@@ -44,6 +44,12 @@ enum class SkipReason {
 };
 const char* toString(SkipReason reason);
 
+// Reads an image file that must exist and decode to a non-empty image, as
+// the frames are read: a PNG or JPEG larger than any camera's image is
+// refused from its header before decoding, and nothing OpenCV throws
+// escapes. `what` names the file's role in the error ("mover mask").
+Result<cv::Mat> readImageFile(const std::string& what, const std::string& path, int flags);
+
 class TumDataset {
  public:
   // Reads and associates the lists. Errors name the file and, for content
