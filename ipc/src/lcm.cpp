@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cstring>
 #include <iterator>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -41,6 +42,35 @@ stillpoint_lcm::pose_t toLcm(const PoseMessage& p) {
   std::copy(p.covariance.begin(), p.covariance.end(), m.covariance);
   return m;
 }
+
+// The generated decoder sizes objects_t's array from its count before it
+// reads a single element: a 60-byte message counting 10^8 objects would
+// allocate and fill gigabytes before the decode fails. The count is the last
+// field before the array, and no object encodes to fewer bytes than one with
+// an empty label; both sizes are taken from the generated encoder. Returns
+// why the message cannot hold its count, or nothing.
+std::optional<std::string> countBeyondItsBytes(const stillpoint_lcm::objects_t*, const void* data, std::size_t size) {
+  static const std::size_t header = [] {
+    stillpoint_lcm::objects_t m{};
+    return static_cast<std::size_t>(m.getEncodedSize());  // with count 0: the hash and every field up to the count
+  }();
+  static const std::size_t element = [] {
+    stillpoint_lcm::objects_t m{};
+    m.count = 1;
+    m.objects.resize(1);
+    return static_cast<std::size_t>(m.getEncodedSize()) - header;
+  }();
+  if (size < header) return std::nullopt;  // too short for the fields: the decoder says so
+  const auto* bytes = static_cast<const unsigned char*>(data) + header - 4;
+  const std::int32_t count = static_cast<std::int32_t>((std::uint32_t{bytes[0]} << 24) | (std::uint32_t{bytes[1]} << 16) |
+                                                       (std::uint32_t{bytes[2]} << 8) | std::uint32_t{bytes[3]});
+  if (count >= 0 && static_cast<std::size_t>(count) <= (size - header) / element) return std::nullopt;
+  return ": its count of " + std::to_string(count) + " objects needs at least " + std::to_string(element) +
+         " bytes each, it has " + std::to_string(size - header);
+}
+// The status's arrays count in int16_t (at most 32767 small elements) and the
+// pose has none: the decoder's own checks are enough.
+std::optional<std::string> countBeyondItsBytes(const void*, const void*, std::size_t) { return std::nullopt; }
 
 template <typename T>
 Result<T> narrow(std::int64_t v, const char* field) {
@@ -272,6 +302,10 @@ class LcmSubscriber final : public Subscriber {
     };
     try {
       Wire m;
+      if (auto why = countBeyondItsBytes(&m, rbuf->data, rbuf->data_size)) {
+        cannot(*why);
+        return;
+      }
       if (m.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) < 0) {
         cannot(" (different schema?)");
         return;

@@ -28,7 +28,10 @@ echo "schema mismatch reported: $(grep -m1 decode "$work/swapped.out")"
 # throws on it, and that must be a clear error, not an abort. The log is the
 # probe's with its first status made so (LCM log events: sync word, event
 # number, time, channel and data lengths, channel, data; big-endian).
-python3 - "$log" "$work/bad_count.lcmlog" <<'PY' || { echo "FAIL: writing the bad log"; exit 1; }
+# usage: bad_count CHANNEL OFFSET FORMAT VALUE NAME: a log of the probe's first
+# message on CHANNEL with VALUE packed (struct FORMAT) at OFFSET of its data.
+bad_count() {
+  python3 - "$log" "$work/$5.lcmlog" "$1" "$2" "$3" "$4" <<'PY' || { echo "FAIL: writing the $5 log"; exit 1; }
 import struct, sys
 data = open(sys.argv[1], "rb").read()
 at = 0
@@ -37,19 +40,34 @@ while at < len(data):
     assert sync == 0xEDA1DA01, "not an LCM log"
     channel = data[at + 28:at + 28 + clen]
     body = bytearray(data[at + 28 + clen:at + 28 + clen + dlen])
-    if channel == b"STILLPOINT_STATUS":
-        struct.pack_into(">h", body, 60, -1)  # num_threads, after 52 bytes of fields and 8 of fingerprint
+    if channel == sys.argv[3].encode():
+        struct.pack_into(sys.argv[5], body, int(sys.argv[4]), int(sys.argv[6]))
         out = struct.pack(">IqqII", sync, 0, utime, clen, len(body)) + channel + bytes(body)
         open(sys.argv[2], "wb").write(out)
         break
     at += 28 + clen + dlen
 else:
-    sys.exit("no status in the log")
+    sys.exit("no message on " + sys.argv[3] + " in the log")
 PY
+}
+# num_threads, after 8 bytes of fingerprint and 52 of fields.
+bad_count STILLPOINT_STATUS 60 ">h" -1 bad_count
 "$bin/stillpoint-echo" --lcm --url "file://$work/bad_count.lcmlog?speed=0" --seconds 5 >"$work/bad_count.out" 2>&1
 rc=$?
 [ "$rc" -eq 1 ] || { echo "FAIL: a status with a bad count gave exit status $rc:"; cat "$work/bad_count.out"; exit 1; }
 grep -q "cannot decode a status_t on STILLPOINT_STATUS" "$work/bad_count.out" \
   || { echo "FAIL: unclear error for a bad count:"; cat "$work/bad_count.out"; exit 1; }
 echo "bad count reported: $(grep -m1 decode "$work/bad_count.out")"
+# Objects counting 20 million in a message of a few hundred bytes: the
+# generated decoder would size its array (about 2 GB) before finding the
+# bytes short. The subscriber must refuse the count first, naming it; under a
+# 1 GiB address-space limit an allocation would fail with another message.
+bad_count STILLPOINT_OBJECTS 44 ">i" 20000000 huge_count  # count, after 8 bytes of fingerprint and 36 of fields
+(ulimit -v 1048576 && exec "$bin/stillpoint-echo" --lcm --url "file://$work/huge_count.lcmlog?speed=0" --seconds 5) \
+  >"$work/huge_count.out" 2>&1
+rc=$?
+[ "$rc" -eq 1 ] || { echo "FAIL: objects with a huge count gave exit status $rc:"; cat "$work/huge_count.out"; exit 1; }
+grep -q "cannot decode an objects_t on STILLPOINT_OBJECTS: its count of 20000000 objects" "$work/huge_count.out" \
+  || { echo "FAIL: unclear error for a huge count:"; cat "$work/huge_count.out"; exit 1; }
+echo "huge count reported: $(grep -m1 decode "$work/huge_count.out")"
 echo "PASS"
