@@ -41,7 +41,7 @@ void writeBytes(const fs::path& p, const std::string& bytes) {
   std::ofstream(p, std::ios::binary | std::ios::trunc) << bytes;
 }
 
-constexpr std::uint32_t kVersion = 3;  // the format this build writes
+constexpr std::uint32_t kVersion = 4;  // the format this build writes
 
 // A map file's bytes with another payload: format version, payload size and
 // checksum in the 40-byte header made to match.
@@ -395,6 +395,47 @@ TEST_F(MapFile, AVersionOneFileIsReadWithoutSightings) {
   EXPECT_EQ(readBytes(again), good);
 }
 
+// Version 3 files named a sighting's map and cell by one key (the map id
+// from bit 54, 18 bits per coordinate); read, they keep both, and saved
+// again they are this build's file.
+TEST_F(MapFile, AVersionThreeFilesSightingsKeepTheirMapAndCell) {
+  const std::string good = readBytes(*map_path_);
+  ASSERT_GT(good.size(), 1000u);
+  const std::string payload = good.substr(40);
+  ASSERT_EQ(payload.substr(payload.size() - 8), std::string(8, '\0'));  // the suite's map has no sightings
+  const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x3ffff; };
+  const std::uint64_t one = 1, key = (bits(3) << 36) | (bits(-2) << 18) | bits(7);
+  const std::int32_t on_static = 3, in_movable = 1;
+  const std::int64_t first_ns = 1'000'000'000, last_ns = 4'000'000'000;
+  const auto put = [](std::string* out, const auto& v) {
+    out->append(reinterpret_cast<const char*>(&v), sizeof(v));
+  };
+  std::string v3 = payload.substr(0, payload.size() - 8);
+  put(&v3, one);
+  put(&v3, key);
+  put(&v3, on_static);
+  put(&v3, in_movable);
+  put(&v3, first_ns);
+  put(&v3, last_ns);
+  const fs::path old = *scratch_ / "version3.map";
+  writeBytes(old, resealed(good, v3, 3));
+  auto system = makeSystem(false);
+  const Status s = system->loadMap(old.string());
+  ASSERT_TRUE(s.ok()) << s.error();
+  EXPECT_EQ(system->mapStats().semantic_sighting_cells, 1u);
+  const fs::path again = *scratch_ / "version3-again.map";
+  ASSERT_TRUE(system->saveMap(again.string()).ok());
+  std::string v4 = payload.substr(0, payload.size() - 8);
+  put(&v4, one);
+  put(&v4, std::uint32_t{0});
+  for (std::int32_t c : {3, -2, 7}) put(&v4, c);
+  put(&v4, on_static);
+  put(&v4, in_movable);
+  put(&v4, first_ns);
+  put(&v4, last_ns);
+  EXPECT_EQ(readBytes(again), resealed(good, v4, kVersion));
+}
+
 TEST_F(MapFile, BadFilesAreErrorsNamingTheFile) {
   const fs::path path = *map_path_;
   const std::string good = readBytes(path);
@@ -433,12 +474,13 @@ TEST_F(MapFile, BadFilesAreErrorsNamingTheFile) {
   // the file ends with their count, 0).
   const std::string payload = good.substr(40);
   ASSERT_EQ(payload.substr(payload.size() - 8), std::string(8, '\0'));
-  std::string sighting(8 + 32, '\0');
-  const std::uint64_t one = 1, key = std::uint64_t{200} << 54;
+  std::string sighting(8 + 40, '\0');
+  const std::uint64_t one = 1;
+  const std::uint32_t map_200 = 200;
   const std::int32_t seen = 3;
   std::memcpy(&sighting[0], &one, 8);
-  std::memcpy(&sighting[8], &key, 8);
-  std::memcpy(&sighting[16], &seen, 4);
+  std::memcpy(&sighting[8], &map_200, 4);
+  std::memcpy(&sighting[24], &seen, 4);
   const fs::path foreign = *scratch_ / "sighting.map";
   writeBytes(foreign, resealed(good, payload.substr(0, payload.size() - 8) + sighting, kVersion));
   const Status s = makeSystem(false)->loadMap(foreign.string());

@@ -97,7 +97,7 @@ KeyFrame* Tracker::createKeyFrame() {
   for (const auto& [z, i] : by_depth) {
     if (z > close_depth_ && created >= options_.keyframes.min_new_points) break;
     auto p = map_->createPoint(kf->frame.unprojectToWorld(i), kf);
-    const bool where_masked = !masked_lately.empty() && nearPlace(masked_lately, map_id_, p->position);
+    const bool where_masked = !masked_lately.empty() && nearPlace(masked_lately, p->position);
     if (detector_) {
       p->geometry.on_mover = detector_->onKnownMover(i) || where_masked;
       p->geometry.probation =

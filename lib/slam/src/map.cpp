@@ -12,37 +12,35 @@ namespace stillpoint::slam {
 
 Eigen::Vector3i placeCell(const Vec3& p) { return (p / kPlaceCell).array().floor().cast<int>().matrix(); }
 
-std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& c) {
-  const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x3ffff; };  // 18 bits each
-  return (static_cast<std::uint64_t>(map_id & kPlaceMapMask) << 54) | (bits(c.x()) << 36) | (bits(c.y()) << 18) | bits(c.z());
+std::uint64_t cellKey(const Eigen::Vector3i& c) {
+  const auto bits = [](int v) { return static_cast<std::uint64_t>(v) & 0x1fffff; };  // 21 bits each
+  return (bits(c.x()) << 42) | (bits(c.y()) << 21) | bits(c.z());
 }
 
-bool nearPlace(const std::unordered_set<std::uint64_t>& places, std::uint32_t map_id, const Vec3& p) {
+Eigen::Vector3i cellOfKey(std::uint64_t key) {
+  const auto value = [key](int shift) {
+    const int v = static_cast<int>((key >> shift) & 0x1fffff);
+    return v >= (1 << 20) ? v - (1 << 21) : v;  // two's complement in 21 bits
+  };
+  return {value(42), value(21), value(0)};
+}
+
+bool nearPlace(const std::unordered_set<std::uint64_t>& places, const Vec3& p) {
   const Eigen::Vector3i c = placeCell(p);
   for (int dx = -1; dx <= 1; ++dx)
     for (int dy = -1; dy <= 1; ++dy)
       for (int dz = -1; dz <= 1; ++dz)
-        if (places.count(placeKey(map_id, c + Eigen::Vector3i(dx, dy, dz)))) return true;
+        if (places.count(cellKey(c + Eigen::Vector3i(dx, dy, dz)))) return true;
   return false;
-}
-
-namespace {
-Eigen::Vector3i cellOf(std::uint64_t key) {
-  const auto value = [key](int shift) {
-    const int v = static_cast<int>((key >> shift) & 0x3ffff);
-    return v >= (1 << 17) ? v - (1 << 18) : v;  // two's complement in 18 bits
-  };
-  return {value(36), value(18), value(0)};
-}
-}  // namespace
-
-std::uint64_t StaticSightings::key(std::uint32_t map_id, const Vec3& p) {
-  return placeKey(map_id, placeCell(p));
 }
 
 void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vector<Vec3>& on_static,
                           const std::vector<Vec3>& in_movable) {
-  if (cells_.size() > kMaxCells) cells_.clear();
+  if (cells_ > kMaxCells) {
+    maps_.clear();
+    cells_ = 0;
+  }
+  Cells& cells = maps_[map_id];
   // A sighting counts in the 2 x 2 x 2 cells whose centres surround it: a
   // surface lying on a cell border, seen a millimetre either side of it from
   // two keyframes, is one place.
@@ -51,10 +49,11 @@ void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vect
     for (const Vec3& p : points) {
       const Eigen::Vector3i base = (p / kPlaceCell - Vec3::Constant(0.5)).array().floor().cast<int>().matrix();
       for (int corner = 0; corner < 8; ++corner) {
-        const std::uint64_t k =
-            placeKey(map_id, base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
+        const std::uint64_t k = cellKey(base + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1));
         if (!seen.insert(k).second) continue;
-        Cell& c = cells_[k];
+        const auto [it, added] = cells.try_emplace(k);
+        cells_ += added;
+        Cell& c = it->second;
         ++(c.*kind);
         if (kind != &Cell::on_static) continue;
         // Stamps need not increase: a map file may come from a later recording.
@@ -68,26 +67,28 @@ void StaticSightings::add(std::uint32_t map_id, Timestamp stamp, const std::vect
 }
 
 bool StaticSightings::seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const {
-  const auto it = cells_.find(key(map_id, p));
-  if (it == cells_.end()) return false;
+  const auto map = maps_.find(map_id);
+  if (map == maps_.end()) return false;
+  const auto it = map->second.find(cellKey(placeCell(p)));
+  if (it == map->second.end()) return false;
   const Cell& c = it->second;
   return c.on_static >= min && c.on_static > c.in_movable &&
          secondsBetween(c.last_static, c.first_static) >= min_span_s;
 }
 
 void StaticSightings::moveMap(std::uint32_t from, std::uint32_t to, const SE3& T_to_from) {
-  std::vector<std::pair<std::uint64_t, Cell>> moved;
-  for (auto it = cells_.begin(); it != cells_.end();) {
-    if (mapOf(it->first) != (from & kPlaceMapMask)) {
-      ++it;
-      continue;
-    }
-    moved.emplace_back(it->first, it->second);
-    it = cells_.erase(it);
+  auto node = maps_.extract(from);
+  if (node.empty() || from == to) {
+    if (!node.empty()) maps_.insert(std::move(node));
+    return;
   }
-  for (const auto& [k, cell] : moved) {
-    const Vec3 centre = (cellOf(k).cast<double>() + Vec3::Constant(0.5)) * kPlaceCell;
-    Cell& c = cells_[key(to, T_to_from * centre)];
+  cells_ -= node.mapped().size();
+  Cells& into = maps_[to];
+  for (const auto& [k, cell] : node.mapped()) {
+    const Vec3 centre = (cellOfKey(k).cast<double>() + Vec3::Constant(0.5)) * kPlaceCell;
+    const auto [it, added] = into.try_emplace(cellKey(placeCell(T_to_from * centre)));
+    cells_ += added;
+    Cell& c = it->second;
     const bool had_static = c.on_static > 0;
     c.on_static += cell.on_static;
     c.in_movable += cell.in_movable;
@@ -95,6 +96,11 @@ void StaticSightings::moveMap(std::uint32_t from, std::uint32_t to, const SE3& T
     if (!had_static || cell.first_static < c.first_static) c.first_static = cell.first_static;
     if (!had_static || c.last_static < cell.last_static) c.last_static = cell.last_static;
   }
+}
+
+void StaticSightings::restore(std::uint32_t map_id, const Eigen::Vector3i& cell, const Cell& c) {
+  const auto [it, added] = maps_[map_id].insert_or_assign(cellKey(cell), c);
+  cells_ += added;
 }
 
 bool KeyFrameIdLess::operator()(const KeyFrame* a, const KeyFrame* b) const { return a->id < b->id; }

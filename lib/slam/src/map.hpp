@@ -177,16 +177,17 @@ class KeyFrame {
   std::shared_ptr<PoseAnchor> anchor_;
 };
 
-// Places in a map's world are kept by 10 cm cell (StaticSightings, where the
-// last masks were: Tracker::recentlyMasked): the cell holding p, and one key
-// per cell and map (the low 10 bits of the map id, 18 bits per coordinate:
-// a map 1024 maps after another shares its keys).
+// Places in a map's world are kept by 10 cm cell (StaticSightings, and where
+// the last masks were: Tracker::recentlyMasked): the cell holding p, and its
+// key within one map (21 bits per coordinate: cells within 104 km of the
+// map's origin have keys of their own).
 constexpr double kPlaceCell = 0.1;  // m
-constexpr std::uint32_t kPlaceMapMask = 0x3ff;
 Eigen::Vector3i placeCell(const Vec3& p);
-std::uint64_t placeKey(std::uint32_t map_id, const Eigen::Vector3i& cell);
-// Whether the cell of p, or one of its 26 neighbours, is among `places`.
-bool nearPlace(const std::unordered_set<std::uint64_t>& places, std::uint32_t map_id, const Vec3& p);
+std::uint64_t cellKey(const Eigen::Vector3i& cell);
+Eigen::Vector3i cellOfKey(std::uint64_t key);
+// Whether the cell of p, or one of its 26 neighbours, is among `places`
+// (cell keys of one map).
+bool nearPlace(const std::unordered_set<std::uint64_t>& places, const Vec3& p);
 
 // Where the semantic module saw objects of static classes (a teddy bear, a
 // chair) and movers, per map and 10 cm cell of its world: how many segmented
@@ -215,18 +216,20 @@ class StaticSightings {
   bool seenStanding(std::uint32_t map_id, const Vec3& p, int min, double min_span_s) const;
   // Map `from` joined map `to`, its world moved by T_to_from (a merge).
   void moveMap(std::uint32_t from, std::uint32_t to, const SE3& T_to_from);
-  std::size_t cells() const { return cells_.size(); }
-  // The cells by key (map files): each key names a map (mapOf) and a cell.
-  const std::unordered_map<std::uint64_t, Cell>& byKey() const { return cells_; }
-  static std::uint32_t mapOf(std::uint64_t key) { return static_cast<std::uint32_t>(key >> 54); }
-  void restore(std::uint64_t key, const Cell& cell) { cells_[key] = cell; }
+  std::size_t cells() const { return cells_; }
+  // Each map's cells by cellKey (map files). Maps are kept apart by their
+  // whole id: a map started thousands of losses into a run shares no cell
+  // with the first.
+  using Cells = std::unordered_map<std::uint64_t, Cell>;
+  const std::unordered_map<std::uint32_t, Cells>& byMap() const { return maps_; }
+  void restore(std::uint32_t map_id, const Eigen::Vector3i& cell, const Cell& c);
 
  private:
-  static std::uint64_t key(std::uint32_t map_id, const Vec3& p);
   // Bounded: past kMaxCells (a building's worth of surface many times over)
   // the memory starts afresh.
   static constexpr std::size_t kMaxCells = 1u << 21;
-  std::unordered_map<std::uint64_t, Cell> cells_;
+  std::unordered_map<std::uint32_t, Cells> maps_;
+  std::size_t cells_ = 0;
 };
 
 class Map;

@@ -158,16 +158,20 @@ Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& level
     }
   }
 
-  // Sightings by key, so that one map gives one file.
-  const auto& cells = map.staticSightings().byKey();
-  std::vector<std::uint64_t> keys;
-  keys.reserve(cells.size());
-  for (const auto& [k, cell] : cells) keys.push_back(k);
+  // Sightings by map and cell key, so that one map gives one file.
+  const auto& maps = map.staticSightings().byMap();
+  std::vector<std::pair<std::uint32_t, std::uint64_t>> keys;
+  for (const auto& [map_id, cells] : maps)
+    for (const auto& [k, cell] : cells) keys.emplace_back(map_id, k);
   std::sort(keys.begin(), keys.end());
   w.put<std::uint64_t>(keys.size());
-  for (std::uint64_t k : keys) {
-    const StaticSightings::Cell& cell = cells.at(k);
-    w.put<std::uint64_t>(k);
+  for (const auto& [map_id, k] : keys) {
+    const StaticSightings::Cell& cell = maps.at(map_id).at(k);
+    const Eigen::Vector3i c = cellOfKey(k);
+    w.put<std::uint32_t>(map_id);
+    w.put<std::int32_t>(c.x());
+    w.put<std::int32_t>(c.y());
+    w.put<std::int32_t>(c.z());
     w.put<std::int32_t>(cell.on_static);
     w.put<std::int32_t>(cell.in_movable);
     w.put<std::int64_t>(cell.first_static.nanoseconds());
@@ -376,24 +380,42 @@ Status loadMap(const std::string& path, const CameraModel& camera, const LevelIn
   }
   if (version >= 2) {
     std::uint64_t n_cells = 0;
-    constexpr std::size_t kCellBytes = 8 + 4 + 4 + 8 + 8;
-    if (!r.get(&n_cells) || !r.fits(n_cells, kCellBytes)) return error("bad sightings count");
+    // Versions 2 and 3 name a cell by one key: the map id from bit 54 up,
+    // 18 bits per coordinate below.
+    const std::size_t cell_bytes = (version >= 4 ? 4 + 3 * 4 : 8) + 4 + 4 + 8 + 8;
+    if (!r.get(&n_cells) || !r.fits(n_cells, cell_bytes)) return error("bad sightings count");
     for (std::uint64_t k = 0; k < n_cells; ++k) {
-      std::uint64_t key = 0;
+      std::uint32_t map_id = 0;
+      Eigen::Vector3i cell;
+      if (version >= 4) {
+        r.get(&map_id);
+        r.get(&cell.x());
+        r.get(&cell.y());
+        r.get(&cell.z());
+      } else {
+        std::uint64_t key = 0;
+        r.get(&key);
+        map_id = static_cast<std::uint32_t>(key >> 54);
+        const auto value = [key](int shift) {
+          const int v = static_cast<int>((key >> shift) & 0x3ffff);
+          return v >= (1 << 17) ? v - (1 << 18) : v;
+        };
+        cell = {value(36), value(18), value(0)};
+      }
       std::int32_t on_static = 0, in_movable = 0;
       std::int64_t first_ns = 0, last_ns = 0;
-      r.get(&key);
       r.get(&on_static);
       r.get(&in_movable);
       r.get(&first_ns);
       r.get(&last_ns);
       constexpr std::int64_t kMaxNs = Timestamp::kMaxSeconds * 1'000'000'000LL;
-      if (r.failed() || StaticSightings::mapOf(key) >= std::max(maps_started, 1u) || on_static < 0 ||
-          in_movable < 0 || first_ns < 0 || last_ns < first_ns || last_ns > kMaxNs)
+      constexpr int kMaxCell = (1 << 20) - 1;  // cellKey's range
+      if (r.failed() || map_id >= std::max(maps_started, 1u) || cell.cwiseAbs().maxCoeff() > kMaxCell ||
+          on_static < 0 || in_movable < 0 || first_ns < 0 || last_ns < first_ns || last_ns > kMaxNs)
         return error("bad sighting " + std::to_string(k));
-      map->staticSightings().restore(
-          key, StaticSightings::Cell{on_static, in_movable, Timestamp::fromNanoseconds(first_ns),
-                                     Timestamp::fromNanoseconds(last_ns)});
+      map->staticSightings().restore(map_id, cell,
+                                     StaticSightings::Cell{on_static, in_movable, Timestamp::fromNanoseconds(first_ns),
+                                                           Timestamp::fromNanoseconds(last_ns)});
     }
   }
   if (r.remaining() != 0) return error(std::to_string(r.remaining()) + " bytes after the end of the map");

@@ -14,10 +14,11 @@
 //            origin, stamp, T_c_w, parent, thumbnail, features: keypoint,
 //            undistorted position, depth, virtual right u, descriptor,
 //            point id or -1, dynamic cause, colour when the frame had one),
-//            then (version 2) the sightings (cell key, static and moving
-//            counts, first and last static stamp).
-// Version 1 files (no sightings) and version 2 files (no baseline and
-// distortion: not checked) are read too. A file that is truncated,
+//            then (version 2) the sightings (map id and cell, static and
+//            moving counts, first and last static stamp; versions 2 and 3
+//            name the map and cell by one 64-bit key, 10 bits of map id).
+// Version 1 files (no sightings), version 2 files (no baseline and
+// distortion: not checked) and version 3 files are read too. A file that is truncated,
 // corrupt, of another version or for another
 // camera is an error naming the file and what is wrong; the reader checks
 // every count and index against the bytes that remain, never trusts them.
@@ -28,7 +29,7 @@
 
 namespace stillpoint::slam {
 
-inline constexpr std::uint32_t kMapFormatVersion = 3;
+inline constexpr std::uint32_t kMapFormatVersion = 4;
 
 // Writes the map (caller holds the map's lock, shared at least).
 Status saveMap(const Map& map, const CameraModel& camera, const LevelInfo& levels, const std::string& path);

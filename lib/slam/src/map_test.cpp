@@ -167,21 +167,28 @@ TEST_F(CulledKeyFrames, AFileWhoseParentsFormACycleIsRefused) {
   std::remove(cycle.c_str());
 }
 
-// A place's key names its map: maps started hundreds of losses apart keep
-// their sightings apart, and a merge moves only its own map's cells.
+// Maps are kept apart by their whole id: maps started thousands of losses
+// apart keep their sightings apart, and a merge moves only its own map's
+// cells.
 TEST(StaticSightings, KeepTheMapsOfALongRunApart) {
-  const Eigen::Vector3i cell(3, -2, 7);
-  EXPECT_NE(placeKey(0, cell), placeKey(256, cell));
-  EXPECT_NE(placeKey(1, cell), placeKey(513, cell));
-  EXPECT_EQ(StaticSightings::mapOf(placeKey(700, cell)), 700u);
+  for (const Eigen::Vector3i& cell : {Eigen::Vector3i(3, -2, 7), Eigen::Vector3i(-(1 << 20) + 1, 0, (1 << 20) - 1)})
+    EXPECT_EQ(cellOfKey(cellKey(cell)), cell);
   StaticSightings sightings;
   const Vec3 p(0.35, -0.15, 0.75);
   for (int k = 0; k < 3; ++k)
-    sightings.add(300, Timestamp::fromNanoseconds(k * 1'000'000'000LL), {p}, {});
-  EXPECT_TRUE(sightings.seenStanding(300, p, 3, 1.0));
-  EXPECT_FALSE(sightings.seenStanding(44, p, 1, 0.0)) << "300 & 0xff";
-  sightings.moveMap(44, 45, SE3::Identity());
-  EXPECT_TRUE(sightings.seenStanding(300, p, 3, 1.0));
+    sightings.add(1024, Timestamp::fromNanoseconds(k * 1'000'000'000LL), {p}, {});
+  EXPECT_TRUE(sightings.seenStanding(1024, p, 3, 1.0));
+  for (std::uint32_t other : {0u, 256u, 2048u, 1024u + (1u << 22)})
+    EXPECT_FALSE(sightings.seenStanding(other, p, 1, 0.0)) << other;
+  sightings.moveMap(0, 1, SE3::Identity());
+  sightings.moveMap(2048, 1, SE3::Identity());
+  EXPECT_TRUE(sightings.seenStanding(1024, p, 3, 1.0));
+  EXPECT_FALSE(sightings.seenStanding(1, p, 1, 0.0));
+  const std::size_t cells = sightings.cells();
+  sightings.moveMap(1024, 5, SE3::Identity());
+  EXPECT_FALSE(sightings.seenStanding(1024, p, 1, 0.0));
+  EXPECT_TRUE(sightings.seenStanding(5, p, 3, 1.0));
+  EXPECT_EQ(sightings.cells(), cells);
 }
 
 TEST(MapPoint, ReferenceIsDroppedWithItsObservation) {

@@ -466,7 +466,7 @@ std::unordered_set<std::uint64_t> Tracker::recentlyMasked() const {
       last.map_id != map_id_ || current_.id - last.frame_id > options_.geometry.mover_probation_frames)
     return {};
   std::unordered_set<std::uint64_t> places;
-  for (const Vec3& x : last.points) places.insert(placeKey(map_id_, placeCell(x)));
+  for (const Vec3& x : last.points) places.insert(cellKey(placeCell(x)));
   return places;
 }
 

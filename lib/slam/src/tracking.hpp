@@ -204,9 +204,9 @@ class Tracker {
   KeyFrame* createKeyFrame();
   // Keeps where the current frame's masks keep features out, if anywhere.
   void noteMaskedPlaces();
-  // The places (placeKey) where masks kept features out in the last
-  // geometry.mover_probation_frames frames, for a frame without marks
-  // (empty: none such); a new point near one (nearPlace) is a mover's.
+  // The places (cellKey, in the current map) where masks kept features out
+  // in the last geometry.mover_probation_frames frames, for a frame without
+  // marks (empty: none such); a new point near one (nearPlace) is a mover's.
   std::unordered_set<std::uint64_t> recentlyMasked() const;
   // Frees the keyframes local mapping culled, after dropping our own pointers
   // to them (map lock held exclusively).
