@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
+#include <numbers>
 #include <unordered_set>
 #include <vector>
 
+#include "stillpoint/core/geometry.hpp"
 #include "stillpoint/features/descriptor.hpp"
 
 namespace stillpoint::slam {
@@ -448,6 +450,23 @@ bool offAlongView(const DepthOffset& offset) {
   constexpr int kMinSamples = 10;
   return offset.samples >= kMinSamples && std::abs(offset.metres) > kMaxOffsetM &&
          std::abs(offset.metres) > 3 * offset.standard_error;
+}
+
+int agreedPlacement(const std::vector<SE3>& poses_c_w, const std::vector<int>& inliers) {
+  constexpr double kAgreeM = 0.05, kAgreeRad = 3.0 * std::numbers::pi / 180.0;
+  int best = -1;
+  for (std::size_t a = 0; a < poses_c_w.size(); ++a) {
+    const SE3 w_c = poses_c_w[a].inverse();
+    bool agreed = false;
+    for (std::size_t b = 0; b < poses_c_w.size() && !agreed; ++b) {
+      if (b == a) continue;
+      const SE3 d = poses_c_w[b] * w_c;  // b's camera from a's
+      agreed = (poses_c_w[b].inverse().translation() - w_c.translation()).norm() < kAgreeM &&
+               rotationAngle(d.linear()) < kAgreeRad;
+    }
+    if (agreed && (best < 0 || inliers[a] > inliers[static_cast<std::size_t>(best)])) best = static_cast<int>(a);
+  }
+  return best;
 }
 
 DepthOffset depthOffset(const Frame& frame) {

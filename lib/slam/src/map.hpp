@@ -8,8 +8,8 @@
 //   masks) and tracking when it makes a map, inserts a keyframe or frees the
 //   culled ones.
 // - Under the shared lock, tracking reads the structure and writes only its
-//   own bookkeeping (MapPoint::visible, found, local_for_frame and
-//   geometry.probation; KeyFrame::local_for_frame), which other threads read
+//   own bookkeeping (MapPoint::visible, found, local_search and
+//   geometry.probation; KeyFrame::local_search), which other threads read
 //   only under the exclusive lock;
 //   MapPoint::geometry.dynamic_score is atomic (written by tracking, read by
 //   local mapping and the matcher). Tracking is the only thread that takes
@@ -102,7 +102,9 @@ class MapPoint {
     int checks = 0;
     int hits = 0;
   } semantic;
-  std::int64_t local_for_frame = -1;  // tracking's local-map bookkeeping
+  // Tracking's local-map bookkeeping: the last local-map search that gathered
+  // it (Tracker::updateLocalMap numbers them; a frame may search more than once).
+  std::int64_t local_search = -1;
   bool isTemporary() const { return id < 0; }
   // A temporary point of a frame's feature i (from its depth): the motion
   // model's odometry, or with `mover_evidence` evidence of a feature found
@@ -148,8 +150,8 @@ class KeyFrame {
   bool bad = false;  // culled: out of the graph, freed by Map::releaseCulledKeyFrames()
   std::shared_ptr<const PoseAnchor> anchor() const { return anchor_; }
 
-  // Bookkeeping of the local-map search.
-  std::int64_t local_for_frame = -1;
+  // Bookkeeping of the local-map search (as MapPoint::local_search).
+  std::int64_t local_search = -1;
   std::int64_t ba_local_for = -1, ba_fixed_for = -1;
 
   // Points tracking found on moving surfaces since the previous keyframe;
@@ -378,5 +380,12 @@ DepthOffset depthOffset(const Frame& frame);
 // it, beyond 3 standard errors, with at least 10 of them: a place found for
 // the frame (relocalisation, a map merge's lookup) is refused then.
 bool offAlongView(const DepthOffset& offset);
+
+// Of the poses that several keyframes' local maps gave one lost frame, the
+// one to take: among the poses that another one places within 5 cm and
+// 3 degrees, the one with the most inliers (`inliers[k]` is pose k's). A
+// single keyframe's pose can be wrong by much more than its inliers' spread
+// when a mover pulls it; two keyframes seldom err alike. -1 when no two agree.
+int agreedPlacement(const std::vector<SE3>& poses_c_w, const std::vector<int>& inliers);
 
 }  // namespace stillpoint::slam

@@ -359,5 +359,31 @@ TEST(DepthOffset, TellsAPoseOffAlongTheViewFromTheInliersDepth) {
   EXPECT_EQ(depthOffset(f).samples, 0);
 }
 
+// A lost frame placed by several keyframes: the best supported of the poses
+// another one agrees with, not a lone pose with more inliers.
+TEST(AgreedPlacement, TakesTheBestSupportedPoseThatAnotherAgreesWith) {
+  const auto camera_at = [](const Vec3& centre, double yaw_deg) {
+    SE3 T_w_c = SE3::Identity();
+    T_w_c.linear() = Eigen::AngleAxisd(yaw_deg * M_PI / 180, Vec3::UnitY()).toRotationMatrix();
+    T_w_c.translation() = centre;
+    return SE3(T_w_c.inverse());
+  };
+  const Vec3 c(1.0, -0.2, 2.0);
+  const SE3 right = camera_at(c, 30), near = camera_at(c + Vec3(0.02, 0.01, -0.02), 31.5);
+  const SE3 sideways = camera_at(c + Vec3(0.15, 0, 0), 28), turned = camera_at(c, 34);
+  EXPECT_EQ(agreedPlacement({right, sideways, near}, {90, 250, 120}), 2);
+  EXPECT_EQ(agreedPlacement({right, sideways, near}, {130, 250, 120}), 0);
+  // 4 degrees turned, or 15 cm away: no agreement.
+  EXPECT_EQ(agreedPlacement({right, turned}, {90, 80}), -1);
+  EXPECT_EQ(agreedPlacement({right, sideways}, {90, 80}), -1);
+  // The cameras' centres are compared: 2 degrees about the same centre 2.2 m
+  // from the origin move T_c_w's translation by 7.7 cm.
+  const SE3 same_centre = camera_at(c, 32);
+  ASSERT_GT((same_centre.translation() - right.translation()).norm(), 0.07);
+  EXPECT_EQ(agreedPlacement({right, same_centre}, {90, 80}), 0);
+  EXPECT_EQ(agreedPlacement({right}, {90}), -1);
+  EXPECT_EQ(agreedPlacement({}, {}), -1);
+}
+
 }  // namespace
 }  // namespace stillpoint::slam

@@ -117,6 +117,20 @@ void Tracker::switchToMap(std::uint32_t id) {
 }
 
 bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
+  // Every candidate is tried, each with its own local map, and the frame is
+  // placed where two of them agree (agreedPlacement): under a mover one
+  // keyframe's local map can hold a pose centimetres off with enough inliers
+  // (cover_on_a_saved_map: 58 inliers, 15 cm sideways), and no other
+  // keyframe places the frame there. A single candidate has none to agree
+  // with: its pose is taken.
+  struct Placement {
+    KeyFrame* keyframe;
+    SE3 T_c_w;
+    std::vector<std::shared_ptr<MapPoint>> points;
+    std::vector<char> outlier;
+    int inliers;
+  };
+  std::vector<Placement> placements;
   for (KeyFrame* kf : candidates) {
     current_.clearMatches();
     if (searchByDescriptor(&current_, *kf, 0.75f) < 15) continue;
@@ -125,31 +139,51 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     discardOutliers();
     // Widen to the local map around the candidate.
     reference_ = kf;
-    if (trackLocalMap(options_.tracking.min_inliers_after_reloc)) {
-      // Where the view is far and a mover covers the near part, the pose fit
-      // can settle centimetres off along the view on the far points alone
-      // (their reprojections barely move), steered by a few of the mover's
-      // features that matched by chance. The far points' depth tells: their
-      // median offset from the map, which a correct pose keeps at the
-      // depth's own bias (within 1.2 cm on the generated sequences' correct
-      // relocalisations, 5.4-12.8 cm on the wrong ones). The next candidate,
-      // or the next frame, may see more.
-      const DepthOffset offset = depthOffset(current_);
-      if (offAlongView(offset)) {
-        SP_INFO(logger, "frame " << current_.id << ": relocalisation against keyframe " << kf->id
-                                 << " refused: its inliers' depth puts the camera " << offset.metres
-                                 << " m (+-" << offset.standard_error << ") along the view from the pose");
-        ++relocalisations_refused_;
-        continue;
-      }
-      last_reloc_frame_id_ = current_.id;
-      if (kf->map_id != map_->activeMapId()) switch_to_map_ = kf->map_id;
-      SP_INFO(logger, "frame " << current_.id << ": relocalised against keyframe " << kf->id << " with "
-                               << inliers_ << " inliers");
-      return true;
+    if (!trackLocalMap(options_.tracking.min_inliers_after_reloc)) continue;
+    // Where the view is far and a mover covers the near part, the pose fit
+    // can settle centimetres off along the view on the far points alone
+    // (their reprojections barely move), steered by a few of the mover's
+    // features that matched by chance. The far points' depth tells: their
+    // median offset from the map, which a correct pose keeps at the depth's
+    // own bias (within 1.2 cm on the generated sequences' correct
+    // relocalisations, 5.4-12.8 cm on the wrong ones).
+    const DepthOffset offset = depthOffset(current_);
+    if (offAlongView(offset)) {
+      SP_INFO(logger, "frame " << current_.id << ": relocalisation against keyframe " << kf->id
+                               << " refused: its inliers' depth puts the camera " << offset.metres << " m (+-"
+                               << offset.standard_error << ") along the view from the pose");
+      ++relocalisations_refused_;
+      continue;
     }
+    SP_DEBUG(logger, "frame " << current_.id << ": keyframe " << kf->id << " places it with " << inliers_
+                              << " inliers at " << current_.T_c_w.inverse().translation().transpose());
+    placements.push_back({kf, current_.T_c_w, current_.points, current_.outlier, inliers_});
   }
-  return false;
+  int chosen = candidates.size() == 1 && placements.size() == 1 ? 0 : -1;
+  if (placements.size() > 1) {
+    std::vector<SE3> poses;
+    std::vector<int> inliers;
+    for (const Placement& p : placements) poses.push_back(p.T_c_w), inliers.push_back(p.inliers);
+    chosen = agreedPlacement(poses, inliers);
+  }
+  if (chosen < 0) {
+    if (!placements.empty())
+      SP_INFO(logger, "frame " << current_.id << ": relocalisation refused: " << placements.size()
+                               << " keyframe(s) placed it, no two alike");
+    current_.clearMatches();
+    return false;
+  }
+  Placement& p = placements[static_cast<std::size_t>(chosen)];
+  current_.T_c_w = p.T_c_w;
+  current_.points = std::move(p.points);
+  current_.outlier = std::move(p.outlier);
+  inliers_ = p.inliers;
+  reference_ = p.keyframe;
+  last_reloc_frame_id_ = current_.id;
+  if (p.keyframe->map_id != map_->activeMapId()) switch_to_map_ = p.keyframe->map_id;
+  SP_INFO(logger, "frame " << current_.id << ": relocalised against keyframe " << p.keyframe->id << " with "
+                           << inliers_ << " inliers (" << placements.size() << " keyframe(s) placed it)");
+  return true;
 }
 
 Tracker::StaticSupport Tracker::staticSupport(const SE3& predicted) const {

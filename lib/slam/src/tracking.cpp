@@ -597,6 +597,10 @@ bool Tracker::trackReferenceKeyFrame() {
 
 void Tracker::updateLocalMap() {
   ScopedStageTimer timer(&times_.local_map);
+  // Marks are per search, not per frame: relocalisation tries several
+  // keyframes' local maps in one frame, and tracking's fallbacks search again
+  // from another pose; each search gathers its whole local map.
+  const std::int64_t search = ++local_searches_;
   std::unordered_map<KeyFrame*, int> votes;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
@@ -612,15 +616,15 @@ void Tracker::updateLocalMap() {
     // points the starved-frame rules fall back on.
     std::erase_if(local_keyframes_, [](const KeyFrame* kf) { return kf->bad; });
     std::erase_if(local_points_, [](const auto& p) { return p->bad; });
-    for (KeyFrame* kf : local_keyframes_) kf->local_for_frame = current_.id;
-    for (const auto& p : local_points_) p->local_for_frame = current_.id;
+    for (KeyFrame* kf : local_keyframes_) kf->local_search = search;
+    for (const auto& p : local_points_) p->local_search = search;
     return;
   }
   local_keyframes_.clear();
   KeyFrame* best = nullptr;
   int best_votes = 0;
   for (const auto& [kf, n] : votes) {
-    kf->local_for_frame = current_.id;
+    kf->local_search = search;
     local_keyframes_.push_back(kf);
     if (n > best_votes || (n == best_votes && best && kf->id > best->id)) {
       best = kf;
@@ -633,8 +637,8 @@ void Tracker::updateLocalMap() {
   const std::size_t direct = local_keyframes_.size();
   for (std::size_t k = 0; k < direct && local_keyframes_.size() < max_kfs; ++k) {
     auto add = [&](KeyFrame* n) {
-      if (!n || n->bad || n->local_for_frame == current_.id || local_keyframes_.size() >= max_kfs) return;
-      n->local_for_frame = current_.id;
+      if (!n || n->bad || n->local_search == search || local_keyframes_.size() >= max_kfs) return;
+      n->local_search = search;
       local_keyframes_.push_back(n);
     };
     for (KeyFrame* n : local_keyframes_[k]->bestNeighbours(10)) add(n);
@@ -646,8 +650,8 @@ void Tracker::updateLocalMap() {
   local_points_.clear();
   for (KeyFrame* kf : local_keyframes_) {
     for (const auto& p : kf->frame.points) {
-      if (!p || p->bad || p->local_for_frame == current_.id) continue;
-      p->local_for_frame = current_.id;
+      if (!p || p->bad || p->local_search == search) continue;
+      p->local_search = search;
       local_points_.push_back(p);
     }
   }

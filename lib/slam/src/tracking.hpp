@@ -263,6 +263,7 @@ class Tracker {
   // Relocalisation tries older keyframes in turn: the next window starts
   // below this id (wrapping to the newest).
   std::int64_t reloc_window_next_id_ = -1;
+  std::int64_t local_searches_ = 0;  // updateLocalMap's count: the marks of its searches
   SE3 velocity_ = SE3::Identity();
   bool has_velocity_ = false;
   // The velocity of the last frame whose pose stood on the map (not kept on
