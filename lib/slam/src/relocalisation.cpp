@@ -129,6 +129,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     std::vector<std::shared_ptr<MapPoint>> points;
     std::vector<char> outlier;
     int inliers;
+    std::vector<std::shared_ptr<MapPoint>> seen;
   };
   std::vector<Placement> placements;
   for (KeyFrame* kf : candidates) {
@@ -139,7 +140,8 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     discardOutliers();
     // Widen to the local map around the candidate.
     reference_ = kf;
-    if (!trackLocalMap(options_.tracking.min_inliers_after_reloc)) continue;
+    std::vector<std::shared_ptr<MapPoint>> seen;
+    if (!trackLocalMap(options_.tracking.min_inliers_after_reloc, &seen)) continue;
     // Where the view is far and a mover covers the near part, the pose fit
     // can settle centimetres off along the view on the far points alone
     // (their reprojections barely move), steered by a few of the mover's
@@ -157,7 +159,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     }
     SP_DEBUG(logger, "frame " << current_.id << ": keyframe " << kf->id << " places it with " << inliers_
                               << " inliers at " << current_.T_c_w.inverse().translation().transpose());
-    placements.push_back({kf, current_.T_c_w, current_.points, current_.outlier, inliers_});
+    placements.push_back({kf, current_.T_c_w, current_.points, current_.outlier, inliers_, std::move(seen)});
   }
   int chosen = candidates.size() == 1 && placements.size() == 1 ? 0 : -1;
   if (placements.size() > 1) {
@@ -179,6 +181,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
   current_.outlier = std::move(p.outlier);
   inliers_ = p.inliers;
   reference_ = p.keyframe;
+  countSightings(p.seen);  // the other candidates' poses were not the camera's
   last_reloc_frame_id_ = current_.id;
   if (p.keyframe->map_id != map_->activeMapId()) switch_to_map_ = p.keyframe->map_id;
   SP_INFO(logger, "frame " << current_.id << ": relocalised against keyframe " << p.keyframe->id << " with "

@@ -657,13 +657,14 @@ void Tracker::updateLocalMap() {
   }
 }
 
-bool Tracker::trackLocalMap(int min_inliers) {
+bool Tracker::trackLocalMap(int min_inliers, std::vector<std::shared_ptr<MapPoint>>* seen) {
   updateLocalMap();
+  std::vector<std::shared_ptr<MapPoint>> in_view_points;
   // Points already matched are seen; don't search them again.
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
     if (!p || p->isTemporary()) continue;
-    p->visible++;
+    in_view_points.push_back(p);
   }
   std::vector<std::shared_ptr<MapPoint>> candidates;
   candidates.reserve(local_points_.size());
@@ -690,7 +691,7 @@ bool Tracker::trackLocalMap(int min_inliers) {
     const float radius = current_.id < last_reloc_frame_id_ + 2 ? 5.0f : 3.0f;
     searchLocalPoints(&current_, candidates, radius, &in_view);
     for (std::size_t k = 0; k < candidates.size(); ++k)
-      if (in_view[k]) candidates[k]->visible++;
+      if (in_view[k]) in_view_points.push_back(candidates[k]);
   }
 
   timedOptimizePose();
@@ -700,10 +701,21 @@ bool Tracker::trackLocalMap(int min_inliers) {
     if (!p) continue;
     if (current_.outlier[i]) continue;
     if (p->isTemporary()) continue;
-    p->found++;
     if (!p->observations.empty()) ++inliers_;
   }
+  if (seen)
+    *seen = std::move(in_view_points);
+  else
+    countSightings(in_view_points);
   return inliers_ >= min_inliers;
+}
+
+void Tracker::countSightings(const std::vector<std::shared_ptr<MapPoint>>& seen) {
+  for (const auto& p : seen) p->visible++;
+  for (int i = 0; i < current_.size(); ++i) {
+    const auto& p = current_.points[i];
+    if (p && !current_.outlier[i] && !p->isTemporary()) p->found++;
+  }
 }
 
 bool Tracker::keepPredictedPoseOnStaticEvidence() {

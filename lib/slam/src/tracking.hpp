@@ -147,8 +147,12 @@ class Tracker {
   bool trackWithMotionModel(bool with_prior = true);
   bool trackReferenceKeyFrame();
   // Rebuilds the local map from the frame's matches first; a frame with no
-  // match left to vote keeps the last frame's (updateLocalMap).
-  bool trackLocalMap(int min_inliers);
+  // match left to vote keeps the last frame's (updateLocalMap). The points
+  // it searched in view count as seen (MapPoint::visible, found) at once, or,
+  // with `seen`, are only listed there: a relocalisation candidate's pose
+  // counts only if the frame takes it (countSightings).
+  bool trackLocalMap(int min_inliers, std::vector<std::shared_ptr<MapPoint>>* seen = nullptr);
+  void countSightings(const std::vector<std::shared_ptr<MapPoint>>& seen);
   // Stage 2 left too few inliers because movers were kept out: the pose on
   // the established static points (tracking.cpp). Sets starved_.
   bool keepPoseOnStaticEvidence();
