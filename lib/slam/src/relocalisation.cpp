@@ -129,7 +129,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     std::vector<std::shared_ptr<MapPoint>> points;
     std::vector<char> outlier;
     int inliers;
-    std::vector<std::shared_ptr<MapPoint>> seen;
+    std::vector<MapPoint*> seen;
   };
   std::vector<Placement> placements;
   for (KeyFrame* kf : candidates) {
@@ -140,7 +140,7 @@ bool Tracker::relocalise(const std::vector<KeyFrame*>& candidates) {
     discardOutliers();
     // Widen to the local map around the candidate.
     reference_ = kf;
-    std::vector<std::shared_ptr<MapPoint>> seen;
+    std::vector<MapPoint*> seen;
     if (!trackLocalMap(options_.tracking.min_inliers_after_reloc, &seen)) continue;
     // Where the view is far and a mover covers the near part, the pose fit
     // can settle centimetres off along the view on the far points alone

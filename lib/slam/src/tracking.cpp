@@ -657,14 +657,19 @@ void Tracker::updateLocalMap() {
   }
 }
 
-bool Tracker::trackLocalMap(int min_inliers, std::vector<std::shared_ptr<MapPoint>>* seen) {
+bool Tracker::trackLocalMap(int min_inliers, std::vector<MapPoint*>* seen) {
   updateLocalMap();
-  std::vector<std::shared_ptr<MapPoint>> in_view_points;
+  const auto sighted = [seen](MapPoint* p) {
+    if (seen)
+      seen->push_back(p);
+    else
+      p->visible++;
+  };
   // Points already matched are seen; don't search them again.
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];
     if (!p || p->isTemporary()) continue;
-    in_view_points.push_back(p);
+    sighted(p.get());
   }
   std::vector<std::shared_ptr<MapPoint>> candidates;
   candidates.reserve(local_points_.size());
@@ -691,7 +696,7 @@ bool Tracker::trackLocalMap(int min_inliers, std::vector<std::shared_ptr<MapPoin
     const float radius = current_.id < last_reloc_frame_id_ + 2 ? 5.0f : 3.0f;
     searchLocalPoints(&current_, candidates, radius, &in_view);
     for (std::size_t k = 0; k < candidates.size(); ++k)
-      if (in_view[k]) in_view_points.push_back(candidates[k]);
+      if (in_view[k]) sighted(candidates[k].get());
   }
 
   timedOptimizePose();
@@ -701,16 +706,13 @@ bool Tracker::trackLocalMap(int min_inliers, std::vector<std::shared_ptr<MapPoin
     if (!p) continue;
     if (current_.outlier[i]) continue;
     if (p->isTemporary()) continue;
+    if (!seen) p->found++;
     if (!p->observations.empty()) ++inliers_;
   }
-  if (seen)
-    *seen = std::move(in_view_points);
-  else
-    countSightings(in_view_points);
   return inliers_ >= min_inliers;
 }
 
-void Tracker::countSightings(const std::vector<std::shared_ptr<MapPoint>>& seen) {
+void Tracker::countSightings(const std::vector<MapPoint*>& seen) {
   for (const auto& p : seen) p->visible++;
   for (int i = 0; i < current_.size(); ++i) {
     const auto& p = current_.points[i];

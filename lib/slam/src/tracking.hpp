@@ -150,9 +150,10 @@ class Tracker {
   // match left to vote keeps the last frame's (updateLocalMap). The points
   // it searched in view count as seen (MapPoint::visible, found) at once, or,
   // with `seen`, are only listed there: a relocalisation candidate's pose
-  // counts only if the frame takes it (countSightings).
-  bool trackLocalMap(int min_inliers, std::vector<std::shared_ptr<MapPoint>>* seen = nullptr);
-  void countSightings(const std::vector<std::shared_ptr<MapPoint>>& seen);
+  // counts only if the frame takes it (countSightings, under the same map
+  // lock, so the points are still there).
+  bool trackLocalMap(int min_inliers, std::vector<MapPoint*>* seen = nullptr);
+  void countSightings(const std::vector<MapPoint*>& seen);
   // Stage 2 left too few inliers because movers were kept out: the pose on
   // the established static points (tracking.cpp). Sets starved_.
   bool keepPoseOnStaticEvidence();
